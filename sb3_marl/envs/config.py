@@ -1,0 +1,249 @@
+"""Configuration of the lane-change scenario: defaults, traffic densities and validation.
+
+Every key is in SI units (m, m/s, m/s², s, Hz) and named after its unit where it helps.
+A user's config is a plain dict merged over :func:`default_config`; :func:`validate_config`
+checks the merged dict once and raises a single ``ValueError`` that names the key, the value
+and what is allowed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from numbers import Integral, Real
+from typing import Any
+
+#: Traffic densities of the paper: inclusive (min, max) counts of AVs and of HDVs per episode.
+DENSITIES: dict[int, dict[str, tuple[int, int]]] = {
+    1: {"avs": (1, 3), "hdvs": (1, 3)},
+    2: {"avs": (2, 4), "hdvs": (2, 4)},
+    3: {"avs": (4, 6), "hdvs": (4, 6)},
+}
+
+#: Highway-env's rendering keys that the scenario keeps (used by ``EnvViewer``).
+RENDER_DEFAULTS: dict[str, Any] = {
+    "screen_width": 1200,  # [px]
+    "screen_height": 120,  # [px]
+    "centering_position": [0.3, 0.5],
+    "scaling": 3.0,  # [px/m]
+    "show_trajectories": False,
+    "render_agent": True,
+    "offscreen_rendering": None,
+    "manual_control": False,
+    "real_time_rendering": False,
+}
+
+
+def default_config() -> dict[str, Any]:
+    """The scenario of the paper, with the MARL_CAVs merging code's choices where the paper is silent."""
+    return {
+        # Traffic
+        "density": 1,  # 1, 2 or 3 (see DENSITIES)
+        "n_avs": None,  # AVs controlled by this instance; None -> the density's maximum
+        "hdv_count_range": None,  # [min, max] HDVs sampled per reset; None -> the density's range
+        # Road
+        "road_length": 520.0,  # [m]; vehicles beyond it are ignored (see LaneChangeEnv)
+        "lanes_count": 2,
+        "lane_width": 4.0,  # [m]
+        "speed_limit": 30.0,  # [m/s], caps the HDVs' IDM desired speed
+        # Spawn: slots on a grid along each lane, a random subset filled each reset
+        "spawn_start": 10.0,  # [m] position of the first slot
+        "spawn_spacing": 40.0,  # [m] between slots of a lane
+        "spawn_position_noise": 1.5,  # [m] uniform noise +- on each slot position
+        "spawn_slots_per_lane": 6,
+        "spawn_speed_range": [25.0, 30.0],  # [m/s] uniform initial speed of every vehicle
+        # Timing
+        "simulation_frequency": 15,  # [Hz]
+        "policy_frequency": 5,  # [Hz]
+        "duration": 20.0,  # [s] -> duration * policy_frequency policy steps
+        # AV actions (highway-env DiscreteMetaAction)
+        "target_speeds": [10.0, 15.0, 20.0, 25.0, 30.0],  # [m/s] set-points of FASTER/SLOWER
+        # HDVs: highway-env IDMVehicle (IDM) with MOBIL lane changes
+        "hdv_politeness": 0.0,  # MOBIL politeness p in [0, 1]
+        "hdv_b_safe": 9.0,  # [m/s²] MOBIL maximum braking imposed on the new follower
+        "hdv_lane_change_threshold": 0.1,  # [m/s²] MOBIL acceleration gain threshold
+        # Observation: ego row + the nearest (vehicles_count - 1) vehicles
+        "obs_vehicles_count": 5,
+        "obs_x_range": 150.0,  # [m] normalisation and perception range of relative x
+        "obs_y_range": 12.0,  # [m] normalisation of y
+        "obs_speed_range": 45.0,  # [m/s] normalisation of vx, vy
+        # Reward: w_s*r_s + w_d*r_d + w_v*r_v - w_c*r_c
+        "safety_weight": 200.0,
+        "headway_weight": 4.0,
+        "speed_weight": 1.0,
+        "comfort_weight": 1.0,
+        "comfort": True,  # False drops the comfort term (the paper's ablation)
+        "headway_time": 1.2,  # [s] t_d
+        "headway_max_distance": 60.0,  # [m] headway used when no leader is nearer
+        "reward_speed_range": [10.0, 30.0],  # [m/s] (v_min, v_max) of r_v
+        "harsh_acceleration_threshold": 3.0,  # [m/s²] a_th: |a| >= a_th is harsh
+        **RENDER_DEFAULTS,
+    }
+
+
+Check = Callable[[Any], bool]
+
+
+def _number(lo: float | None = None, hi: float | None = None, strict_lo: bool = False) -> tuple[Check, str]:
+    def check(v: Any) -> bool:
+        if isinstance(v, bool) or not isinstance(v, Real):
+            return False
+        if lo is not None and (v <= lo if strict_lo else v < lo):
+            return False
+        return hi is None or v <= hi
+
+    bound = "" if lo is None else (f" > {lo}" if strict_lo else f" >= {lo}")
+    bound += "" if hi is None else f" and <= {hi}"
+    return check, f"a number{bound}"
+
+
+def _integer(lo: int, hi: int | None = None) -> tuple[Check, str]:
+    def check(v: Any) -> bool:
+        return not isinstance(v, bool) and isinstance(v, Integral) and v >= lo and (hi is None or v <= hi)
+
+    return check, f"an integer >= {lo}" + ("" if hi is None else f" and <= {hi}")
+
+
+def _pair(lo: float, integer: bool = False) -> tuple[Check, str]:
+    def check(v: Any) -> bool:
+        if not isinstance(v, (list, tuple)) or len(v) != 2:
+            return False
+        kind = Integral if integer else Real
+        if any(isinstance(x, bool) or not isinstance(x, kind) for x in v):
+            return False
+        return lo <= v[0] <= v[1]
+
+    kind = "integers" if integer else "numbers"
+    return check, f"a pair [min, max] of {kind} with {lo} <= min <= max"
+
+
+def _boolean() -> tuple[Check, str]:
+    return (lambda v: isinstance(v, bool)), "true or false"
+
+
+def _speeds() -> tuple[Check, str]:
+    def check(v: Any) -> bool:
+        if not isinstance(v, (list, tuple)) or len(v) < 2:
+            return False
+        if any(isinstance(x, bool) or not isinstance(x, Real) or x < 0 for x in v):
+            return False
+        steps = [b - a for a, b in zip(v[:-1], v[1:])]
+        return all(s > 0 for s in steps) and max(steps) - min(steps) < 1e-6
+    return check, "an increasing, evenly spaced list of >= 2 speeds >= 0 (highway-env's MDPVehicle assumes even spacing)"
+
+
+def _any() -> tuple[Check, str]:
+    return (lambda v: True), "anything"
+
+
+_SCHEMA: dict[str, tuple[Check, str]] = {
+    "density": ((lambda v: not isinstance(v, bool) and v in DENSITIES), f"one of {sorted(DENSITIES)}"),
+    "n_avs": _integer(1),  # range against the density is checked below
+    "hdv_count_range": _pair(0, integer=True),
+    "road_length": _number(0, strict_lo=True),
+    "lanes_count": _integer(1),
+    "lane_width": _number(0, strict_lo=True),
+    "speed_limit": _number(0, strict_lo=True),
+    "spawn_start": _number(0),
+    "spawn_spacing": _number(0, strict_lo=True),
+    "spawn_position_noise": _number(0),
+    "spawn_slots_per_lane": _integer(1),
+    "spawn_speed_range": _pair(0),
+    "simulation_frequency": _integer(1),
+    "policy_frequency": _integer(1),
+    "duration": _number(0, strict_lo=True),
+    "target_speeds": _speeds(),
+    "hdv_politeness": _number(0, 1),
+    "hdv_b_safe": _number(0, strict_lo=True),
+    "hdv_lane_change_threshold": _number(0),
+    "obs_vehicles_count": _integer(1),
+    "obs_x_range": _number(0, strict_lo=True),
+    "obs_y_range": _number(0, strict_lo=True),
+    "obs_speed_range": _number(0, strict_lo=True),
+    "safety_weight": _number(0),
+    "headway_weight": _number(0),
+    "speed_weight": _number(0),
+    "comfort_weight": _number(0),
+    "comfort": _boolean(),
+    "headway_time": _number(0, strict_lo=True),
+    "headway_max_distance": _number(0, strict_lo=True),
+    "reward_speed_range": _pair(0),
+    "harsh_acceleration_threshold": _number(0, strict_lo=True),
+    "screen_width": _integer(1),
+    "screen_height": _integer(1),
+    "centering_position": _any(),
+    "scaling": _number(0, strict_lo=True),
+    "show_trajectories": _boolean(),
+    "render_agent": _boolean(),
+    "offscreen_rendering": ((lambda v: v is None or isinstance(v, bool)), "null, true or false"),
+    "manual_control": _boolean(),
+    "real_time_rendering": _boolean(),
+}
+
+
+def _fail(key: str, value: Any, allowed: str) -> ValueError:
+    return ValueError(f"Invalid config['{key}'] = {value!r}: expected {allowed}.")
+
+
+def validate_config(config: dict[str, Any]) -> None:
+    """Check a merged config; raise one ``ValueError`` naming the key, the value and what is allowed.
+
+    :param config: a full scenario config (defaults merged with overrides)
+    :raises ValueError: on an unknown key, a wrong type, a value out of range, or inconsistent keys
+    """
+    unknown = sorted(set(config) - set(_SCHEMA))
+    if unknown:
+        raise ValueError(
+            f"Unknown config key(s) {unknown}: allowed keys are {sorted(_SCHEMA)}."
+        )
+    for key, (check, allowed) in _SCHEMA.items():
+        value = config[key]
+        if key in ("n_avs", "hdv_count_range") and value is None:
+            continue
+        if not check(value):
+            raise _fail(key, value, allowed)
+
+    avs_lo, avs_hi = DENSITIES[config["density"]]["avs"]
+    if config["n_avs"] is not None and not avs_lo <= config["n_avs"] <= avs_hi:
+        raise _fail(
+            "n_avs", config["n_avs"],
+            f"an integer in [{avs_lo}, {avs_hi}], the AV range of density {config['density']}",
+        )
+    frames = config["simulation_frequency"] / config["policy_frequency"]
+    if frames != int(frames):
+        raise _fail(
+            "simulation_frequency", config["simulation_frequency"],
+            f"a multiple of policy_frequency = {config['policy_frequency']}",
+        )
+    lo, hi = config["reward_speed_range"]
+    if lo == hi:
+        raise _fail("reward_speed_range", config["reward_speed_range"], "a pair with min < max")
+    slots = config["lanes_count"] * config["spawn_slots_per_lane"]
+    n_avs = resolved_n_avs(config)
+    most_hdvs = resolved_hdv_range(config)[1]
+    if n_avs + most_hdvs > slots:
+        raise _fail(
+            "spawn_slots_per_lane", config["spawn_slots_per_lane"],
+            f"enough slots for {n_avs} AVs + {most_hdvs} HDVs on {config['lanes_count']} lanes "
+            f"(at least {-(-(n_avs + most_hdvs) // config['lanes_count'])} per lane)",
+        )
+    if config["spawn_spacing"] < 5.0 + 2 * config["spawn_position_noise"] + 1e-9:
+        raise _fail(
+            "spawn_position_noise", config["spawn_position_noise"],
+            f"at most (spawn_spacing - 5 m vehicle length) / 2 = {(config['spawn_spacing'] - 5.0) / 2} m "
+            "so that spawned vehicles never overlap",
+        )
+
+
+def resolved_n_avs(config: dict[str, Any]) -> int:
+    """Number of AVs of an instance: ``n_avs`` or, when unset, the density's maximum."""
+    if config["n_avs"] is not None:
+        return int(config["n_avs"])
+    return DENSITIES[config["density"]]["avs"][1]
+
+
+def resolved_hdv_range(config: dict[str, Any]) -> tuple[int, int]:
+    """Inclusive range of HDV counts sampled at each reset."""
+    if config["hdv_count_range"] is not None:
+        lo, hi = config["hdv_count_range"]
+        return int(lo), int(hi)
+    return DENSITIES[config["density"]]["hdvs"]

@@ -1,0 +1,240 @@
+"""The multi-agent lane-change scenario of Zhou, Chen et al. on highway-env."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from highway_env.envs.common.abstract import AbstractEnv
+from highway_env.envs.common.action import DiscreteMetaAction
+from highway_env.road.road import Road
+from highway_env.vehicle.controller import MDPVehicle
+
+from sb3_marl.envs import config as cfg
+from sb3_marl.envs.observation import observation_space, observe
+from sb3_marl.envs.reward import neighbour_matrix, reward_terms, total_reward
+from sb3_marl.envs.road import PrefilteredCollisionRoad, make_road, spawn_vehicles
+from sb3_marl.envs.traffic import TrafficSnapshot
+
+#: Meta-action index -> label, highway-env's ``DiscreteMetaAction`` numbering.
+ACTIONS: dict[int, str] = dict(DiscreteMetaAction.ACTIONS_ALL)
+ACTION_INDEX: dict[str, int] = {label: index for index, label in ACTIONS.items()}
+
+
+class LaneChangeEnv(AbstractEnv):
+    """One-way highway where ``n_avs`` AVs share the road with IDM/MOBIL human drivers.
+
+    - ``reset`` spawns ``n_avs`` AVs and a number of HDVs sampled from the density's range in
+      random grid slots (see :func:`~sb3_marl.envs.road.spawn_vehicles`) and returns
+      observations of shape ``(n_avs, obs_vehicles_count, 5)``.
+    - ``step(actions)`` takes an int array ``(n_avs,)`` of meta-actions
+      (0 LANE_LEFT, 1 IDLE, 2 LANE_RIGHT, 3 FASTER, 4 SLOWER), simulates
+      ``simulation_frequency / policy_frequency`` frames of 1 / simulation_frequency s and returns
+      the observations, the mean AV reward (the global reward, a scalar for gymnasium),
+      ``terminated``, ``truncated`` and an info dict of per-AV arrays (see :meth:`_info`).
+    - The episode terminates for all AVs as soon as any AV crashes. It is truncated after
+      ``duration * policy_frequency`` steps (100 by default).
+
+    Road end: the simulated lanes are ``road_length`` m long. A vehicle whose centre passes the
+    end has left the scenario: it can no longer collide, and it is dropped from every
+    observation, headway and neighbour set. HDVs that leave are removed. An AV that leaves keeps
+    driving, on the straight continuation of its lane and still under its policy, so its slot
+    goes on producing real transitions (its observation then shows no other vehicle ahead); the
+    episode is truncated early once every AV has left, since nothing remains to decide.
+    """
+
+    metadata = {"render_modes": ["human", "rgb_array"]}
+    road_class: type[Road] = PrefilteredCollisionRoad
+
+    def __init__(
+        self,
+        config: dict[str, Any] | None = None,
+        render_mode: str | None = None,
+        density: int | None = None,
+    ) -> None:
+        """
+        :param config: overrides merged over :func:`~sb3_marl.envs.config.default_config`
+        :param render_mode: None, ``"rgb_array"`` (headless) or ``"human"``
+        :param density: the registered id's traffic density; ``config["density"]`` wins if given
+        """
+        if density is not None:
+            config = {"density": density, **(config or {})}
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(
+                f"Invalid render_mode={render_mode!r}: expected one of {self.metadata['render_modes']} or None."
+            )
+        self.avs: list[MDPVehicle] = []
+        self.n_hdvs = 0
+        super().__init__(config=config, render_mode=render_mode)
+
+    @classmethod
+    def default_config(cls) -> dict[str, Any]:
+        return cfg.default_config()
+
+    def configure(self, config: dict[str, Any] | None) -> None:
+        """Merge ``config`` over the current config after validating the result."""
+        merged = {**self.config, **(config or {})}
+        cfg.validate_config(merged)
+        super().configure(config)
+
+    @property
+    def n_avs(self) -> int:
+        """Number of AVs controlled by this instance."""
+        return cfg.resolved_n_avs(self.config)
+
+    @property
+    def max_steps(self) -> int:
+        """Policy steps in a full episode."""
+        return int(round(self.config["duration"] * self.config["policy_frequency"]))
+
+    def define_spaces(self) -> None:
+        self.observation_space = observation_space(self.n_avs, self.config)
+        self.action_space = spaces.MultiDiscrete(np.full(self.n_avs, len(ACTIONS)))
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
+        """Spawn a new episode; ``options={"config": {...}}`` reconfigures first, as in highway-env."""
+        gym.Env.reset(self, seed=seed)
+        if options and "config" in options:
+            self.configure(options["config"])
+        self.update_metadata()
+        self.define_spaces()
+        self.time = self.steps = 0
+        self.done = False
+        self._reset()
+        snapshot = self._snapshot()
+        obs = observe(snapshot, self.config)
+        n = self.n_avs
+        zeros = np.zeros(n)
+        info = self._info(snapshot, zeros, np.zeros(n, dtype=bool), np.zeros(n, dtype=bool))
+        if self.render_mode == "human":
+            self.render()
+        return obs, info
+
+    def _reset(self) -> None:
+        self.road = make_road(self.config, self.np_random, self.road_class)
+        lo, hi = cfg.resolved_hdv_range(self.config)
+        self.n_hdvs = int(self.np_random.integers(lo, hi + 1))
+        self.avs, _ = spawn_vehicles(self.road, self.config, self.n_avs, self.n_hdvs, self.np_random)
+        self.controlled_vehicles = list(self.avs)
+        self._exited = np.zeros(self.n_avs, dtype=bool)
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
+        """Apply one meta-action per AV for 1 / policy_frequency s of simulation."""
+        if self.road is None:
+            raise RuntimeError("Call reset() before step().")
+        actions = self._check_actions(action)
+        speed_before = np.array([av.speed for av in self.avs])
+        lanes_before = [av.target_lane_index for av in self.avs]
+
+        frames = self.config["simulation_frequency"] // self.config["policy_frequency"]
+        dt = 1.0 / self.config["simulation_frequency"]
+        for frame in range(frames):
+            if frame == 0:
+                for av, a in zip(self.avs, actions):
+                    av.act(ACTIONS[int(a)])
+            self.road.act()
+            self.road.step(dt)
+            self.steps += 1
+            self._remove_exited()
+            if frame < frames - 1:
+                self._automatic_rendering()
+        self.enable_auto_render = False
+        self.time += 1.0 / self.config["policy_frequency"]
+
+        snapshot = self._snapshot()
+        acceleration = (snapshot.speed[: self.n_avs] - speed_before) * self.config["policy_frequency"]
+        lane_change = np.array([av.target_lane_index != before for av, before in zip(self.avs, lanes_before)])
+        crashed = np.array([av.crashed for av in self.avs])
+        info = self._info(snapshot, acceleration, lane_change, crashed)
+
+        terminated = bool(crashed.any())
+        truncated = not terminated and (self.steps_done >= self.max_steps or bool(self._exited.all()))
+        if self.render_mode == "human":
+            self.render()
+        return observe(snapshot, self.config), float(info["rewards"].mean()), terminated, truncated, info
+
+    @property
+    def steps_done(self) -> int:
+        """Policy steps taken in the current episode."""
+        return self.steps // (self.config["simulation_frequency"] // self.config["policy_frequency"])
+
+    def action_masks(self) -> np.ndarray:
+        """(n_avs, 5) bool: which meta-actions are available to each AV.
+
+        Same rule as highway-env's ``DiscreteMetaAction.get_available_actions``: IDLE always;
+        a lane change only towards an existing lane reachable from the AV's position; FASTER /
+        SLOWER unless the AV already tracks the highest / lowest target speed.
+        """
+        mask = np.zeros((self.n_avs, len(ACTIONS)), dtype=bool)
+        mask[:, ACTION_INDEX["IDLE"]] = True
+        network = self.road.network
+        for i, av in enumerate(self.avs):
+            lane_id = av.lane_index[2]
+            for side in network.side_lanes(av.lane_index):
+                if network.get_lane(side).is_reachable_from(av.position):
+                    mask[i, ACTION_INDEX["LANE_LEFT" if side[2] < lane_id else "LANE_RIGHT"]] = True
+            mask[i, ACTION_INDEX["FASTER"]] = av.speed_index < av.target_speeds.size - 1
+            mask[i, ACTION_INDEX["SLOWER"]] = av.speed_index > 0
+        return mask
+
+    def _check_actions(self, action: Any) -> np.ndarray:
+        actions = np.asarray(action)
+        if actions.shape == () and self.n_avs == 1:
+            actions = actions.reshape(1)
+        if actions.shape != (self.n_avs,) or not np.issubdtype(actions.dtype, np.integer):
+            raise ValueError(
+                f"Invalid action {action!r}: expected an int array of shape ({self.n_avs},), "
+                f"one meta-action per AV, got dtype {actions.dtype} and shape {actions.shape}."
+            )
+        if ((actions < 0) | (actions >= len(ACTIONS))).any():
+            raise ValueError(f"Invalid action {actions.tolist()}: each must be in {ACTIONS}.")
+        return actions
+
+    def _remove_exited(self) -> None:
+        """Take vehicles past the road end out of the scenario (see the class docstring)."""
+        road_length = self.config["road_length"]
+        for i, av in enumerate(self.avs):
+            if not self._exited[i] and av.position[0] > road_length:
+                self._exited[i] = True
+                av.collidable = False
+        self.road.vehicles = [
+            v for v in self.road.vehicles if v.position[0] <= road_length or v in self.controlled_vehicles
+        ]
+
+    def _snapshot(self) -> TrafficSnapshot:
+        return TrafficSnapshot.capture(self.road.vehicles, self.n_avs, self.config["road_length"])
+
+    def _info(
+        self,
+        snapshot: TrafficSnapshot,
+        acceleration: np.ndarray,
+        lane_change: np.ndarray,
+        crashed: np.ndarray,
+    ) -> dict[str, Any]:
+        """Per-AV arrays of shape (n_avs,) unless stated.
+
+        ``rewards`` (the weighted total), ``reward_terms`` (dict of unweighted terms, see
+        :mod:`sb3_marl.envs.reward`), ``neighbours`` ((n_avs, n_avs) bool, the local reward's
+        sets), ``crashed``, ``speed`` [m/s], ``headway`` [m], ``acceleration`` [m/s²],
+        ``lane_change``, ``exited`` (past the road end), ``action_mask`` ((n_avs, 5) bool),
+        and the scalars ``n_avs``, ``n_hdvs``, ``step``.
+        """
+        terms = reward_terms(snapshot, crashed, acceleration, lane_change, self.config)
+        headway = terms.pop("headway_distance")
+        return {
+            "rewards": total_reward(terms, self.config),
+            "reward_terms": terms,
+            "neighbours": neighbour_matrix(snapshot),
+            "crashed": crashed,
+            "speed": snapshot.speed[: self.n_avs].copy(),
+            "headway": headway,
+            "acceleration": acceleration,
+            "lane_change": lane_change,
+            "exited": self._exited.copy(),
+            "action_mask": self.action_masks(),
+            "n_avs": self.n_avs,
+            "n_hdvs": self.n_hdvs,
+            "step": self.steps_done,
+        }

@@ -1,0 +1,102 @@
+"""The paper's multi-objective reward and the neighbour sets of the local reward.
+
+Per AV i at step t: ``r_i = w_s*r_s + w_d*r_d + w_v*r_v - w_c*r_c`` with
+
+- safety ``r_s = -1`` if the AV crashed, else 0;
+- headway ``r_d = min(log(d / (v * t_d)), 0)``: d [m] is the gap (centre to centre) to the
+  nearest visible vehicle ahead in the AV's lane, capped at ``headway_max_distance`` (also used
+  when there is no leader); v [m/s] the AV's speed, t_d [s] ``headway_time``; 0 when v <= 0;
+- speed ``r_v = clip((v - v_min) / (v_max - v_min), 0, 1)`` over ``reward_speed_range``;
+- comfort ``r_c = r_a + r_lc``: ``r_a = 1`` when the mean longitudinal acceleration over the
+  policy step has ``|a| >= harsh_acceleration_threshold`` (m/s²), ``r_lc = 1`` when the AV started
+  a lane change. Comfort is a penalty (it lowers the reward); ``comfort: false`` drops it.
+
+The default a_th = 3 m/s² is highway-env's IDM comfortable acceleration ``COMFORT_ACC_MAX``:
+accelerating or braking harder than a human driver's comfort limit counts as harsh.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from sb3_marl.envs.traffic import TrafficSnapshot
+
+REWARD_TERMS = ("safety", "headway", "speed", "comfort", "harsh_acceleration", "lane_change")
+
+
+def headway_distances(snapshot: TrafficSnapshot, max_distance: float) -> np.ndarray:
+    """(n_avs,) gap [m] to the nearest visible vehicle ahead in the same lane, capped at ``max_distance``."""
+    dx = snapshot.others_dx()
+    same_lane = snapshot.lane[None, :] == snapshot.lane[: snapshot.n_avs, None]
+    ahead = snapshot.seen_by_avs() & same_lane & (dx > 0)
+    return np.minimum(np.where(ahead, dx, np.inf).min(axis=1, initial=np.inf), max_distance)
+
+
+def reward_terms(
+    snapshot: TrafficSnapshot,
+    crashed: np.ndarray,
+    acceleration: np.ndarray,
+    lane_change: np.ndarray,
+    config: dict[str, Any],
+) -> dict[str, np.ndarray]:
+    """Unweighted reward terms per AV, each of shape (n_avs,).
+
+    :param crashed: (n_avs,) crash flags
+    :param acceleration: (n_avs,) mean longitudinal acceleration over the policy step [m/s²]
+    :param lane_change: (n_avs,) True where the AV started a lane change this step
+    :return: ``safety``, ``headway``, ``speed``, ``comfort`` (= harsh_acceleration + lane_change),
+        ``harsh_acceleration``, ``lane_change`` and the ``headway_distance`` used [m]
+    """
+    speed = snapshot.speed[: snapshot.n_avs]
+    distance = headway_distances(snapshot, config["headway_max_distance"])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = distance / (np.maximum(speed, 1e-9) * config["headway_time"])
+        headway = np.where(speed > 0, np.minimum(np.log(ratio), 0.0), 0.0)
+    v_min, v_max = config["reward_speed_range"]
+    harsh = (np.abs(acceleration) >= config["harsh_acceleration_threshold"]).astype(np.float64)
+    lane = lane_change.astype(np.float64)
+    return {
+        "safety": -crashed.astype(np.float64),
+        "headway": headway,
+        "speed": np.clip((speed - v_min) / (v_max - v_min), 0.0, 1.0),
+        "comfort": harsh + lane,
+        "harsh_acceleration": harsh,
+        "lane_change": lane,
+        "headway_distance": distance,
+    }
+
+
+def total_reward(terms: dict[str, np.ndarray], config: dict[str, Any]) -> np.ndarray:
+    """(n_avs,) weighted reward ``w_s*r_s + w_d*r_d + w_v*r_v - w_c*r_c`` (comfort only if enabled)."""
+    reward = (
+        config["safety_weight"] * terms["safety"]
+        + config["headway_weight"] * terms["headway"]
+        + config["speed_weight"] * terms["speed"]
+    )
+    if config["comfort"]:
+        reward = reward - config["comfort_weight"] * terms["comfort"]
+    return reward
+
+
+def neighbour_matrix(snapshot: TrafficSnapshot) -> np.ndarray:
+    """(n_avs, n_avs) bool: row i is the neighbour set of AV i used by the local reward.
+
+    The set holds AV i itself and, in AV i's lane and each adjacent lane, the nearest visible AV
+    ahead (dx >= 0) and the nearest visible AV behind (dx < 0). AVs past the road end are in no
+    other AV's set, and their own set is themselves only.
+    """
+    n = snapshot.n_avs
+    dx = snapshot.others_dx()[:, :n]
+    lane = snapshot.lane[:n]
+    candidate = snapshot.seen_by_avs()[:, :n] & snapshot.visible[:n, None]
+    neighbours = np.eye(n, dtype=bool)
+    for side in (dx >= 0, dx < 0):
+        for lane_offset in (-1, 0, 1):
+            mask = candidate & side & (lane[None, :] == lane[:, None] + lane_offset)
+            gap = np.where(mask, np.abs(dx), np.inf)
+            nearest = gap.argmin(axis=1)
+            found = np.isfinite(gap[np.arange(n), nearest])
+            neighbours[np.arange(n)[found], nearest[found]] = True
+    return neighbours

@@ -1,0 +1,79 @@
+"""Episode metrics of the paper, computed from the scenario env's info.
+
+The episode return is the paper's metric: the sum over the episode's steps of the mean reward
+of the AVs. Driving metrics are averaged over AV-steps of AVs still on the road.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from sb3_marl.envs.lane_change_env import LaneChangeEnv
+
+Policy = Callable[[LaneChangeEnv, np.ndarray], np.ndarray]
+
+
+@dataclass
+class EpisodeRecord:
+    """One episode: return, length [steps], crash, and per-AV-step driving samples."""
+
+    episode_return: float = 0.0
+    length: int = 0
+    crashed: bool = False
+    speeds: list[float] | None = None  # [m/s]
+    headways: list[float] | None = None  # [m]
+    accelerations: list[float] | None = None  # [m/s²]
+    lane_changes: int = 0
+
+    def add_step(self, reward: float, info: dict) -> None:
+        """Accumulate one env step from the scalar (global) reward and the env's info."""
+        on_road = ~info["exited"]
+        self.episode_return += reward
+        self.length += 1
+        self.crashed = self.crashed or bool(info["crashed"].any())
+        for name, key in (("speeds", "speed"), ("headways", "headway"), ("accelerations", "acceleration")):
+            samples = getattr(self, name) or []
+            samples.extend(np.asarray(info[key])[on_road].tolist())
+            setattr(self, name, samples)
+        self.lane_changes += int(np.asarray(info["lane_change"]).sum())
+
+
+def summarize(records: list[EpisodeRecord]) -> dict[str, float]:
+    """Mean ± std return and the driving metrics over episodes."""
+    returns = np.array([r.episode_return for r in records])
+
+    def pooled(name: str) -> np.ndarray:
+        return np.array([x for r in records for x in (getattr(r, name) or [])])
+
+    return {
+        "episodes": len(records),
+        "return_mean": float(returns.mean()),
+        "return_std": float(returns.std()),
+        "length_mean": float(np.mean([r.length for r in records])),
+        "collision_rate": float(np.mean([r.crashed for r in records])),
+        "success_rate": float(np.mean([not r.crashed for r in records])),
+        "speed_mean": float(pooled("speeds").mean()),
+        "headway_mean": float(pooled("headways").mean()),
+        "acceleration_std": float(pooled("accelerations").std()),
+        "lane_changes_per_episode": float(np.mean([r.lane_changes for r in records])),
+    }
+
+
+def run_episodes(env: LaneChangeEnv, policy: Policy, n_episodes: int, seed: int = 0) -> list[EpisodeRecord]:
+    """Play ``n_episodes`` episodes with seeds ``seed, seed + 1, ...``."""
+    records = []
+    for episode in range(n_episodes):
+        obs, _ = env.reset(seed=seed + episode)
+        record, done = EpisodeRecord(), False
+        while not done:
+            obs, reward, terminated, truncated, info = env.step(policy(env, obs))
+            record.add_step(reward, info)
+            done = terminated or truncated
+        records.append(record)
+    return records
+
+
+__all__ = ["EpisodeRecord", "Policy", "asdict", "run_episodes", "summarize"]

@@ -1,0 +1,31 @@
+"""sb3-marl: multi-agent RL for cooperative lane changing of connected AVs, on Stable-Baselines3."""
+
+from setuptools import find_packages, setup
+
+setup(
+    name="sb3-marl",
+    version="0.1.0",
+    description="Stable-Baselines3 extension for multi-agent RL of cooperative AV lane changes in mixed traffic",
+    long_description=open("README.md", encoding="utf-8").read(),
+    long_description_content_type="text/markdown",
+    python_requires=">=3.10",
+    packages=find_packages(include=["sb3_marl", "sb3_marl.*", "wrappers", "wrappers.*"]),
+    package_data={"": ["*.yml"]},
+    install_requires=[
+        # torch is installed first as `pip install torch==2.13.0` (a local CPU wheel here)
+        "torch==2.13.0",
+        "stable-baselines3>=2.9,<2.10",
+        "sb3-contrib>=2.9,<2.10",
+        "highway-env>=1.12,<1.13",
+        "gymnasium>=1.0,<2",
+        "numpy>=1.26",
+        "tensorboard>=2.15",
+    ],
+    extras_require={
+        "dev": ["pytest>=8"],
+    },
+    classifiers=[
+        "Programming Language :: Python :: 3",
+        "Topic :: Scientific/Engineering :: Artificial Intelligence",
+    ],
+)
