@@ -9,6 +9,7 @@ import numpy as np
 from gymnasium import spaces
 from highway_env.envs.common.abstract import AbstractEnv
 from highway_env.envs.common.action import DiscreteMetaAction
+from highway_env.envs.common.graphics import EnvViewer
 from highway_env.road.road import Road
 from highway_env.vehicle.controller import MDPVehicle
 
@@ -154,6 +155,17 @@ class LaneChangeEnv(AbstractEnv):
         if self.render_mode == "human":
             self.render()
         return observe(snapshot, self.config), float(info["rewards"].mean()), terminated, truncated, info
+
+    def render(self) -> np.ndarray | None:
+        """Render with highway-env's viewer; ``rgb_array`` frames are drawn offscreen, headless.
+
+        highway-env disables drawing when ``SDL_VIDEODRIVER=dummy`` (the usual headless setting),
+        which would give black frames; offscreen surfaces need no display, so drawing stays on.
+        """
+        if self.viewer is None and self.render_mode == "rgb_array":
+            self.viewer = EnvViewer(self)
+            self.viewer.enabled = True
+        return super().render()
 
     @property
     def steps_done(self) -> int:
