@@ -51,18 +51,21 @@ def ours(n_avs: int, n_hdvs: int, density: int) -> gym.Env:
     return gym.make(ENV_IDS[density], config={"n_avs": n_avs, "hdv_count_range": [n_hdvs, n_hdvs]})
 
 
-def steps_per_second(env: gym.Env, steps: int, seed: int = 0) -> float:
-    """Random-action env-steps/s over ``steps`` steps, resets included."""
+def steps_per_second(env: gym.Env, steps: int, seed: int = 0) -> tuple[float, float]:
+    """Random-action env-steps/s over ``steps`` steps: (resets included, ``step`` calls only)."""
     env.action_space.seed(seed)
     env.reset(seed=seed)
-    episode = 0
+    episode, stepping = 0, 0.0
     start = time.perf_counter()
     for _ in range(steps):
-        _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+        actions = env.action_space.sample()
+        tic = time.perf_counter()
+        _, _, terminated, truncated, _ = env.step(actions)
+        stepping += time.perf_counter() - tic
         if terminated or truncated:
             episode += 1
             env.reset(seed=seed + episode)
-    return steps / (time.perf_counter() - start)
+    return steps / (time.perf_counter() - start), steps / stepping
 
 
 def main() -> None:
@@ -73,14 +76,17 @@ def main() -> None:
     for density in args.densities:
         n_avs = DENSITIES[density]["avs"][1]
         n_hdvs = DENSITIES[density]["hdvs"][1]
-        ours_sps = steps_per_second(ours(n_avs, n_hdvs, density), args.steps)
-        stock_sps = steps_per_second(stock_env(n_avs, n_hdvs), args.steps)
+        ours_sps, ours_step_only = steps_per_second(ours(n_avs, n_hdvs, density), args.steps)
+        stock_sps, stock_step_only = steps_per_second(stock_env(n_avs, n_hdvs), args.steps)
         tag = f"density{density}_{n_avs}av_{n_hdvs}hdv"
         print(f"{tag}_ours_env_steps: {ours_sps:.1f} steps/s")
         print(f"{tag}_ours_agent_steps: {ours_sps * n_avs:.1f} agent-steps/s")
         print(f"{tag}_stock_env_steps: {stock_sps:.1f} steps/s")
         print(f"{tag}_stock_agent_steps: {stock_sps * n_avs:.1f} agent-steps/s")
         print(f"{tag}_speedup: {ours_sps / stock_sps:.2f} x")
+        print(f"{tag}_ours_step_only: {ours_step_only:.1f} steps/s")
+        print(f"{tag}_stock_step_only: {stock_step_only:.1f} steps/s")
+        print(f"{tag}_step_only_speedup: {ours_step_only / stock_step_only:.2f} x")
 
 
 if __name__ == "__main__":
