@@ -5,7 +5,10 @@ One shared policy then drives all AVs (parameter sharing), trained by any SB3 al
 
 from __future__ import annotations
 
+import multiprocessing as mp
+import os
 import time
+import traceback
 from collections.abc import Callable, Sequence
 from functools import partial
 from typing import Any
@@ -13,14 +16,14 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
-from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
-from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvStepReturn
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
+from stable_baselines3.common.vec_env.base_vec_env import CloudpickleWrapper, VecEnvIndices, VecEnvStepReturn
 
 import sb3_marl  # noqa: F401  (registers the scenario ids)
 from sb3_marl.envs.config import DENSITIES
 
 REWARD_MODES = ("local", "global", "individual")
-VEC_BACKENDS: dict[str, type[VecEnv]] = {"dummy": DummyVecEnv, "subproc": SubprocVecEnv}
+VEC_BACKENDS = ("dummy", "subproc")
 #: Copy methods whose result has one row per AV; ``env_method`` hands each slot its own row.
 PER_AGENT_METHODS = ("action_masks",)
 #: Per-AV arrays of the scenario's info that each slot's info carries as scalars.
@@ -54,6 +57,124 @@ def _av_count_pattern(env_id: str, config: dict[str, Any]) -> list[int]:
     return list(range(lo, hi + 1))
 
 
+class CopyRunner:
+    """One scenario copy inside an SB3 ``DummyVecEnv``, which does the auto-reset, the terminal
+    observation and the ``TimeLimit.truncated`` flag exactly as SB3's own VecEnvs do."""
+
+    def __init__(self, factory: Callable[[], gym.Env]) -> None:
+        self.vec = DummyVecEnv([factory])
+
+    def spaces(self) -> tuple[spaces.Space, spaces.Space]:
+        return self.vec.observation_space, self.vec.action_space
+
+    def reset(self, seed: int | None, options: dict[str, Any]) -> tuple[np.ndarray, dict[str, Any]]:
+        if seed is not None:
+            self.vec.seed(seed)
+        self.vec.set_options(options)
+        return self.vec.reset()[0], self.vec.reset_infos[0]
+
+    def step(self, actions: np.ndarray) -> tuple[np.ndarray, bool, dict[str, Any], dict[str, Any] | None]:
+        """Step with one action per AV: (observation, done, info, the new episode's reset info or None)."""
+        obs, _, done, infos = self.vec.step(actions[None, :])
+        return obs[0], bool(done[0]), infos[0], self.vec.reset_infos[0] if done[0] else None
+
+    def get_attr(self, name: str) -> Any:
+        return self.vec.get_attr(name)[0]
+
+    def set_attr(self, name: str, value: Any) -> None:
+        self.vec.set_attr(name, value)
+
+    def env_method(self, name: str, args: tuple, kwargs: dict[str, Any]) -> Any:
+        return self.vec.env_method(name, *args, **kwargs)[0]
+
+    def env_is_wrapped(self, wrapper_class: type[gym.Wrapper]) -> bool:
+        return self.vec.env_is_wrapped(wrapper_class)[0]
+
+    def get_image(self) -> np.ndarray | None:
+        return self.vec.get_images()[0]
+
+    def close(self) -> None:
+        self.vec.close()
+
+
+Call = tuple[int, str, tuple]  # (copy index within its group, CopyRunner method, arguments)
+
+
+def _run_calls(runners: list[CopyRunner], calls: list[Call]) -> list[Any]:
+    return [getattr(runners[index], method)(*args) for index, method, args in calls]
+
+
+class LocalCopies:
+    """Copies stepped one after the other in this process."""
+
+    def __init__(self, factories: list[Callable[[], gym.Env]]) -> None:
+        self.runners = [CopyRunner(factory) for factory in factories]
+        self._results: list[Any] = []
+
+    def submit(self, calls: list[Call]) -> None:
+        self._results = _run_calls(self.runners, calls)
+
+    def collect(self) -> list[Any]:
+        return self._results
+
+    def close(self) -> None:
+        for runner in self.runners:
+            runner.close()
+
+
+def _worker(remote: Any, parent_remote: Any, factories: CloudpickleWrapper) -> None:
+    """Worker process: host a group of copies and run the calls the main process sends."""
+    parent_remote.close()
+    runners = [CopyRunner(factory) for factory in factories.var]
+    while True:
+        try:
+            calls = remote.recv()
+        except (EOFError, KeyboardInterrupt):
+            break
+        if calls is None:
+            for runner in runners:
+                runner.close()
+            remote.close()
+            break
+        try:
+            remote.send(("ok", _run_calls(runners, calls)))
+        except Exception as error:  # forwarded to the main process, which re-raises it
+            remote.send(("error", (error, traceback.format_exc())))
+
+
+class WorkerCopies:
+    """A group of copies in one worker process, stepped in parallel with the other groups."""
+
+    def __init__(self, factories: list[Callable[[], gym.Env]], context: Any) -> None:
+        self.remote, work_remote = context.Pipe()
+        self.process = context.Process(
+            target=_worker, args=(work_remote, self.remote, CloudpickleWrapper(factories)), daemon=True
+        )
+        self.process.start()
+        work_remote.close()
+
+    def submit(self, calls: list[Call]) -> None:
+        self.remote.send(calls)
+
+    def collect(self) -> list[Any]:
+        status, payload = self.remote.recv()
+        if status == "error":
+            error, remote_traceback = payload
+            raise error from RuntimeError(f"in the worker process:\n{remote_traceback}")
+        return payload
+
+    def close(self) -> None:
+        if self.process.is_alive():
+            try:
+                self.remote.send(None)
+            except (BrokenPipeError, ConnectionResetError):
+                pass
+        self.process.join(timeout=5)
+        if self.process.is_alive():
+            self.process.terminate()
+        self.remote.close()
+
+
 class ParameterSharingVecEnv(VecEnv):
     """Flatten the AVs of ``n_copies`` multi-agent scenario copies into one SB3 VecEnv.
 
@@ -76,9 +197,9 @@ class ParameterSharingVecEnv(VecEnv):
     exited, action_mask), ``reward`` (its own), ``global_reward``, ``reward_terms`` and
     ``copy`` / ``agent`` indices.
 
-    Each copy runs in an SB3 ``DummyVecEnv`` (``vec_backend="dummy"``, in-process) or
-    ``SubprocVecEnv`` (``"subproc"``, one worker process per copy, stepped in parallel); both give
-    identical trajectories for the same seed.
+    ``vec_backend="dummy"`` steps the copies in this process; ``"subproc"`` spreads them
+    round-robin over ``n_workers`` worker processes (default: one per CPU core, at most one per
+    copy) that step in parallel. Both give identical trajectories for the same seed.
 
     :param env: a scenario id (``sb3_marl/LaneChange-density{1,2,3}-v0``) or a factory
         ``copy_index -> multi-agent env`` following the scenario's contract
@@ -88,6 +209,9 @@ class ParameterSharingVecEnv(VecEnv):
     :param seed: seed of the first reset (copy k gets ``seed`` + its first slot index)
     :param config: scenario overrides for every copy (with an env id)
     :param render_mode: ``rgb_array`` to render copies (with an env id)
+    :param n_workers: worker processes of the ``subproc`` backend
+    :param start_method: multiprocessing start method of the workers (default: ``forkserver``
+        where available, as SB3's ``SubprocVecEnv``)
     """
 
     def __init__(
@@ -99,6 +223,8 @@ class ParameterSharingVecEnv(VecEnv):
         seed: int | None = None,
         config: dict[str, Any] | None = None,
         render_mode: str | None = None,
+        n_workers: int | None = None,
+        start_method: str | None = None,
     ) -> None:
         if reward_mode not in REWARD_MODES:
             raise ValueError(f"Invalid reward_mode={reward_mode!r}: expected one of {list(REWARD_MODES)}.")
@@ -109,16 +235,33 @@ class ParameterSharingVecEnv(VecEnv):
         n_copies = len(pattern) if n_copies is None else n_copies
         if isinstance(n_copies, bool) or not isinstance(n_copies, int) or n_copies < 1:
             raise ValueError(f"Invalid n_copies={n_copies!r}: expected an integer >= 1.")
+        if vec_backend == "dummy":
+            n_workers = 1
+        elif n_workers is None:
+            n_workers = min(n_copies, os.cpu_count() or 1)
+        elif isinstance(n_workers, bool) or not isinstance(n_workers, int) or not 1 <= n_workers <= n_copies:
+            raise ValueError(f"Invalid n_workers={n_workers!r}: expected an integer in [1, n_copies={n_copies}].")
 
         self.reward_mode = reward_mode
         self.vec_backend = vec_backend
         factories = []
         for k in range(n_copies):
-            copy_config = config if pattern[k % len(pattern)] is None else {**config, "n_avs": pattern[k % len(pattern)]}
+            n_avs = pattern[k % len(pattern)]
+            copy_config = config if n_avs is None else {**config, "n_avs": n_avs}
             factories.append(partial(_make_copy, env, k, copy_config, render_mode))
-        self.copies: list[VecEnv] = [VEC_BACKENDS[vec_backend]([factory]) for factory in factories]
+        #: copy k runs in group placement[k][0] at index placement[k][1]
+        self.placement = [(k % n_workers, k // n_workers) for k in range(n_copies)]
+        self.group_copies = [list(range(g, n_copies, n_workers)) for g in range(n_workers)]
+        if vec_backend == "dummy":
+            self.groups: list[LocalCopies | WorkerCopies] = [LocalCopies(factories)]
+        else:
+            if start_method is None:
+                start_method = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
+            context = mp.get_context(start_method)
+            self.groups = [WorkerCopies([factories[k] for k in copies], context) for copies in self.group_copies]
         try:
-            single_obs_space, single_action_space, n_avs = self._check_copies()
+            copy_spaces = self._run({k: ("spaces", ()) for k in range(n_copies)})
+            single_obs_space, single_action_space, n_avs = self._check_spaces(copy_spaces)
         except Exception:
             self.close()
             raise
@@ -133,15 +276,17 @@ class ParameterSharingVecEnv(VecEnv):
         self._episode_returns = np.zeros(self.num_envs)
         self._episode_lengths = np.zeros(self.num_envs, dtype=np.int64)
         self._t_start = time.time()
-        self._actions: np.ndarray | None = None
         if seed is not None:
             self.seed(seed)
 
-    def _check_copies(self) -> tuple[spaces.Box, spaces.Discrete, list[int]]:
+    @property
+    def n_copies(self) -> int:
+        return len(self.placement)
+
+    def _check_spaces(self, copy_spaces: dict[int, tuple]) -> tuple[spaces.Box, spaces.Discrete, list[int]]:
         """Per-slot spaces and AV counts; a clear error for envs that are not multi-agent scenarios."""
         n_avs, obs_space, action_space = [], None, None
-        for k, copy in enumerate(self.copies):
-            copy_obs, copy_actions = copy.observation_space, copy.action_space
+        for k, (copy_obs, copy_actions) in sorted(copy_spaces.items()):
             if not (
                 isinstance(copy_actions, spaces.MultiDiscrete)
                 and isinstance(copy_obs, spaces.Box)
@@ -164,20 +309,50 @@ class ParameterSharingVecEnv(VecEnv):
             n_avs.append(int(copy_actions.shape[0]))
         return obs_space, action_space, n_avs
 
+    # ---- running calls on copies -----------------------------------------------------------
+
+    def _submit(self, calls: dict[int, tuple[str, tuple]]) -> list[tuple[int, list[int]]]:
+        """Send ``{copy: (method, args)}`` to the groups; returns what :meth:`_collect` needs."""
+        pending = []
+        for group, copies in enumerate(self.group_copies):
+            mine = [k for k in copies if k in calls]
+            if mine:
+                self._guard(group, self.groups[group].submit,
+                            [(self.placement[k][1], *calls[k]) for k in mine])
+                pending.append((group, mine))
+        return pending
+
+    def _collect(self, pending: list[tuple[int, list[int]]]) -> dict[int, Any]:
+        results: dict[int, Any] = {}
+        for group, copies in pending:
+            results.update(zip(copies, self._guard(group, self.groups[group].collect)))
+        return results
+
+    def _run(self, calls: dict[int, tuple[str, tuple]]) -> dict[int, Any]:
+        """Run ``{copy: (CopyRunner method, args)}``, all groups in parallel; ``{copy: result}``."""
+        return self._collect(self._submit(calls))
+
+    def _guard(self, group: int, method: Callable, *args: Any) -> Any:
+        """A dead worker process becomes an error naming its copies, never a hang."""
+        try:
+            return method(*args)
+        except (EOFError, BrokenPipeError, ConnectionResetError) as error:
+            worker = self.groups[group]
+            code = worker.process.exitcode if isinstance(worker, WorkerCopies) else None
+            raise RuntimeError(
+                f"Worker process {group} of scenario copies {self.group_copies[group]} died (exit code {code}); "
+                "see its traceback above."
+            ) from error
+
     # ---- stepping -------------------------------------------------------------------------
 
     def reset(self) -> np.ndarray:
         """Reset every copy (with the seeds/options set by ``seed``/``set_options``, if any)."""
-        for k, copy in enumerate(self.copies):
-            first = self.slices[k].start
-            if self._seeds[first] is not None:
-                copy.seed(self._seeds[first])
-            copy.set_options(self._options[first])
-            self._obs[self.slices[k]] = self._call(k, copy.reset)[0]
-            info = copy.reset_infos[0]
+        calls = {k: ("reset", (self._seeds[sl.start], self._options[sl.start])) for k, sl in enumerate(self.slices)}
+        for k, (obs, info) in sorted(self._run(calls).items()):
             self._check_info(k, info)
-            for agent, slot in enumerate(range(self.slices[k].start, self.slices[k].stop)):
-                self.reset_infos[slot] = self._slot_info(k, agent, info)
+            self._obs[self.slices[k]] = obs
+            self._set_reset_infos(k, info)
         self._episode_returns[:] = 0.0
         self._episode_lengths[:] = 0
         self._reset_seeds()
@@ -198,26 +373,23 @@ class ParameterSharingVecEnv(VecEnv):
                 f"Invalid actions at slots {bad.tolist()}: {actions[bad].tolist()}, expected integers in "
                 f"[0, {self.action_space.n - 1}]."
             )
-        for k, copy in enumerate(self.copies):
-            self._call(k, copy.step_async, actions[self.slices[k]][None, :])
-        self._actions = actions
+        self._pending = self._submit({k: ("step", (actions[sl],)) for k, sl in enumerate(self.slices)})
 
     def step_wait(self) -> VecEnvStepReturn:
         rewards = np.zeros(self.num_envs, dtype=np.float32)
         dones = np.zeros(self.num_envs, dtype=bool)
         infos: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
-        for k, copy in enumerate(self.copies):
-            obs, _, done, copy_infos = self._call(k, copy.step_wait)
-            info, sl = copy_infos[0], self.slices[k]
-            self._obs[sl] = obs[0]
+        for k, (obs, done, info, reset_info) in sorted(self._collect(self._pending).items()):
+            sl = self.slices[k]
+            self._obs[sl] = obs
             slot_rewards = self._apply_reward_mode(info)
             rewards[sl] = slot_rewards
-            dones[sl] = done[0]
+            dones[sl] = done
             self._episode_returns[sl] += slot_rewards
             self._episode_lengths[sl] += 1
             for agent, slot in enumerate(range(sl.start, sl.stop)):
                 slot_info = self._slot_info(k, agent, info)
-                if done[0]:
+                if done:
                     slot_info["terminal_observation"] = info["terminal_observation"][agent]
                     slot_info["TimeLimit.truncated"] = bool(info["TimeLimit.truncated"])
                     slot_info["episode"] = {
@@ -226,12 +398,10 @@ class ParameterSharingVecEnv(VecEnv):
                         "t": round(time.time() - self._t_start, 6),
                     }
                 infos[slot] = slot_info
-            if done[0]:
+            if done:
                 self._episode_returns[sl] = 0.0
                 self._episode_lengths[sl] = 0
-                reset_info = copy.reset_infos[0]
-                for agent, slot in enumerate(range(sl.start, sl.stop)):
-                    self.reset_infos[slot] = self._slot_info(k, agent, reset_info)
+                self._set_reset_infos(k, reset_info)
         return self._obs.copy(), rewards, dones, infos
 
     def _apply_reward_mode(self, info: dict[str, Any]) -> np.ndarray:
@@ -257,6 +427,10 @@ class ParameterSharingVecEnv(VecEnv):
         )
         return slot_info
 
+    def _set_reset_infos(self, copy: int, info: dict[str, Any]) -> None:
+        for agent, slot in enumerate(range(self.slices[copy].start, self.slices[copy].stop)):
+            self.reset_infos[slot] = self._slot_info(copy, agent, info)
+
     def _check_info(self, copy: int, info: dict[str, Any]) -> None:
         missing = [key for key in ("rewards", "neighbours") if key not in info]
         if missing:
@@ -265,40 +439,28 @@ class ParameterSharingVecEnv(VecEnv):
                 "(per-AV rewards and the local reward's neighbour sets)."
             )
 
-    def _call(self, copy: int, method: Callable, *args: Any) -> Any:
-        """Call a copy's VecEnv method; a dead worker becomes an error naming the copy."""
-        try:
-            return method(*args)
-        except (EOFError, BrokenPipeError, ConnectionResetError) as error:
-            process = self.copies[copy].processes[0] if self.vec_backend == "subproc" else None
-            code = None if process is None else process.exitcode
-            raise RuntimeError(
-                f"The worker process of scenario copy {copy} (slots {self.slices[copy].start}.."
-                f"{self.slices[copy].stop - 1}) died (exit code {code}); see its traceback above."
-            ) from error
-
     # ---- VecEnv plumbing --------------------------------------------------------------------
 
     def _copies_of(self, indices: VecEnvIndices) -> list[int]:
         """Slot indices -> the copy of each slot."""
         return [int(self.slot_copy[i]) for i in self._get_indices(indices)]
 
-    def _per_copy(self, indices: VecEnvIndices, call: Callable[[VecEnv], Any]) -> dict[int, Any]:
-        """Run ``call`` once on each copy owning one of the slots, in copy order."""
-        return {k: self._call(k, call, self.copies[k]) for k in sorted(set(self._copies_of(indices)))}
+    def _per_copy(self, indices: VecEnvIndices, method: str, *args: Any) -> dict[int, Any]:
+        """Run a CopyRunner method once on each copy owning one of the slots."""
+        return self._run({k: (method, args) for k in set(self._copies_of(indices))})
 
     def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
         """The attribute of each slot's copy."""
-        values = self._per_copy(indices, lambda copy: copy.get_attr(attr_name)[0])
+        values = self._per_copy(indices, "get_attr", attr_name)
         return [values[k] for k in self._copies_of(indices)]
 
     def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
         """Set the attribute on the copies owning the slots."""
-        self._per_copy(indices, lambda copy: copy.set_attr(attr_name, value))
+        self._per_copy(indices, "set_attr", attr_name, value)
 
     def env_method(self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs: Any) -> list[Any]:
         """Call a method of each slot's copy once per copy; per-AV results (``action_masks``) are split by slot."""
-        results = self._per_copy(indices, lambda copy: copy.env_method(method_name, *method_args, **method_kwargs)[0])
+        results = self._per_copy(indices, "env_method", method_name, method_args, method_kwargs)
         if method_name in PER_AGENT_METHODS:
             return [results[self.slot_copy[i]][self.slot_agent[i]] for i in self._get_indices(indices)]
         return [results[k] for k in self._copies_of(indices)]
@@ -308,16 +470,23 @@ class ParameterSharingVecEnv(VecEnv):
         return np.stack(self.env_method("action_masks"))
 
     def env_is_wrapped(self, wrapper_class: type[gym.Wrapper], indices: VecEnvIndices = None) -> list[bool]:
-        values = self._per_copy(indices, lambda copy: copy.env_is_wrapped(wrapper_class)[0])
+        values = self._per_copy(indices, "env_is_wrapped", wrapper_class)
         return [values[k] for k in self._copies_of(indices)]
 
     def get_images(self) -> Sequence[np.ndarray | None]:
         """One frame per scenario copy (a copy shows all its AVs)."""
-        return [self._call(k, copy.get_images)[0] for k, copy in enumerate(self.copies)]
+        images = self._run({k: ("get_image", ()) for k in range(self.n_copies)})
+        return [images[k] for k in range(self.n_copies)]
+
+    def copy_env(self, copy: int) -> gym.Env:
+        """The unwrapped scenario env of a copy (``dummy`` backend only: workers keep theirs)."""
+        if self.vec_backend != "dummy":
+            raise RuntimeError("copy_env() needs vec_backend='dummy': subproc copies live in worker processes.")
+        return self.groups[0].runners[copy].vec.envs[0].unwrapped
 
     def close(self) -> None:
-        for copy in self.copies:
+        for group in getattr(self, "groups", []):
             try:
-                copy.close()
+                group.close()
             except (EOFError, BrokenPipeError, ConnectionResetError):
                 pass  # a dead worker has nothing left to close

@@ -23,8 +23,7 @@ IDLE = ACTION_INDEX["IDLE"]
 
 
 def copy_env(vec: ParameterSharingVecEnv, k: int):
-    """The scenario env of copy k (dummy backend)."""
-    return vec.copies[k].envs[0].unwrapped
+    return vec.copy_env(k)
 
 
 @pytest.mark.parametrize(
@@ -168,7 +167,7 @@ def test_env_method_get_set_attr_and_wrapping():
     (mask_of_slot_3,) = vec.env_method("action_masks", indices=[3])
     np.testing.assert_array_equal(mask_of_slot_3, masks[3])
     assert vec.get_attr("n_avs", indices=[0, 5]) == [1, 3]
-    vec.set_attr("test_marker", 7, indices=[1])
+    vec.set_attr("test_marker", 7, indices=[1])  # on the copy's outer gym wrapper, as SB3 does
     assert vec.get_attr("test_marker", indices=[1, 2]) == [7, 7]  # slots 1 and 2 share copy 1
     with pytest.raises(AttributeError):
         vec.get_attr("test_marker", indices=[0])
@@ -268,11 +267,12 @@ def test_bad_actions():
 
 
 def test_dead_worker_raises_naming_the_copy():
-    vec = ParameterSharingVecEnv(ENV_IDS[1], vec_backend="subproc", seed=0)
+    vec = ParameterSharingVecEnv(ENV_IDS[1], vec_backend="subproc", n_workers=2, seed=0)
     vec.reset()
-    worker = vec.copies[1].processes[0]
+    assert vec.group_copies == [[0, 2], [1]]
+    worker = vec.groups[1].process
     worker.kill()
     worker.join()
-    with pytest.raises(RuntimeError, match=r"scenario copy 1 \(slots 1..2\) died"):
+    with pytest.raises(RuntimeError, match=r"Worker process 1 of scenario copies \[1\] died"):
         vec.step(np.full(vec.num_envs, IDLE))
     vec.close()
