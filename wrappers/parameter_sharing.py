@@ -57,26 +57,75 @@ def _av_count_pattern(env_id: str, config: dict[str, Any]) -> list[int]:
     return list(range(lo, hi + 1))
 
 
+def apply_reward_mode(info: dict[str, Any], reward_mode: str) -> np.ndarray:
+    """(n_avs,) rewards of one copy's AVs in a reward mode, from the copy's step info."""
+    own = np.asarray(info["rewards"], dtype=np.float64)
+    if reward_mode == "individual":
+        return own
+    if reward_mode == "global":
+        return np.full_like(own, own.mean())
+    neighbours = np.asarray(info["neighbours"], dtype=np.float64)
+    return neighbours @ own / neighbours.sum(axis=1)
+
+
+def split_info(info: dict[str, Any], copy: int) -> list[dict[str, Any]]:
+    """Each AV's share of its copy's info (see :class:`ParameterSharingVecEnv`)."""
+    own = np.asarray(info["rewards"])
+    global_reward = float(own.mean())
+    terms = info.get("reward_terms", {})
+    slot_infos = []
+    for agent in range(own.size):
+        slot_info = {key: info[key][agent] for key in PER_AGENT_INFO if key in info}
+        slot_info.update(
+            copy=copy,
+            agent=agent,
+            reward=float(own[agent]),
+            global_reward=global_reward,
+            reward_terms={name: float(values[agent]) for name, values in terms.items()},
+        )
+        if "terminal_observation" in info:
+            slot_info["terminal_observation"] = info["terminal_observation"][agent]
+            slot_info["TimeLimit.truncated"] = bool(info["TimeLimit.truncated"])
+        slot_infos.append(slot_info)
+    return slot_infos
+
+
 class CopyRunner:
     """One scenario copy inside an SB3 ``DummyVecEnv``, which does the auto-reset, the terminal
-    observation and the ``TimeLimit.truncated`` flag exactly as SB3's own VecEnvs do."""
+    observation and the ``TimeLimit.truncated`` flag exactly as SB3's own VecEnvs do. It also
+    applies the reward mode and splits the info per AV, so that workers do that work in parallel.
+    """
 
-    def __init__(self, factory: Callable[[], gym.Env]) -> None:
+    def __init__(self, factory: Callable[[], gym.Env], copy: int, reward_mode: str) -> None:
         self.vec = DummyVecEnv([factory])
+        self.copy = copy
+        self.reward_mode = reward_mode
 
     def spaces(self) -> tuple[spaces.Space, spaces.Space]:
         return self.vec.observation_space, self.vec.action_space
 
-    def reset(self, seed: int | None, options: dict[str, Any]) -> tuple[np.ndarray, dict[str, Any]]:
+    def reset(self, seed: int | None, options: dict[str, Any]) -> tuple[np.ndarray, list[dict[str, Any]]]:
+        """Observations (n_avs, ...) and per-AV reset infos."""
         if seed is not None:
             self.vec.seed(seed)
         self.vec.set_options(options)
-        return self.vec.reset()[0], self.vec.reset_infos[0]
+        obs = self.vec.reset()[0]
+        info = self.vec.reset_infos[0]
+        missing = [key for key in ("rewards", "neighbours") if key not in info]
+        if missing:
+            raise ValueError(
+                f"Copy {self.copy} is not a multi-agent scenario env: its info lacks {missing} "
+                "(per-AV rewards and the local reward's neighbour sets)."
+            )
+        return obs, split_info(info, self.copy)
 
-    def step(self, actions: np.ndarray) -> tuple[np.ndarray, bool, dict[str, Any], dict[str, Any] | None]:
-        """Step with one action per AV: (observation, done, info, the new episode's reset info or None)."""
+    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool, list[dict], list[dict] | None]:
+        """Step with one action per AV: observations, rewards in the reward mode, done, per-AV
+        infos, and per-AV reset infos of the new episode when done (else None)."""
         obs, _, done, infos = self.vec.step(actions[None, :])
-        return obs[0], bool(done[0]), infos[0], self.vec.reset_infos[0] if done[0] else None
+        done = bool(done[0])
+        reset_infos = split_info(self.vec.reset_infos[0], self.copy) if done else None
+        return obs[0], apply_reward_mode(infos[0], self.reward_mode), done, split_info(infos[0], self.copy), reset_infos
 
     def get_attr(self, name: str) -> Any:
         return self.vec.get_attr(name)[0]
@@ -107,8 +156,8 @@ def _run_calls(runners: list[CopyRunner], calls: list[Call]) -> list[Any]:
 class LocalCopies:
     """Copies stepped one after the other in this process."""
 
-    def __init__(self, factories: list[Callable[[], gym.Env]]) -> None:
-        self.runners = [CopyRunner(factory) for factory in factories]
+    def __init__(self, runners: list[Callable[[], CopyRunner]]) -> None:
+        self.runners = [make_runner() for make_runner in runners]
         self._results: list[Any] = []
 
     def submit(self, calls: list[Call]) -> None:
@@ -122,10 +171,10 @@ class LocalCopies:
             runner.close()
 
 
-def _worker(remote: Any, parent_remote: Any, factories: CloudpickleWrapper) -> None:
+def _worker(remote: Any, parent_remote: Any, runners: CloudpickleWrapper) -> None:
     """Worker process: host a group of copies and run the calls the main process sends."""
     parent_remote.close()
-    runners = [CopyRunner(factory) for factory in factories.var]
+    runners = [make_runner() for make_runner in runners.var]
     while True:
         try:
             calls = remote.recv()
@@ -145,10 +194,10 @@ def _worker(remote: Any, parent_remote: Any, factories: CloudpickleWrapper) -> N
 class WorkerCopies:
     """A group of copies in one worker process, stepped in parallel with the other groups."""
 
-    def __init__(self, factories: list[Callable[[], gym.Env]], context: Any) -> None:
+    def __init__(self, runners: list[Callable[[], CopyRunner]], context: Any) -> None:
         self.remote, work_remote = context.Pipe()
         self.process = context.Process(
-            target=_worker, args=(work_remote, self.remote, CloudpickleWrapper(factories)), daemon=True
+            target=_worker, args=(work_remote, self.remote, CloudpickleWrapper(runners)), daemon=True
         )
         self.process.start()
         work_remote.close()
@@ -244,21 +293,21 @@ class ParameterSharingVecEnv(VecEnv):
 
         self.reward_mode = reward_mode
         self.vec_backend = vec_backend
-        factories = []
+        runners = []
         for k in range(n_copies):
             n_avs = pattern[k % len(pattern)]
             copy_config = config if n_avs is None else {**config, "n_avs": n_avs}
-            factories.append(partial(_make_copy, env, k, copy_config, render_mode))
+            runners.append(partial(CopyRunner, partial(_make_copy, env, k, copy_config, render_mode), k, reward_mode))
         #: copy k runs in group placement[k][0] at index placement[k][1]
         self.placement = [(k % n_workers, k // n_workers) for k in range(n_copies)]
         self.group_copies = [list(range(g, n_copies, n_workers)) for g in range(n_workers)]
         if vec_backend == "dummy":
-            self.groups: list[LocalCopies | WorkerCopies] = [LocalCopies(factories)]
+            self.groups: list[LocalCopies | WorkerCopies] = [LocalCopies(runners)]
         else:
             if start_method is None:
                 start_method = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
             context = mp.get_context(start_method)
-            self.groups = [WorkerCopies([factories[k] for k in copies], context) for copies in self.group_copies]
+            self.groups = [WorkerCopies([runners[k] for k in copies], context) for copies in self.group_copies]
         try:
             copy_spaces = self._run({k: ("spaces", ()) for k in range(n_copies)})
             single_obs_space, single_action_space, n_avs = self._check_spaces(copy_spaces)
@@ -349,10 +398,9 @@ class ParameterSharingVecEnv(VecEnv):
     def reset(self) -> np.ndarray:
         """Reset every copy (with the seeds/options set by ``seed``/``set_options``, if any)."""
         calls = {k: ("reset", (self._seeds[sl.start], self._options[sl.start])) for k, sl in enumerate(self.slices)}
-        for k, (obs, info) in sorted(self._run(calls).items()):
-            self._check_info(k, info)
+        for k, (obs, slot_infos) in self._run(calls).items():
             self._obs[self.slices[k]] = obs
-            self._set_reset_infos(k, info)
+            self.reset_infos[self.slices[k]] = slot_infos
         self._episode_returns[:] = 0.0
         self._episode_lengths[:] = 0
         self._reset_seeds()
@@ -379,65 +427,24 @@ class ParameterSharingVecEnv(VecEnv):
         rewards = np.zeros(self.num_envs, dtype=np.float32)
         dones = np.zeros(self.num_envs, dtype=bool)
         infos: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
-        for k, (obs, done, info, reset_info) in sorted(self._collect(self._pending).items()):
+        for k, (obs, slot_rewards, done, slot_infos, reset_infos) in self._collect(self._pending).items():
             sl = self.slices[k]
             self._obs[sl] = obs
-            slot_rewards = self._apply_reward_mode(info)
             rewards[sl] = slot_rewards
             dones[sl] = done
+            infos[sl] = slot_infos
             self._episode_returns[sl] += slot_rewards
             self._episode_lengths[sl] += 1
-            for agent, slot in enumerate(range(sl.start, sl.stop)):
-                slot_info = self._slot_info(k, agent, info)
-                if done:
-                    slot_info["terminal_observation"] = info["terminal_observation"][agent]
-                    slot_info["TimeLimit.truncated"] = bool(info["TimeLimit.truncated"])
-                    slot_info["episode"] = {
-                        "r": float(self._episode_returns[slot]),
-                        "l": int(self._episode_lengths[slot]),
-                        "t": round(time.time() - self._t_start, 6),
-                    }
-                infos[slot] = slot_info
             if done:
+                elapsed = round(time.time() - self._t_start, 6)
+                for slot, slot_info in zip(range(sl.start, sl.stop), slot_infos):
+                    slot_info["episode"] = {
+                        "r": float(self._episode_returns[slot]), "l": int(self._episode_lengths[slot]), "t": elapsed
+                    }
                 self._episode_returns[sl] = 0.0
                 self._episode_lengths[sl] = 0
-                self._set_reset_infos(k, reset_info)
+                self.reset_infos[sl] = reset_infos
         return self._obs.copy(), rewards, dones, infos
-
-    def _apply_reward_mode(self, info: dict[str, Any]) -> np.ndarray:
-        """(n_avs,) rewards of one copy's slots in this VecEnv's reward mode."""
-        own = np.asarray(info["rewards"], dtype=np.float64)
-        if self.reward_mode == "individual":
-            return own
-        if self.reward_mode == "global":
-            return np.full_like(own, own.mean())
-        neighbours = np.asarray(info["neighbours"], dtype=np.float64)
-        return neighbours @ own / neighbours.sum(axis=1)
-
-    def _slot_info(self, copy: int, agent: int, info: dict[str, Any]) -> dict[str, Any]:
-        """One AV's share of its copy's info."""
-        own = np.asarray(info["rewards"])
-        slot_info = {key: info[key][agent] for key in PER_AGENT_INFO if key in info}
-        slot_info.update(
-            copy=copy,
-            agent=agent,
-            reward=float(own[agent]),
-            global_reward=float(own.mean()),
-            reward_terms={name: float(values[agent]) for name, values in info.get("reward_terms", {}).items()},
-        )
-        return slot_info
-
-    def _set_reset_infos(self, copy: int, info: dict[str, Any]) -> None:
-        for agent, slot in enumerate(range(self.slices[copy].start, self.slices[copy].stop)):
-            self.reset_infos[slot] = self._slot_info(copy, agent, info)
-
-    def _check_info(self, copy: int, info: dict[str, Any]) -> None:
-        missing = [key for key in ("rewards", "neighbours") if key not in info]
-        if missing:
-            raise ValueError(
-                f"Copy {copy} is not a multi-agent scenario env: its info lacks {missing} "
-                "(per-AV rewards and the local reward's neighbour sets)."
-            )
 
     # ---- VecEnv plumbing --------------------------------------------------------------------
 
