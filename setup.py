@@ -20,6 +20,7 @@ setup(
         "gymnasium>=1.0,<2",
         "numpy>=1.26",
         "tensorboard>=2.15",
+        "pyyaml>=6",
     ],
     extras_require={
         "dev": ["pytest>=8"],

@@ -17,7 +17,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.env_util import is_wrapped
-from stable_baselines3.common.vec_env import VecEnv
+from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 from stable_baselines3.common.vec_env.base_vec_env import CloudpickleWrapper, VecEnvIndices, VecEnvStepReturn
 
 import sb3_marl  # noqa: F401  (registers the scenario ids)
@@ -500,3 +500,26 @@ class ParameterSharingVecEnv(VecEnv):
                 group.close()
             except (EOFError, BrokenPipeError, ConnectionResetError):
                 pass  # a dead worker has nothing left to close
+
+
+class VecRewardScale(VecEnvWrapper):
+    """Multiply rewards by a constant (the MARL_CAVs code trains on rewards / 20).
+
+    Infos keep the unscaled values (``reward``, ``episode``), so metrics stay in the paper's units.
+
+    :param venv: the VecEnv to wrap
+    :param scale: the factor, > 0
+    """
+
+    def __init__(self, venv: VecEnv, scale: float) -> None:
+        if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not scale > 0:
+            raise ValueError(f"Invalid scale={scale!r}: expected a number > 0.")
+        super().__init__(venv)
+        self.scale = float(scale)
+
+    def reset(self) -> np.ndarray:
+        return self.venv.reset()
+
+    def step_wait(self) -> VecEnvStepReturn:
+        obs, rewards, dones, infos = self.venv.step_wait()
+        return obs, rewards * self.scale, dones, infos

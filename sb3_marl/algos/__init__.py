@@ -1,0 +1,27 @@
+"""The algorithm registry: names of the paper's learners -> SB3 / sb3-contrib classes.
+
+With :class:`~wrappers.ParameterSharingVecEnv` every AV is a slot of one VecEnv, so each SB3
+algorithm trains one policy shared by all AVs: A2C acts as MA2C, PPO as MAPPO, and so on.
+"""
+
+from __future__ import annotations
+
+from sb3_contrib import TRPO, MaskablePPO
+from stable_baselines3 import A2C, DQN, PPO
+from stable_baselines3.common.base_class import BaseAlgorithm
+
+ALGOS: dict[str, type[BaseAlgorithm]] = {
+    "ma2c": A2C,
+    "mappo": PPO,
+    "madqn": DQN,
+    "matrpo": TRPO,
+    "mappo-mask": MaskablePPO,
+}
+
+
+def get_algo(name: str) -> type[BaseAlgorithm]:
+    """The class registered under ``name``; a ValueError listing the valid names otherwise."""
+    try:
+        return ALGOS[name]
+    except KeyError:
+        raise ValueError(f"Unknown algorithm {name!r}: expected one of {sorted(ALGOS)}.") from None

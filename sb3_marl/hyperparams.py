@@ -1,0 +1,80 @@
+"""rl-zoo-style hyperparameters: one YAML per algorithm in ``zoo_configs/``, keyed by env id.
+
+Besides the algorithm's own constructor arguments (and rl-zoo's ``n_timesteps`` and ``policy``),
+an entry may set the scenario and the wrapper:
+
+- ``reward_mode``: ``local`` (default), ``global`` or ``individual``
+- ``n_copies``: scenario copies (default: one per AV count of the density)
+- ``env_config``: scenario overrides, e.g. ``{hdv_politeness: 1.0, comfort: false}``
+- ``reward_scale``: factor applied to the training rewards (the MARL_CAVs code uses 0.05)
+- ``architecture``: ``shared`` or ``separate`` MA2C network (actor-critic algorithms), or
+  ``default`` for SB3's own MLP
+"""
+
+from __future__ import annotations
+
+import inspect
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from sb3_marl.algos import get_algo
+from sb3_marl.policies import ARCHITECTURES, ma2c_policy_kwargs, ma2c_q_policy_kwargs
+
+CONFIG_DIR = Path(__file__).resolve().parent.parent / "zoo_configs"
+SCENARIO_KEYS = ("reward_mode", "n_copies", "env_config", "reward_scale", "architecture")
+ZOO_KEYS = ("n_timesteps", "policy")
+#: Constructor arguments the training code sets itself.
+RESERVED_KEYS = ("env", "seed", "device", "tensorboard_log", "verbose", "_init_setup_model")
+
+
+def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> dict[str, Any]:
+    """The entry of ``env_id`` in ``zoo_configs/<algo>.yml`` (or ``path``), validated."""
+    get_algo(algo)
+    path = Path(path) if path is not None else CONFIG_DIR / f"{algo}.yml"
+    if not path.is_file():
+        raise ValueError(f"No hyperparameter file for algorithm {algo!r}: {path} does not exist.")
+    entries = yaml.safe_load(path.read_text()) or {}
+    if env_id not in entries:
+        raise ValueError(f"{path} has no entry for env {env_id!r}: it has {sorted(entries)}.")
+    hyperparams = dict(entries[env_id])
+    validate_hyperparams(algo, hyperparams)
+    return hyperparams
+
+
+def algorithm_arguments(algo: str) -> list[str]:
+    """Constructor arguments of the algorithm that a config may set."""
+    parameters = inspect.signature(get_algo(algo).__init__).parameters
+    return sorted(name for name in parameters if name not in ("self", *RESERVED_KEYS))
+
+
+def validate_hyperparams(algo: str, hyperparams: dict[str, Any]) -> None:
+    """Unknown keys, or an architecture the algorithm cannot use: a ValueError naming it and the valid ones."""
+    allowed = algorithm_arguments(algo)
+    valid = sorted({*allowed, *SCENARIO_KEYS, *ZOO_KEYS})
+    unknown = sorted(set(hyperparams) - set(valid))
+    if unknown:
+        raise ValueError(f"Unknown hyperparameter(s) {unknown} for {algo!r}: valid keys are {valid}.")
+    architecture = hyperparams.get("architecture", "default")
+    is_q_learning = "exploration_fraction" in allowed
+    allowed_architectures = ["default", "shared"] if is_q_learning else ["default", *ARCHITECTURES]
+    if architecture not in allowed_architectures:
+        raise ValueError(
+            f"Invalid architecture {architecture!r} for {algo!r}: expected one of {allowed_architectures}"
+            + (" (a Q-network has no separate critic)." if is_q_learning else ".")
+        )
+    policy = hyperparams.get("policy", "MlpPolicy")
+    aliases = sorted(get_algo(algo).policy_aliases)
+    if policy not in aliases:
+        raise ValueError(f"Invalid policy {policy!r} for {algo!r}: expected one of {aliases}.")
+
+
+def policy_kwargs_for(algo: str, hyperparams: dict[str, Any]) -> dict[str, Any]:
+    """``policy_kwargs`` with the MA2C network of ``architecture`` merged in."""
+    kwargs = dict(hyperparams.get("policy_kwargs") or {})
+    architecture = hyperparams.get("architecture", "default")
+    if architecture == "default":
+        return kwargs
+    preset = ma2c_q_policy_kwargs() if "exploration_fraction" in algorithm_arguments(algo) else ma2c_policy_kwargs(architecture)
+    return {**preset, **kwargs}

@@ -1,0 +1,78 @@
+"""The MA2C network of the paper as SB3 feature extractors and policy presets.
+
+Observations are (vehicles, features) matrices with features (presence, x, y, vx, vy). The paper
+splits the inputs by physical unit: presence, positions (x, y) and velocities (vx, vy) each go
+through their own fully connected layer (32, 64 and 64 units in the MARL_CAVs code), the three
+are concatenated and go through a 128-unit layer, the trunk, on which the actor and critic heads sit.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
+from torch import nn
+
+#: Feature columns of each physical unit in the scenario's observation.
+UNIT_COLUMNS = {"presence": [0], "position": [1, 2], "velocity": [3, 4]}
+
+
+class MA2CFeaturesExtractor(BaseFeaturesExtractor):
+    """Inputs split by physical unit, one FC layer each, concatenated, then a ``features_dim`` FC layer.
+
+    :param observation_space: Box of shape (vehicles, 5)
+    :param unit_dims: output units of the presence, position and velocity layers
+    :param features_dim: units of the trunk layer (128 in the paper)
+    """
+
+    def __init__(
+        self,
+        observation_space: spaces.Box,
+        unit_dims: tuple[int, int, int] = (32, 64, 64),
+        features_dim: int = 128,
+    ) -> None:
+        if len(observation_space.shape) != 2 or observation_space.shape[1] != 5:
+            raise ValueError(
+                f"MA2CFeaturesExtractor needs observations of shape (vehicles, 5) with features "
+                f"(presence, x, y, vx, vy), got {observation_space.shape}."
+            )
+        super().__init__(observation_space, features_dim)
+        vehicles = observation_space.shape[0]
+        self.units = nn.ModuleDict(
+            {
+                unit: nn.Sequential(nn.Linear(vehicles * len(columns), dim), nn.ReLU())
+                for (unit, columns), dim in zip(UNIT_COLUMNS.items(), unit_dims)
+            }
+        )
+        self.trunk = nn.Sequential(nn.Linear(sum(unit_dims), features_dim), nn.ReLU())
+
+    def forward(self, observations: th.Tensor) -> th.Tensor:
+        parts = [
+            layer(observations[:, :, UNIT_COLUMNS[unit]].flatten(start_dim=1)) for unit, layer in self.units.items()
+        ]
+        return self.trunk(th.cat(parts, dim=1))
+
+
+def ma2c_policy_kwargs(architecture: str = "shared") -> dict[str, Any]:
+    """``policy_kwargs`` for SB3 actor-critic algorithms (A2C, PPO, TRPO, MaskablePPO).
+
+    :param architecture: ``shared`` (the paper's: one trunk for actor and critic) or ``separate``
+        (distinct actor and critic networks, for the paper's ablation)
+    """
+    if architecture not in ARCHITECTURES:
+        raise ValueError(f"Invalid architecture={architecture!r}: expected one of {list(ARCHITECTURES)}.")
+    return {
+        "features_extractor_class": MA2CFeaturesExtractor,
+        "share_features_extractor": architecture == "shared",
+        "net_arch": [],  # the heads sit directly on the 128-unit trunk
+    }
+
+
+def ma2c_q_policy_kwargs() -> dict[str, Any]:
+    """``policy_kwargs`` for DQN: the same network with a Q-value head."""
+    return {"features_extractor_class": MA2CFeaturesExtractor, "net_arch": []}
+
+
+ARCHITECTURES = ("shared", "separate")

@@ -1,0 +1,42 @@
+"""Build the VecEnv and the model of a learner from its rl-zoo-style hyperparameters."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.vec_env import VecEnv
+
+from sb3_marl.algos import get_algo
+from sb3_marl.hyperparams import SCENARIO_KEYS, ZOO_KEYS, policy_kwargs_for, validate_hyperparams
+from wrappers import ParameterSharingVecEnv, VecRewardScale
+
+
+def make_venv(env_id: str, hyperparams: dict[str, Any], seed: int, vec_backend: str = "dummy") -> VecEnv:
+    """The parameter-sharing VecEnv of the scenario, with the entry's reward mode, copies,
+    scenario overrides and reward scale."""
+    venv: VecEnv = ParameterSharingVecEnv(
+        env_id,
+        n_copies=hyperparams.get("n_copies"),
+        reward_mode=hyperparams.get("reward_mode", "local"),
+        vec_backend=vec_backend,
+        seed=seed,
+        config=hyperparams.get("env_config"),
+    )
+    if hyperparams.get("reward_scale", 1.0) != 1.0:
+        venv = VecRewardScale(venv, hyperparams["reward_scale"])
+    return venv
+
+
+def make_model(
+    algo: str, venv: VecEnv, hyperparams: dict[str, Any], seed: int, device: str = "cpu", **kwargs: Any
+) -> BaseAlgorithm:
+    """The algorithm registered as ``algo`` on ``venv``, with the entry's constructor arguments
+    and MA2C network; ``kwargs`` (e.g. ``tensorboard_log``, ``verbose``) go to the constructor."""
+    validate_hyperparams(algo, hyperparams)
+    arguments = {
+        key: value for key, value in hyperparams.items() if key not in (*SCENARIO_KEYS, *ZOO_KEYS, "policy_kwargs")
+    }
+    arguments["policy_kwargs"] = policy_kwargs_for(algo, hyperparams)
+    policy = hyperparams.get("policy", "MlpPolicy")
+    return get_algo(algo)(policy, venv, seed=seed, device=device, **arguments, **kwargs)

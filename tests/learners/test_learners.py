@@ -1,0 +1,128 @@
+"""MA2C network, algorithm registry, zoo configs and save/load."""
+
+import numpy as np
+import pytest
+import torch as th
+from gymnasium import spaces
+
+from sb3_marl.algos import ALGOS, get_algo
+from sb3_marl.envs import ENV_IDS
+from sb3_marl.hyperparams import CONFIG_DIR, load_hyperparams, validate_hyperparams
+from sb3_marl.policies import MA2CFeaturesExtractor, ma2c_policy_kwargs
+from sb3_marl.training import make_model, make_venv
+from wrappers import VecRewardScale
+
+
+def extractor_of(model):
+    """The features extractor of an actor-critic policy or of DQN's Q-network."""
+    return getattr(model.policy, "q_net", model.policy).features_extractor
+
+
+def test_features_extractor_splits_inputs_by_physical_unit():
+    space = spaces.Box(-1, 1, (5, 5))
+    extractor = MA2CFeaturesExtractor(space)
+    assert extractor.features_dim == 128
+    assert [layer[0].in_features for layer in extractor.units.values()] == [5, 10, 10]
+    assert [layer[0].out_features for layer in extractor.units.values()] == [32, 64, 64]
+    obs = th.rand(4, 5, 5) * 2 - 1
+    base = extractor(obs)
+    # Changing only the velocities changes only what flows through the velocity layer.
+    moved = obs.clone()
+    moved[:, :, 3:] += 0.5
+    velocity = extractor.units["velocity"]
+    assert not th.allclose(velocity(obs[:, :, 3:].flatten(1)), velocity(moved[:, :, 3:].flatten(1)))
+    for unit, columns in (("presence", [0]), ("position", [1, 2])):
+        layer = extractor.units[unit]
+        assert th.equal(layer(obs[:, :, columns].flatten(1)), layer(moved[:, :, columns].flatten(1)))
+    assert base.shape == (4, 128)
+    with pytest.raises(ValueError, match=r"\(vehicles, 5\)"):
+        MA2CFeaturesExtractor(spaces.Box(-1, 1, (25,)))
+
+
+def test_shared_and_separate_architectures():
+    venv = make_venv(ENV_IDS[1], {}, seed=0)
+    shared = make_model("ma2c", venv, {"architecture": "shared"}, seed=0).policy
+    separate = make_model("ma2c", venv, {"architecture": "separate"}, seed=0).policy
+    assert shared.pi_features_extractor is shared.vf_features_extractor
+    assert separate.pi_features_extractor is not separate.vf_features_extractor
+    count = lambda policy: sum(p.numel() for p in policy.parameters())  # noqa: E731
+    trunk = sum(p.numel() for p in shared.features_extractor.parameters())
+    assert count(separate) == count(shared) + trunk
+    with pytest.raises(ValueError, match="architecture='twin'"):
+        ma2c_policy_kwargs("twin")
+
+
+@pytest.mark.parametrize("algo", sorted(ALGOS))
+@pytest.mark.parametrize("density", [1, 2, 3])
+def test_every_zoo_config_builds_its_model(algo, density):
+    assert (CONFIG_DIR / f"{algo}.yml").is_file()
+    hyperparams = load_hyperparams(algo, ENV_IDS[density])
+    assert hyperparams["architecture"] == "shared" and hyperparams["reward_mode"] == "local"
+    venv = make_venv(ENV_IDS[density], hyperparams, seed=0)
+    assert isinstance(venv, VecRewardScale) and venv.scale == 0.05
+    model = make_model(algo, venv, hyperparams, seed=0)
+    assert isinstance(model, get_algo(algo))
+    assert isinstance(extractor_of(model), MA2CFeaturesExtractor)
+    venv.close()
+
+
+def test_ma2c_config_has_the_paper_settings():
+    hp = load_hyperparams("ma2c", ENV_IDS[1])
+    assert (hp["gamma"], hp["learning_rate"], hp["ent_coef"], hp["max_grad_norm"]) == (0.99, 5e-4, 0.01, 5.0)
+    assert hp["use_rms_prop"] and hp["rms_prop_eps"] == 1e-5 and hp["n_steps"] == 100
+    model = make_model("ma2c", make_venv(ENV_IDS[1], hp, seed=0), hp, seed=0)
+    assert isinstance(model.policy.optimizer, th.optim.RMSprop)
+    assert model.policy.optimizer.defaults["eps"] == 1e-5
+
+
+def test_scenario_overrides_from_yaml(tmp_path):
+    config = tmp_path / "ma2c.yml"
+    config.write_text(
+        "sb3_marl/LaneChange-density2-v0:\n  reward_mode: global\n  n_copies: 2\n"
+        "  env_config: {hdv_politeness: 1.0, comfort: false}\n"
+    )
+    hp = load_hyperparams("ma2c", ENV_IDS[2], path=config)
+    venv = make_venv(ENV_IDS[2], hp, seed=0)
+    assert venv.reward_mode == "global" and venv.n_avs == [2, 3]
+    assert venv.get_attr("config")[0]["hdv_politeness"] == 1.0
+    assert venv.get_attr("config")[0]["comfort"] is False
+
+
+@pytest.mark.parametrize(
+    "algo, hyperparams, match",
+    [
+        ("ma2c", {"learning_rat": 1e-3}, r"Unknown hyperparameter\(s\) \['learning_rat'\].*learning_rate"),
+        ("madqn", {"n_epochs": 3}, r"'n_epochs'.*exploration_fraction"),
+        ("madqn", {"architecture": "separate"}, r"architecture 'separate' for 'madqn'.*\['default', 'shared'\]"),
+        ("ma2c", {"policy": "LnMlpPolicy"}, r"policy 'LnMlpPolicy' for 'ma2c'.*MlpPolicy"),
+    ],
+)
+def test_bad_hyperparameters(algo, hyperparams, match):
+    with pytest.raises(ValueError, match=match):
+        validate_hyperparams(algo, hyperparams)
+
+
+def test_unknown_algorithm_and_missing_env_entry(tmp_path):
+    with pytest.raises(ValueError, match=r"Unknown algorithm 'maddpg'.*'ma2c'.*'madqn'"):
+        load_hyperparams("maddpg", ENV_IDS[1])
+    config = tmp_path / "ma2c.yml"
+    config.write_text("sb3_marl/LaneChange-density1-v0: {}\n")
+    with pytest.raises(ValueError, match="no entry for env 'sb3_marl/LaneChange-density3-v0'"):
+        load_hyperparams("ma2c", ENV_IDS[3], path=config)
+
+
+@pytest.mark.parametrize("algo", ["ma2c", "madqn"])
+def test_save_load_gives_the_same_actions(algo, tmp_path):
+    hp = {"architecture": "shared", **({"learning_starts": 10} if algo == "madqn" else {"n_steps": 10})}
+    venv = make_venv(ENV_IDS[1], hp, seed=0)
+    model = make_model(algo, venv, hp, seed=0)
+    model.learn(200)
+    model.save(tmp_path / "model.zip")
+    loaded = get_algo(algo).load(tmp_path / "model.zip", device="cpu")
+    obs = venv.reset()
+    for _ in range(20):
+        actions, _ = model.predict(obs, deterministic=True)
+        np.testing.assert_array_equal(actions, loaded.predict(obs, deterministic=True)[0])
+        obs, *_ = venv.step(actions)
+    assert isinstance(extractor_of(loaded), MA2CFeaturesExtractor)
+    venv.close()
