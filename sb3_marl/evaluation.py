@@ -7,10 +7,12 @@ of the AVs. Driving metrics are averaged over AV-steps of AVs still on the road.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
+from sb3_marl.envs.config import DENSITIES
 from sb3_marl.envs.lane_change_env import LaneChangeEnv
 
 Policy = Callable[[LaneChangeEnv, np.ndarray], np.ndarray]
@@ -76,4 +78,27 @@ def run_episodes(env: LaneChangeEnv, policy: Policy, n_episodes: int, seed: int 
     return records
 
 
-__all__ = ["EpisodeRecord", "Policy", "asdict", "run_episodes", "summarize"]
+def model_policy(model: Any, deterministic: bool = True) -> Policy:
+    """A policy that acts with an SB3 model: each AV's observation row is one batch entry."""
+    return lambda env, obs: model.predict(obs, deterministic=deterministic)[0]
+
+
+def evaluate_on_density(
+    policy: Policy, env_id: str, n_episodes: int, seed: int = 0, config: dict | None = None
+) -> dict[str, float]:
+    """Summary over ``n_episodes`` seeded episodes, cycling through the density's AV counts."""
+    import gymnasium as gym
+
+    config = dict(config or {})
+    density = config.get("density", gym.spec(env_id).kwargs.get("density"))
+    lo, hi = DENSITIES[density]["avs"]
+    counts = [config["n_avs"]] if config.get("n_avs") else list(range(lo, hi + 1))
+    envs = {n: gym.make(env_id, config={**config, "n_avs": n}).unwrapped for n in counts}
+    records = []
+    for episode in range(n_episodes):
+        env = envs[counts[episode % len(counts)]]
+        records += run_episodes(env, policy, 1, seed=seed + episode)
+    return summarize(records)
+
+
+__all__ = ["EpisodeRecord", "Policy", "evaluate_on_density", "model_policy", "run_episodes", "summarize"]
