@@ -17,7 +17,6 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import gymnasium as gym
 import highway_env  # noqa: F401  (registers highway-v0)
-import numpy as np
 
 import sb3_marl  # noqa: F401  (registers our ids)
 from sb3_marl.envs import DENSITIES, ENV_IDS

@@ -10,6 +10,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 
 from sb3_marl.envs.config import DENSITIES
@@ -87,8 +88,6 @@ def evaluate_on_density(
     policy: Policy, env_id: str, n_episodes: int, seed: int = 0, config: dict | None = None
 ) -> dict[str, float]:
     """Summary over ``n_episodes`` seeded episodes, cycling through the density's AV counts."""
-    import gymnasium as gym
-
     config = dict(config or {})
     density = config.get("density", gym.spec(env_id).kwargs.get("density"))
     lo, hi = DENSITIES[density]["avs"]
