@@ -32,11 +32,12 @@ def main() -> None:
     parser.add_argument("--eval-episodes", type=int, default=30)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--vec-env", default="dummy", choices=["dummy", "subproc"])
+    parser.add_argument("-c", "--conf-file", default=None, help="YAML instead of zoo_configs/<algo>.yml")
     args = parser.parse_args()
     torch.set_num_threads(1)
 
     env_id = ENV_IDS[args.density]
-    hyperparams = load_hyperparams(args.algo, env_id)
+    hyperparams = load_hyperparams(args.algo, env_id, path=args.conf_file)
     venv = make_venv(env_id, hyperparams, seed=args.seed, vec_backend=args.vec_env)
     model = make_model(args.algo, venv, hyperparams, seed=args.seed)
     slots = venv.num_envs
