@@ -7,7 +7,7 @@ of the AVs. Driving metrics are averaged over AV-steps of AVs still on the road.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import gymnasium as gym
@@ -26,9 +26,9 @@ class EpisodeRecord:
     episode_return: float = 0.0
     length: int = 0
     crashed: bool = False
-    speeds: list[float] | None = None  # [m/s]
-    headways: list[float] | None = None  # [m]
-    accelerations: list[float] | None = None  # [m/s²]
+    speeds: list[float] = field(default_factory=list)  # [m/s]
+    headways: list[float] = field(default_factory=list)  # [m]
+    accelerations: list[float] = field(default_factory=list)  # [m/s²]
     lane_changes: int = 0
 
     def add_step(self, reward: float, info: dict) -> None:
@@ -37,10 +37,8 @@ class EpisodeRecord:
         self.episode_return += reward
         self.length += 1
         self.crashed = self.crashed or bool(info["crashed"].any())
-        for name, key in (("speeds", "speed"), ("headways", "headway"), ("accelerations", "acceleration")):
-            samples = getattr(self, name) or []
+        for samples, key in ((self.speeds, "speed"), (self.headways, "headway"), (self.accelerations, "acceleration")):
             samples.extend(np.asarray(info[key])[on_road].tolist())
-            setattr(self, name, samples)
         self.lane_changes += int(np.asarray(info["lane_change"]).sum())
 
 
@@ -49,7 +47,7 @@ def summarize(records: list[EpisodeRecord]) -> dict[str, float]:
     returns = np.array([r.episode_return for r in records])
 
     def pooled(name: str) -> np.ndarray:
-        return np.array([x for r in records for x in (getattr(r, name) or [])])
+        return np.array([x for r in records for x in getattr(r, name)])
 
     return {
         "episodes": len(records),
