@@ -13,7 +13,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from sb3_marl.envs.config import DENSITIES
+from sb3_marl.envs import av_counts
 from sb3_marl.envs.lane_change_env import LaneChangeEnv
 
 Policy = Callable[[LaneChangeEnv, np.ndarray], np.ndarray]
@@ -86,11 +86,8 @@ def evaluate_on_density(
     policy: Policy, env_id: str, n_episodes: int, seed: int = 0, config: dict | None = None
 ) -> dict[str, float]:
     """Summary over ``n_episodes`` seeded episodes, cycling through the density's AV counts."""
-    config = dict(config or {})
-    density = config.get("density", gym.spec(env_id).kwargs.get("density"))
-    lo, hi = DENSITIES[density]["avs"]
-    counts = [config["n_avs"]] if config.get("n_avs") else list(range(lo, hi + 1))
-    envs = {n: gym.make(env_id, config={**config, "n_avs": n}).unwrapped for n in counts}
+    counts = av_counts(env_id, config)
+    envs = {n: gym.make(env_id, config={**(config or {}), "n_avs": n}).unwrapped for n in counts}
     records = []
     for episode in range(n_episodes):
         env = envs[counts[episode % len(counts)]]

@@ -49,6 +49,11 @@ def algorithm_arguments(algo: str) -> list[str]:
     return sorted(name for name in parameters if name not in ("self", *RESERVED_KEYS))
 
 
+def is_q_learning(algo: str) -> bool:
+    """Whether the algorithm learns a Q-network (DQN-like: no separate critic to configure)."""
+    return "exploration_fraction" in algorithm_arguments(algo)
+
+
 def validate_hyperparams(algo: str, hyperparams: dict[str, Any]) -> None:
     """Unknown keys, or an architecture the algorithm cannot use: a ValueError naming it and the valid ones."""
     allowed = algorithm_arguments(algo)
@@ -57,12 +62,12 @@ def validate_hyperparams(algo: str, hyperparams: dict[str, Any]) -> None:
     if unknown:
         raise ValueError(f"Unknown hyperparameter(s) {unknown} for {algo!r}: valid keys are {valid}.")
     architecture = hyperparams.get("architecture", "default")
-    is_q_learning = "exploration_fraction" in allowed
-    allowed_architectures = ["default", "shared"] if is_q_learning else ["default", *ARCHITECTURES]
+    q_learning = is_q_learning(algo)
+    allowed_architectures = ["default", "shared"] if q_learning else ["default", *ARCHITECTURES]
     if architecture not in allowed_architectures:
         raise ValueError(
             f"Invalid architecture {architecture!r} for {algo!r}: expected one of {allowed_architectures}"
-            + (" (a Q-network has no separate critic)." if is_q_learning else ".")
+            + (" (a Q-network has no separate critic)." if q_learning else ".")
         )
     policy = hyperparams.get("policy", "MlpPolicy")
     aliases = sorted(get_algo(algo).policy_aliases)
@@ -76,5 +81,5 @@ def policy_kwargs_for(algo: str, hyperparams: dict[str, Any]) -> dict[str, Any]:
     architecture = hyperparams.get("architecture", "default")
     if architecture == "default":
         return kwargs
-    preset = ma2c_q_policy_kwargs() if "exploration_fraction" in algorithm_arguments(algo) else ma2c_policy_kwargs(architecture)
+    preset = ma2c_q_policy_kwargs() if is_q_learning(algo) else ma2c_policy_kwargs(architecture)
     return {**preset, **kwargs}

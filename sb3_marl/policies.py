@@ -15,6 +15,8 @@ from gymnasium import spaces
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
 
+#: Actor-critic network layouts: one trunk for both heads (the paper's) or one network each.
+ARCHITECTURES = ("shared", "separate")
 #: Feature columns of each physical unit in the scenario's observation.
 UNIT_COLUMNS = {"presence": [0], "position": [1, 2], "velocity": [3, 4]}
 
@@ -74,5 +76,3 @@ def ma2c_q_policy_kwargs() -> dict[str, Any]:
     """``policy_kwargs`` for DQN: the same network with a Q-value head."""
     return {"features_extractor_class": MA2CFeaturesExtractor, "net_arch": []}
 
-
-ARCHITECTURES = ("shared", "separate")

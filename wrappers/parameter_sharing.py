@@ -20,8 +20,7 @@ from stable_baselines3.common.env_util import is_wrapped
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 from stable_baselines3.common.vec_env.base_vec_env import CloudpickleWrapper, VecEnvIndices, VecEnvStepReturn
 
-import sb3_marl  # noqa: F401  (registers the scenario ids)
-from sb3_marl.envs.config import DENSITIES
+from sb3_marl.envs import av_counts  # importing sb3_marl.envs registers the scenario ids
 
 REWARD_MODES = ("local", "global", "individual")
 VEC_BACKENDS = ("dummy", "subproc")
@@ -38,24 +37,6 @@ def _make_copy(env: str | EnvFactory, index: int, config: dict[str, Any], render
     if callable(env):
         return env(index)
     return gym.make(env, config=config, render_mode=render_mode)
-
-
-def _av_count_pattern(env_id: str, config: dict[str, Any]) -> list[int]:
-    """AV counts the copies cycle through: the density's AV range, or a fixed ``n_avs``."""
-    if config.get("n_avs") is not None:
-        return [int(config["n_avs"])]
-    try:
-        spec = gym.spec(env_id)
-    except gym.error.Error as error:
-        raise ValueError(f"Invalid env {env_id!r}: not a registered gymnasium id ({error}).") from None
-    density = config.get("density", (spec.kwargs or {}).get("density"))
-    if density not in DENSITIES:
-        raise ValueError(
-            f"Invalid env {env_id!r}: not a multi-agent lane-change scenario (no traffic density); "
-            "use one of the sb3_marl/LaneChange-density{1,2,3}-v0 ids or a factory."
-        )
-    lo, hi = DENSITIES[density]["avs"]
-    return list(range(lo, hi + 1))
 
 
 def apply_reward_mode(info: dict[str, Any], reward_mode: str) -> np.ndarray:
@@ -283,7 +264,7 @@ class ParameterSharingVecEnv(VecEnv):
         if vec_backend not in VEC_BACKENDS:
             raise ValueError(f"Invalid vec_backend={vec_backend!r}: expected one of {list(VEC_BACKENDS)}.")
         config = dict(config or {})
-        pattern = [None] if callable(env) else _av_count_pattern(env, config)
+        pattern = [None] if callable(env) else av_counts(env, config)
         n_copies = len(pattern) if n_copies is None else n_copies
         if isinstance(n_copies, bool) or not isinstance(n_copies, int) or n_copies < 1:
             raise ValueError(f"Invalid n_copies={n_copies!r}: expected an integer >= 1.")

@@ -1,5 +1,8 @@
 """The lane-change scenario; importing this module registers its gymnasium ids."""
 
+from typing import Any
+
+import gymnasium as gym
 from gymnasium.envs.registration import register, registry
 
 from sb3_marl.envs.config import DENSITIES, default_config, validate_config
@@ -15,4 +18,28 @@ for _density, _env_id in ENV_IDS.items():
             kwargs={"density": _density},
         )
 
-__all__ = ["ACTIONS", "DENSITIES", "ENV_IDS", "LaneChangeEnv", "default_config", "validate_config"]
+
+
+def av_counts(env_id: str, config: dict[str, Any] | None = None) -> list[int]:
+    """AV counts that cover a scenario id: the fixed ``config["n_avs"]``, else its density's range.
+
+    :raises ValueError: if ``env_id`` is not registered or is not a lane-change scenario
+    """
+    config = config or {}
+    if config.get("n_avs") is not None:
+        return [int(config["n_avs"])]
+    try:
+        spec = gym.spec(env_id)
+    except gym.error.Error as error:
+        raise ValueError(f"Invalid env {env_id!r}: not a registered gymnasium id ({error}).") from None
+    density = config.get("density", (spec.kwargs or {}).get("density"))
+    if density not in DENSITIES:
+        raise ValueError(
+            f"Invalid env {env_id!r}: not a multi-agent lane-change scenario (no traffic density); "
+            "use one of the sb3_marl/LaneChange-density{1,2,3}-v0 ids or a factory."
+        )
+    lo, hi = DENSITIES[density]["avs"]
+    return list(range(lo, hi + 1))
+
+
+__all__ = ["ACTIONS", "DENSITIES", "ENV_IDS", "LaneChangeEnv", "av_counts", "default_config", "validate_config"]
