@@ -21,10 +21,18 @@ setup(
         "numpy>=1.26",
         "tensorboard>=2.15",
         "pyyaml>=6",
+        "rl_zoo3>=2.9,<2.10",
+        "matplotlib>=3.8",
+        "imageio>=2.34",
+        "imageio-ffmpeg>=0.5",
+        "tqdm",
+        "rich",
     ],
     extras_require={
-        "dev": ["pytest>=8"],
+        # seaborn and scipy: rl_zoo3's own plotting scripts, run by the tests on our logs
+        "dev": ["pytest>=8", "seaborn", "scipy"],
     },
+    entry_points={"console_scripts": ["sb3-marl=sb3_marl.cli:main"]},
     classifiers=[
         "Programming Language :: Python :: 3",
         "Topic :: Scientific/Engineering :: Artificial Intelligence",

@@ -63,6 +63,30 @@ def summarize(records: list[EpisodeRecord]) -> dict[str, float]:
     }
 
 
+#: Columns of a results table: title and how to format it from a :func:`summarize` summary.
+TABLE_COLUMNS: tuple[tuple[str, Callable[[dict[str, float]], str]], ...] = (
+    ("return", lambda s: f"{s['return_mean']:.2f} ± {s['return_std']:.2f}"),
+    ("collision rate", lambda s: f"{s['collision_rate']:.2f}"),
+    ("success rate", lambda s: f"{s['success_rate']:.2f}"),
+    ("mean speed [m/s]", lambda s: f"{s['speed_mean']:.2f}"),
+    ("mean headway [m]", lambda s: f"{s['headway_mean']:.1f}"),
+    ("accel. std [m/s²]", lambda s: f"{s['acceleration_std']:.3f}"),
+    ("lane changes/ep", lambda s: f"{s['lane_changes_per_episode']:.2f}"),
+    ("steps/ep", lambda s: f"{s['length_mean']:.1f}"),
+)
+
+
+def markdown_table(rows: list[tuple[dict[str, Any], dict[str, float]]]) -> str:
+    """A markdown table: per row, its label columns (e.g. ``{"policy": "random"}``) then the metrics."""
+    labels = list(rows[0][0]) if rows else []
+    titles = [*labels, *(title for title, _ in TABLE_COLUMNS)]
+    lines = ["| " + " | ".join(titles) + " |", "|" + "---|" * len(titles)]
+    for label, summary in rows:
+        cells = [str(label[key]) for key in labels] + [fmt(summary) for _, fmt in TABLE_COLUMNS]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def run_episodes(env: LaneChangeEnv, policy: Policy, n_episodes: int, seed: int = 0) -> list[EpisodeRecord]:
     """Play ``n_episodes`` episodes with seeds ``seed, seed + 1, ...``."""
     records = []
@@ -82,17 +106,26 @@ def model_policy(model: Any, deterministic: bool = True) -> Policy:
     return lambda env, obs: model.predict(obs, deterministic=deterministic)[0]
 
 
-def evaluate_on_density(
+def evaluation_records(
     policy: Policy, env_id: str, n_episodes: int, seed: int = 0, config: dict | None = None
-) -> dict[str, float]:
-    """Summary over ``n_episodes`` seeded episodes, cycling through the density's AV counts."""
+) -> list[EpisodeRecord]:
+    """``n_episodes`` episodes with seeds ``seed, seed + 1, ...``, cycling through the density's AV counts."""
     counts = av_counts(env_id, config)
     envs = {n: gym.make(env_id, config={**(config or {}), "n_avs": n}).unwrapped for n in counts}
     records = []
     for episode in range(n_episodes):
         env = envs[counts[episode % len(counts)]]
         records += run_episodes(env, policy, 1, seed=seed + episode)
-    return summarize(records)
+    for env in envs.values():
+        env.close()
+    return records
 
 
-__all__ = ["EpisodeRecord", "Policy", "evaluate_on_density", "model_policy", "run_episodes", "summarize"]
+def evaluate_on_density(
+    policy: Policy, env_id: str, n_episodes: int, seed: int = 0, config: dict | None = None
+) -> dict[str, float]:
+    """Summary over ``n_episodes`` seeded episodes, cycling through the density's AV counts."""
+    return summarize(evaluation_records(policy, env_id, n_episodes, seed, config))
+
+
+__all__ = ["EpisodeRecord", "Policy", "evaluate_on_density", "evaluation_records", "markdown_table", "model_policy", "run_episodes", "summarize"]

@@ -2,19 +2,28 @@
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.vec_env import VecEnv
+from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 
 from sb3_marl.algos import get_algo
-from sb3_marl.hyperparams import SCENARIO_KEYS, ZOO_KEYS, policy_kwargs_for, validate_hyperparams
+from sb3_marl.hyperparams import (
+    SCENARIO_KEYS,
+    ZOO_KEYS,
+    policy_kwargs_for,
+    validate_hyperparams,
+)
 from wrappers import ParameterSharingVecEnv, VecRewardScale
 
 
-def make_venv(env_id: str, hyperparams: dict[str, Any], seed: int, vec_backend: str = "dummy") -> VecEnv:
+def make_venv(
+    env_id: str, hyperparams: dict[str, Any], seed: int, vec_backend: str = "dummy", monitor_dir: str | None = None
+) -> VecEnv:
     """The parameter-sharing VecEnv of the scenario, with the entry's reward mode, copies,
-    scenario overrides and reward scale."""
+    scenario overrides and reward scale; with ``monitor_dir``, SB3's VecMonitor writes each AV's
+    episodes (unscaled return, length) to ``<monitor_dir>/monitor.csv``, as rl_zoo3 expects."""
     venv: VecEnv = ParameterSharingVecEnv(
         env_id,
         n_copies=hyperparams.get("n_copies"),
@@ -23,6 +32,9 @@ def make_venv(env_id: str, hyperparams: dict[str, Any], seed: int, vec_backend: 
         seed=seed,
         config=hyperparams.get("env_config"),
     )
+    if monitor_dir is not None:
+        os.makedirs(monitor_dir, exist_ok=True)
+        venv = VecMonitor(venv, os.path.join(monitor_dir, "monitor.csv"))
     if hyperparams.get("reward_scale", 1.0) != 1.0:
         venv = VecRewardScale(venv, hyperparams["reward_scale"])
     return venv

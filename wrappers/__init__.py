@@ -1,5 +1,10 @@
 """VecEnv wrappers that turn multi-agent scenario envs into ordinary Stable-Baselines3 VecEnvs."""
 
-from wrappers.parameter_sharing import REWARD_MODES, VEC_BACKENDS, ParameterSharingVecEnv, VecRewardScale
+from wrappers.parameter_sharing import (
+    REWARD_MODES,
+    VEC_BACKENDS,
+    ParameterSharingVecEnv,
+    VecRewardScale,
+)
 
 __all__ = ["REWARD_MODES", "VEC_BACKENDS", "ParameterSharingVecEnv", "VecRewardScale"]

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import os
+import signal
 import time
 import traceback
 from collections.abc import Callable, Sequence
@@ -18,9 +19,16 @@ import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.env_util import is_wrapped
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
-from stable_baselines3.common.vec_env.base_vec_env import CloudpickleWrapper, VecEnvIndices, VecEnvStepReturn
+from stable_baselines3.common.vec_env.base_vec_env import (
+    CloudpickleWrapper,
+    VecEnvIndices,
+    VecEnvStepReturn,
+)
 
-from sb3_marl.envs import av_counts  # importing sb3_marl.envs registers the scenario ids
+from sb3_marl.envs import (  # importing sb3_marl.envs registers the scenario ids
+    av_counts,
+    copy_av_counts,
+)
 
 REWARD_MODES = ("local", "global", "individual")
 VEC_BACKENDS = ("dummy", "subproc")
@@ -156,7 +164,10 @@ class LocalCopies:
 
 
 def _worker(remote: Any, parent_remote: Any, runners: CloudpickleWrapper) -> None:
-    """Worker process: host a group of copies and run the calls the main process sends."""
+    """Worker process: host a group of copies and run the calls the main process sends.
+
+    Ctrl-C is left to the main process, which stops training and then closes the workers."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     parent_remote.close()
     runners = [make_runner() for make_runner in runners.var]
     while True:
@@ -264,10 +275,10 @@ class ParameterSharingVecEnv(VecEnv):
         if vec_backend not in VEC_BACKENDS:
             raise ValueError(f"Invalid vec_backend={vec_backend!r}: expected one of {list(VEC_BACKENDS)}.")
         config = dict(config or {})
-        pattern = [None] if callable(env) else av_counts(env, config)
-        n_copies = len(pattern) if n_copies is None else n_copies
+        n_copies = (1 if callable(env) else len(av_counts(env, config))) if n_copies is None else n_copies
         if isinstance(n_copies, bool) or not isinstance(n_copies, int) or n_copies < 1:
             raise ValueError(f"Invalid n_copies={n_copies!r}: expected an integer >= 1.")
+        copy_counts = [None] * n_copies if callable(env) else copy_av_counts(env, config, n_copies)
         if vec_backend == "dummy":
             n_workers = 1
         elif n_workers is None:
@@ -278,8 +289,7 @@ class ParameterSharingVecEnv(VecEnv):
         self.reward_mode = reward_mode
         self.vec_backend = vec_backend
         runners = []
-        for k in range(n_copies):
-            n_avs = pattern[k % len(pattern)]
+        for k, n_avs in enumerate(copy_counts):
             copy_config = config if n_avs is None else {**config, "n_avs": n_avs}
             runners.append(partial(CopyRunner, partial(_make_copy, env, k, copy_config, render_mode), k, reward_mode))
         #: copy k runs in group placement[k][0] at index placement[k][1]

@@ -19,7 +19,6 @@ for _density, _env_id in ENV_IDS.items():
         )
 
 
-
 def av_counts(env_id: str, config: dict[str, Any] | None = None) -> list[int]:
     """AV counts that cover a scenario id: the fixed ``config["n_avs"]``, else its density's range.
 
@@ -42,4 +41,12 @@ def av_counts(env_id: str, config: dict[str, Any] | None = None) -> list[int]:
     return list(range(lo, hi + 1))
 
 
-__all__ = ["ACTIONS", "DENSITIES", "ENV_IDS", "LaneChangeEnv", "av_counts", "default_config", "validate_config"]
+def copy_av_counts(env_id: str, config: dict[str, Any] | None = None, n_copies: int | None = None) -> list[int]:
+    """AV count of each scenario copy: the density's counts repeated over ``n_copies`` copies
+    (default: one copy per count)."""
+    counts = av_counts(env_id, config)
+    n_copies = len(counts) if n_copies is None else n_copies
+    return [counts[k % len(counts)] for k in range(n_copies)]
+
+
+__all__ = ["ACTIONS", "DENSITIES", "ENV_IDS", "LaneChangeEnv", "av_counts", "copy_av_counts", "default_config", "validate_config"]

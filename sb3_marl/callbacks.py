@@ -1,0 +1,188 @@
+"""Training callbacks: driving metrics for TensorBoard, the paper's evaluation, atomic checkpoints.
+
+All three plug into any SB3 algorithm trained on a :class:`~wrappers.ParameterSharingVecEnv`.
+"""
+
+from __future__ import annotations
+
+import os
+from collections import defaultdict, deque
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
+
+from sb3_marl.evaluation import (
+    EpisodeRecord,
+    evaluation_records,
+    model_policy,
+    summarize,
+)
+
+#: Per-AV-step driving samples of the slot infos, averaged (speed, headway) or spread (acceleration).
+DRIVING_SAMPLES = ("speed", "headway", "acceleration")
+
+
+def atomic_save(model: BaseAlgorithm, path: str | Path) -> Path:
+    """``model.save(path)`` through a temporary file and a rename, so ``path`` is never half written."""
+    path = Path(path).with_suffix(".zip")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    temporary = path.with_name(f".{path.stem}.partial.zip")
+    model.save(temporary)
+    os.replace(temporary, path)
+    return path
+
+
+class AtomicCheckpointCallback(CheckpointCallback):
+    """SB3's :class:`CheckpointCallback` (same ``rl_model_<steps>_steps.zip`` names) with atomic writes."""
+
+    def _on_step(self) -> bool:
+        if self.n_calls % self.save_freq == 0:
+            path = atomic_save(self.model, self._checkpoint_path(extension="zip"))
+            if self.verbose >= 2:
+                print(f"Saving model checkpoint to {path}")
+        return True
+
+
+class DrivingMetricsCallback(BaseCallback):
+    """Logs the scenario's driving metrics under ``rollout/`` at the end of every rollout.
+
+    Per AV-step on the road, averaged over the rollouts between two logger dumps: ``speed_mean``
+    [m/s], ``headway_mean`` [m], ``acceleration_std`` [m/s²] and each reward term (``reward_<term>``,
+    unweighted). Over the last ``window`` finished scenario episodes: ``collision_rate``,
+    ``success_rate`` (no crash), ``lane_changes_per_episode`` and ``episode_return`` (the paper's
+    metric: sum over steps of the mean AV reward, before any reward scaling).
+    """
+
+    def __init__(self, window: int = 100, verbose: int = 0) -> None:
+        super().__init__(verbose)
+        self.episodes: deque[EpisodeRecord] = deque(maxlen=window)
+
+    def _on_training_start(self) -> None:
+        self._running: dict[int, EpisodeRecord] = defaultdict(EpisodeRecord)  # scenario copy -> its episode
+        self._reset_rollout()
+
+    def _reset_rollout(self) -> None:
+        self._samples: dict[str, list[float]] = defaultdict(list)
+
+    def _on_step(self) -> bool:
+        finished = set()
+        for info, done in zip(self.locals["infos"], self.locals["dones"]):
+            if "copy" not in info:
+                continue
+            episode = self._running[info["copy"]]
+            if info["agent"] == 0:
+                episode.episode_return += info["global_reward"]
+                episode.length += 1
+            episode.crashed = episode.crashed or bool(info["crashed"])
+            episode.lane_changes += int(info["lane_change"])
+            if not info["exited"]:
+                for key in DRIVING_SAMPLES:
+                    self._samples[key].append(float(info[key]))
+                for term, value in info["reward_terms"].items():
+                    self._samples[f"reward_{term}"].append(value)
+            if done:
+                finished.add(info["copy"])
+        for copy in finished:
+            self.episodes.append(self._running.pop(copy))
+        return True
+
+    def _on_rollout_end(self) -> None:
+        for key, values in self._samples.items():
+            if key == "acceleration":
+                self.logger.record_mean("rollout/acceleration_std", float(np.std(values)))
+            else:
+                self.logger.record_mean(f"rollout/{key}" if key.startswith("reward_") else f"rollout/{key}_mean",
+                                        float(np.mean(values)))
+        self._reset_rollout()
+        if self.episodes:
+            episodes = list(self.episodes)
+            self.logger.record("rollout/collision_rate", float(np.mean([e.crashed for e in episodes])))
+            self.logger.record("rollout/success_rate", float(np.mean([not e.crashed for e in episodes])))
+            self.logger.record("rollout/lane_changes_per_episode", float(np.mean([e.lane_changes for e in episodes])))
+            self.logger.record("rollout/episode_return", float(np.mean([e.episode_return for e in episodes])))
+
+
+class ScenarioEvalCallback(BaseCallback):
+    """Every ``eval_freq`` calls, plays ``n_eval_episodes`` seeded scenario episodes with the model.
+
+    Unlike SB3's ``EvalCallback`` (one return per VecEnv slot, i.e. per AV) each evaluation episode
+    scores the paper's metric: the sum over steps of the mean AV reward. The same seeds
+    (``seed, seed + 1, ...``) are used at every evaluation, so the curve compares like with like.
+    Results go to ``<log_path>/evaluations.npz`` in SB3's layout (``timesteps``, ``results``,
+    ``ep_lengths``) plus one array per driving metric, to the logger under ``eval/``, and the best
+    model so far to ``<best_model_save_path>/best_model.zip``.
+    """
+
+    METRICS = ("collision_rate", "success_rate", "speed_mean", "headway_mean", "acceleration_std",
+               "lane_changes_per_episode")
+
+    def __init__(
+        self,
+        env_id: str,
+        eval_freq: int,
+        n_eval_episodes: int = 5,
+        seed: int = 0,
+        config: dict[str, Any] | None = None,
+        log_path: str | Path | None = None,
+        best_model_save_path: str | Path | None = None,
+        deterministic: bool = True,
+        verbose: int = 1,
+    ) -> None:
+        super().__init__(verbose)
+        self.env_id, self.config = env_id, config
+        self.eval_freq, self.n_eval_episodes, self.seed = eval_freq, n_eval_episodes, seed
+        self.log_path = Path(log_path) if log_path is not None else None
+        self.best_model_save_path = Path(best_model_save_path) if best_model_save_path is not None else None
+        self.deterministic = deterministic
+        self.best_mean_reward = -np.inf
+        self.evaluations: dict[str, list] = defaultdict(list)
+
+    def _on_step(self) -> bool:
+        if self.eval_freq > 0 and self.n_calls % self.eval_freq == 0:
+            self.evaluate()
+        return True
+
+    def evaluate(self) -> dict[str, float]:
+        """Run one evaluation now; returns its summary."""
+        records = evaluation_records(
+            model_policy(self.model, self.deterministic), self.env_id, self.n_eval_episodes, self.seed, self.config
+        )
+        summary = summarize(records)
+        row = {
+            "timesteps": self.num_timesteps,
+            "results": [r.episode_return for r in records],
+            "ep_lengths": [r.length for r in records],
+            **{metric: summary[metric] for metric in self.METRICS},
+        }
+        for key, value in row.items():
+            self.evaluations[key].append(value)
+        if self.log_path is not None:
+            self.log_path.mkdir(parents=True, exist_ok=True)
+            temporary = self.log_path / ".evaluations.partial.npz"
+            np.savez(temporary, **{key: np.array(values) for key, values in self.evaluations.items()})
+            os.replace(temporary, self.log_path / "evaluations.npz")
+
+        self.logger.record("eval/mean_reward", summary["return_mean"])
+        self.logger.record("eval/std_reward", summary["return_std"])
+        self.logger.record("eval/mean_ep_length", summary["length_mean"])
+        for metric in self.METRICS:
+            self.logger.record(f"eval/{metric}", summary[metric])
+        if self.verbose >= 1:
+            print(
+                f"Eval num_timesteps={self.num_timesteps}, episode_return={summary['return_mean']:.2f} "
+                f"+/- {summary['return_std']:.2f}, collision_rate={summary['collision_rate']:.2f}"
+            )
+        if summary["return_mean"] > self.best_mean_reward:
+            self.best_mean_reward = summary["return_mean"]
+            if self.best_model_save_path is not None:
+                atomic_save(self.model, self.best_model_save_path / "best_model.zip")
+                if self.verbose >= 1:
+                    print("New best mean reward!")
+        self.logger.dump(self.num_timesteps)
+        return summary
+
+
+__all__ = ["AtomicCheckpointCallback", "DrivingMetricsCallback", "ScenarioEvalCallback", "atomic_save"]

@@ -1,0 +1,310 @@
+"""The ``sb3-marl`` command line (also ``python -m sb3_marl``), with rl-zoo's flag names.
+
+    sb3-marl train --algo ma2c --env sb3_marl/LaneChange-density1-v0 -n 100000 -f logs
+    sb3-marl evaluate --algo ma2c --env sb3_marl/LaneChange-density1-v0 -f logs   (alias: enjoy)
+    sb3-marl plot --algo ma2c mappo --env sb3_marl/LaneChange-density1-v0 -f logs
+    sb3-marl record-video --algo ma2c --env sb3_marl/LaneChange-density1-v0 -f logs
+    sb3-marl baselines --density 1        (reference policies: random and IDM/MOBIL)
+
+Timesteps (``-n``, ``--eval-freq``, ``--save-freq``) count AV-steps, SB3's timesteps on the
+parameter-sharing VecEnv: one step of a scenario copy with N AVs is N timesteps.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from sb3_marl.algos import ALGOS
+from sb3_marl.envs import DENSITIES, ENV_IDS
+
+DEFAULT_ENV = ENV_IDS[1]
+EXIT_INTERRUPTED = {signal.SIGINT: 130, signal.SIGTERM: 143}
+
+
+class StoreHyperparams(argparse.Action):
+    """rl-zoo's ``-params key:value ...``: each value is a Python expression (``n_steps:20``,
+    ``env_config:"dict(comfort=False)"``); one that does not evaluate is kept as a string
+    (``reward_mode:global``)."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any, option_string: Any = None) -> None:
+        parsed = {}
+        for item in values:
+            key, sep, expression = item.partition(":")
+            if not sep or not key:
+                parser.error(f"argument {option_string}: expected key:value, got {item!r}")
+            try:
+                parsed[key] = eval(expression)  # as rl_zoo3's StoreDict
+            except Exception:
+                parsed[key] = expression
+        setattr(namespace, self.dest, parsed)
+
+
+def _positive(kind: type = int) -> Any:
+    def parse(text: str) -> Any:
+        value = kind(text)
+        if value < 1:
+            raise argparse.ArgumentTypeError(f"expected a value >= 1, got {text}")
+        return value
+    return parse
+
+
+def _add_run_selection(parser: argparse.ArgumentParser) -> None:
+    """rl-zoo ``enjoy``'s flags to pick a trained model."""
+    parser.add_argument("--algo", default="ma2c", choices=sorted(ALGOS), help="learner (default: ma2c)")
+    parser.add_argument("--env", default=DEFAULT_ENV, choices=list(ENV_IDS.values()), help="scenario id")
+    parser.add_argument("-f", "--folder", "--log-folder", dest="folder", default="logs", help="log folder (default: logs)")
+    parser.add_argument("--exp-id", type=int, default=0, help="run id; 0 = latest (default)")
+    picked = parser.add_mutually_exclusive_group()
+    picked.add_argument("--load-best", action="store_true", help="load best_model.zip")
+    picked.add_argument("--load-checkpoint", type=int, metavar="STEPS", help="load rl_model_<STEPS>_steps.zip")
+    picked.add_argument("--load-last-checkpoint", action="store_true", help="load the latest checkpoint")
+    parser.add_argument("--seed", type=int, default=0, help="episode seeds start at seed + 10000 (default: 0)")
+    parser.add_argument("--stochastic", action="store_true", help="sample actions instead of the argmax")
+    parser.add_argument("--device", default="auto", help="torch device (default: auto)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="sb3-marl", description="Multi-agent RL for cooperative lane changing of CAVs")
+    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    train = commands.add_parser("train", help="train a learner (rl-zoo's train.py flags)")
+    train.add_argument("--algo", default="ma2c", choices=sorted(ALGOS), help="learner (default: ma2c)")
+    train.add_argument("--env", default=DEFAULT_ENV, choices=list(ENV_IDS.values()), help="scenario id")
+    train.add_argument("-n", "--n-timesteps", type=int, default=-1, help="AV-steps to train; -1: the config's n_timesteps")
+    train.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
+    train.add_argument("-f", "--log-folder", default="logs", help="log folder (default: logs)")
+    train.add_argument("-tb", "--tensorboard-log", default=None,
+                       help="TensorBoard folder (default: <log-folder>/tensorboard; '' disables)")
+    train.add_argument("--eval-freq", type=int, default=10_000, help="evaluate every N AV-steps; -1 disables")
+    train.add_argument("--eval-episodes", type=_positive(), default=5, help="episodes per evaluation (default: 5)")
+    train.add_argument("--save-freq", type=int, default=-1, help="checkpoint every N AV-steps; -1 disables")
+    train.add_argument("-c", "--conf-file", default=None, help="YAML instead of zoo_configs/<algo>.yml")
+    train.add_argument("-params", "--hyperparams", nargs="+", action=StoreHyperparams, default={},
+                       metavar="KEY:VALUE", help="override hyperparameters, e.g. n_steps:20 reward_mode:'global'")
+    train.add_argument("-i", "--trained-agent", default="", help="continue training this model zip (counts on)")
+    train.add_argument("--vec-env", default="dummy", choices=["dummy", "subproc"], help="scenario copies in process or in workers")
+    train.add_argument("--n-envs", type=_positive(), default=None, help="scenario copies (default: the config's)")
+    train.add_argument("--reward-mode", choices=["local", "global", "individual"], default=None,
+                       help="overrides the config's reward_mode")
+    train.add_argument("--progress", action="store_true", help="progress bar (tqdm + rich)")
+    train.add_argument("--device", default="auto", help="torch device (default: auto)")
+    train.add_argument("--num-threads", type=int, default=-1, help="torch threads; -1: torch's default")
+    train.add_argument("--log-interval", type=int, default=-1, help="SB3 log_interval; -1: the algorithm's default")
+    train.add_argument("--verbose", type=int, default=1, choices=[0, 1, 2])
+
+    for name in ("evaluate", "enjoy"):
+        evaluate = commands.add_parser(name, help="evaluate a trained model on seeded episodes" if name == "evaluate"
+                                       else "alias of evaluate (rl-zoo's name)")
+        _add_run_selection(evaluate)
+        evaluate.add_argument("--eval-episodes", type=_positive(), default=30, help="episodes (default: 30)")
+        evaluate.add_argument("-o", "--output", default=None, help="JSON file (default: <run>/evaluation.json)")
+
+    plot = commands.add_parser("plot", help="learning-curve PNGs of one or several runs")
+    plot.add_argument("--algo", "--algos", dest="algos", nargs="+", default=["ma2c"], choices=sorted(ALGOS))
+    plot.add_argument("--env", default=DEFAULT_ENV, choices=list(ENV_IDS.values()))
+    plot.add_argument("-f", "--folder", "--log-folder", dest="folder", default="logs")
+    plot.add_argument("--exp-ids", type=int, nargs="+", default=None, help="runs to plot (default: all)")
+    plot.add_argument("-w", "--episode-window", type=_positive(), default=100, help="rolling window of training returns")
+    plot.add_argument("-o", "--output", default=None, help="folder for the PNGs (default: <folder>/plots)")
+
+    video = commands.add_parser("record-video", help="mp4 of evaluation episodes, rendered headless")
+    _add_run_selection(video)
+    video.add_argument("--n-episodes", type=_positive(), default=1, help="episodes in the video (default: 1)")
+    video.add_argument("-o", "--output", default=None, help="mp4 file (default: <run>/videos/<model>.mp4)")
+
+    baselines = commands.add_parser("baselines", help="metrics of the reference policies (random, IDM/MOBIL)")
+    baselines.add_argument("--density", type=int, choices=sorted(DENSITIES), default=1)
+    baselines.add_argument("--episodes", type=_positive(), default=20, help="episodes per policy and AV count")
+    baselines.add_argument("--seed", type=int, default=0)
+    baselines.add_argument("--out", type=Path, default=Path("logs/scenario_baselines.md"))
+    return parser
+
+
+# ---- train -------------------------------------------------------------------------------------
+
+
+class _StopTraining:
+    """While active, SIGTERM raises KeyboardInterrupt like Ctrl-C, so training stops and saves."""
+
+    def __init__(self) -> None:
+        self.signal: int | None = None
+
+    def __enter__(self) -> _StopTraining:
+        self._previous = {sig: signal.signal(sig, self._handle) for sig in EXIT_INTERRUPTED}
+        return self
+
+    def _handle(self, signum: int, frame: Any) -> None:
+        if self.signal is None:
+            self.signal = signum
+            raise KeyboardInterrupt
+
+    def __exit__(self, *exc: Any) -> None:
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+
+
+def train(args: argparse.Namespace) -> int:
+    import torch
+
+    from sb3_marl.experiment import MARLExperimentManager
+
+    if args.trained_agent and not (args.trained_agent.endswith(".zip") and os.path.isfile(args.trained_agent)):
+        raise UsageError(f"-i/--trained-agent: {args.trained_agent!r} is not an existing .zip model file.")
+    if args.num_threads > 0:
+        torch.set_num_threads(args.num_threads)
+    tensorboard_log = os.path.join(args.log_folder, "tensorboard") if args.tensorboard_log is None else args.tensorboard_log
+    manager = MARLExperimentManager(
+        args, args.algo, args.env, args.log_folder,
+        conf_file=args.conf_file, n_copies=args.n_envs, reward_mode=args.reward_mode, vec_env_type=args.vec_env,
+        tensorboard_log=tensorboard_log, n_timesteps=args.n_timesteps, eval_freq=args.eval_freq,
+        n_eval_episodes=args.eval_episodes, save_freq=args.save_freq, hyperparams=args.hyperparams,
+        trained_agent=args.trained_agent, seed=args.seed, log_interval=args.log_interval, verbose=args.verbose,
+        device=args.device, show_progress=args.progress,
+    )
+    try:
+        model, _ = manager.setup_experiment()
+    except (ValueError, FileNotFoundError) as error:  # bad hyperparameters: nothing has been trained
+        raise UsageError(str(error)) from None
+    start = time.perf_counter()
+    with _StopTraining() as stop:
+        manager.learn(model)
+    manager.save_trained_model(model)
+    print(f"Training wall time: {time.perf_counter() - start:.1f} s, {model.num_timesteps} timesteps (AV-steps)")
+    if tensorboard_log:
+        print(f"TensorBoard: tensorboard --logdir {tensorboard_log}")
+    if manager.interrupted:
+        signum = stop.signal or signal.SIGINT
+        print(f"Training interrupted ({signal.Signals(signum).name}); resume with -i {manager.save_path}/{manager.env_name}.zip")
+        return EXIT_INTERRUPTED[signum]
+    return 0
+
+
+# ---- evaluate, record-video, plot, baselines ----------------------------------------------------
+
+
+def _find_run(args: argparse.Namespace) -> Any:
+    from sb3_marl.runs import find_run
+
+    try:
+        return find_run(args.folder, args.algo, args.env, args.exp_id, args.load_best, args.load_checkpoint,
+                        args.load_last_checkpoint)
+    except FileNotFoundError as error:
+        raise UsageError(str(error)) from None
+
+
+def evaluate(args: argparse.Namespace) -> int:
+    from sb3_marl.evaluation import (
+        evaluation_records,
+        markdown_table,
+        model_policy,
+        summarize,
+    )
+    from sb3_marl.experiment import EVAL_SEED_OFFSET
+
+    run = _find_run(args)
+    model = run.load_model(args.device)
+    seed = args.seed + EVAL_SEED_OFFSET
+    start = time.perf_counter()
+    records = evaluation_records(model_policy(model, not args.stochastic), args.env, args.eval_episodes, seed, run.env_config)
+    summary = summarize(records)
+    result = {
+        "algo": args.algo, "env_id": args.env, "model": str(run.model_path), "num_timesteps": int(model.num_timesteps),
+        "deterministic": not args.stochastic, "seeds": [seed, seed + args.eval_episodes - 1], "env_config": run.env_config,
+        **summary, "returns": [r.episode_return for r in records],
+    }
+    table = markdown_table([({"algo": args.algo, "timesteps": model.num_timesteps}, summary)])
+    print(f"{args.env}: {args.eval_episodes} episodes, seeds {seed}..{seed + args.eval_episodes - 1}, model {run.model_path}\n")
+    print(table)
+    output = Path(args.output) if args.output else run.log_path / "evaluation.json"
+    output.parent.mkdir(parents=True, exist_ok=True)
+    output.write_text(json.dumps(result, indent=2))
+    output.with_suffix(".md").write_text(table + "\n")
+    print(f"\nwrote {output} and {output.with_suffix('.md')} ({time.perf_counter() - start:.1f} s)")
+    return 0
+
+
+def record_video_command(args: argparse.Namespace) -> int:
+    from sb3_marl.evaluation import model_policy
+    from sb3_marl.experiment import EVAL_SEED_OFFSET
+    from sb3_marl.video import record_video
+
+    run = _find_run(args)
+    model = run.load_model(args.device)
+    output = Path(args.output) if args.output else run.log_path / "videos" / f"{run.model_path.stem}.mp4"
+    info = record_video(model_policy(model, not args.stochastic), args.env, output, args.n_episodes,
+                        args.seed + EVAL_SEED_OFFSET, run.env_config)
+    print(f"wrote {info['path']}: {info['episodes']} episode(s), {info['frames']} frames at {info['fps']} fps")
+    return 0
+
+
+def plot(args: argparse.Namespace) -> int:
+    from sb3_marl.plotting import plot_runs
+    from sb3_marl.runs import run_folders
+
+    runs = {}
+    for algo in args.algos:
+        for folder in run_folders(args.folder, algo, args.env):
+            run_id = int(folder.name.rsplit("_", 1)[1])
+            if args.exp_ids is None or run_id in args.exp_ids:
+                runs[f"{algo} {folder.name}"] = folder
+    if not runs:
+        raise UsageError(f"No runs of {args.algos} on {args.env} under {args.folder}/ (exp ids: {args.exp_ids or 'all'}).")
+    written = plot_runs(runs, args.output or os.path.join(args.folder, "plots"), args.episode_window)
+    for path in written:
+        print(f"wrote {path}")
+    return 0
+
+
+def baselines(args: argparse.Namespace) -> int:
+    import gymnasium as gym
+
+    from sb3_marl.baselines import BASELINES
+    from sb3_marl.evaluation import markdown_table, run_episodes, summarize
+
+    lo, hi = DENSITIES[args.density]["avs"]
+    rows, results = [], []
+    start = time.perf_counter()
+    for name, policy_class in BASELINES.items():
+        for n_avs in range(lo, hi + 1):
+            env = gym.make(ENV_IDS[args.density], config={"n_avs": n_avs}).unwrapped
+            summary = summarize(run_episodes(env, policy_class(), args.episodes, seed=args.seed))
+            results.append({"policy": name, "n_avs": n_avs, **summary})
+            rows.append(({"policy": name, "n_avs": n_avs}, summary))
+    table = (f"Scenario {ENV_IDS[args.density]}: {args.episodes} episodes per row, "
+             f"seeds {args.seed}..{args.seed + args.episodes - 1}\n\n" + markdown_table(rows))
+    print(table)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(table + "\n")
+    args.out.with_suffix(".json").write_text(json.dumps(results, indent=2))
+    print(f"\nwrote {args.out} and {args.out.with_suffix('.json')} in {time.perf_counter() - start:.1f} s")
+    return 0
+
+
+class UsageError(Exception):
+    """Bad input found before any work: printed as ``sb3-marl <command>: error: ...``, exit code 2."""
+
+
+COMMANDS = {"train": train, "evaluate": evaluate, "enjoy": evaluate, "plot": plot,
+            "record-video": record_video_command, "baselines": baselines}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
+    try:
+        return COMMANDS[args.command](args)
+    except UsageError as error:
+        print(f"sb3-marl {args.command}: error: {error}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

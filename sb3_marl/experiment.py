@@ -1,0 +1,162 @@
+"""rl_zoo3's ExperimentManager, taught to train on the multi-agent scenario.
+
+rl_zoo3 keeps doing what it does: log folders ``<log_folder>/<algo>/<env>_<run>/``, ``config.yml``
+and ``args.yml``, ``-params`` overrides, schedules, progress bar, continuing from ``-i``, saving
+the final model. This subclass changes only what a multi-agent VecEnv needs:
+
+- hyperparameters come from ``zoo_configs/<algo>.yml`` and are validated (unknown keys, policy,
+  architecture) before anything is created; the scenario keys (``reward_mode``, ``n_copies``,
+  ``env_config``, ``reward_scale``, ``architecture``) configure the env and the MA2C network;
+- the env is a :class:`~wrappers.ParameterSharingVecEnv` (rl_zoo3's ``n_envs`` = AV slots);
+- evaluation scores the paper's metric (:class:`~sb3_marl.callbacks.ScenarioEvalCallback`),
+  driving metrics go to TensorBoard, checkpoints and the final model are written atomically;
+- ``-i`` continues the timestep count of the loaded model up to ``n_timesteps`` in total.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+from collections import OrderedDict
+from pathlib import Path
+from typing import Any
+
+import rl_zoo3.utils as zoo_utils
+from rl_zoo3.exp_manager import ExperimentManager
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import ProgressBarCallback
+from stable_baselines3.common.vec_env import VecEnv
+
+from sb3_marl.algos import ALGOS
+from sb3_marl.callbacks import (
+    AtomicCheckpointCallback,
+    DrivingMetricsCallback,
+    ScenarioEvalCallback,
+    atomic_save,
+)
+from sb3_marl.envs import copy_av_counts
+from sb3_marl.hyperparams import (
+    SCENARIO_KEYS,
+    load_hyperparams,
+    policy_kwargs_for,
+    validate_hyperparams,
+)
+from sb3_marl.training import make_venv
+
+# rl_zoo3 builds and loads models through its ALGOS table; our learners join it under their own
+# names (no clash with rl_zoo3's a2c, ppo, ...), which also lets rl_zoo3's scripts load our runs.
+zoo_utils.ALGOS.update(ALGOS)
+
+#: Evaluation episodes use seeds from ``seed + EVAL_SEED_OFFSET`` on, apart from training seeds.
+EVAL_SEED_OFFSET = 10_000
+
+
+class MARLExperimentManager(ExperimentManager):
+    """:class:`rl_zoo3.exp_manager.ExperimentManager` on a ParameterSharingVecEnv (see module doc).
+
+    :param n_copies: scenario copies (``--n-envs``), overriding the config's ``n_copies``
+    :param reward_mode: ``local``, ``global`` or ``individual``, overriding the config's
+    :param vec_env_type: ``dummy`` (in process) or ``subproc`` (one worker process per core)
+    """
+
+    def __init__(
+        self,
+        args: argparse.Namespace,
+        algo: str,
+        env_id: str,
+        log_folder: str,
+        *,
+        conf_file: str | None = None,
+        n_copies: int | None = None,
+        reward_mode: str | None = None,
+        vec_env_type: str = "dummy",
+        **kwargs: Any,
+    ) -> None:
+        config = conf_file or str(Path(__file__).resolve().parent.parent / "zoo_configs" / f"{algo}.yml")
+        super().__init__(args, algo, env_id, log_folder, config=config, vec_env_type="dummy", **kwargs)
+        self.vec_backend = vec_env_type
+        self.cli_overrides = {
+            key: value for key, value in (("n_copies", n_copies), ("reward_mode", reward_mode)) if value is not None
+        }
+        self.scenario: dict[str, Any] = {}
+        self.interrupted = False
+
+    # ---- hyperparameters ----------------------------------------------------------------------
+
+    def read_hyperparameters(self) -> tuple[dict[str, Any], dict[str, Any]]:
+        hyperparams = load_hyperparams(self.algo, self.env_name.gym_id, path=self.config)
+        hyperparams.update(self.custom_hyperparams or {})
+        hyperparams.update(self.cli_overrides)
+        validate_hyperparams(self.algo, hyperparams)
+        copy_av_counts(self.env_name.gym_id, hyperparams.get("env_config"), hyperparams.get("n_copies"))
+        saved_hyperparams = OrderedDict((key, hyperparams[key]) for key in sorted(hyperparams))
+        if self.verbose > 0:
+            print(f"Hyperparameters for {self.algo} on {self.env_name.gym_id} (from {self.config}):")
+            for key, value in saved_hyperparams.items():
+                print(f"  {key}: {value}")
+        return hyperparams, saved_hyperparams
+
+    def _preprocess_hyperparams(self, hyperparams: dict[str, Any]) -> tuple:
+        self.scenario = {key: hyperparams.pop(key) for key in SCENARIO_KEYS if key in hyperparams}
+        hyperparams, env_wrapper, callbacks, vec_env_wrapper = super()._preprocess_hyperparams(hyperparams)
+        hyperparams["policy_kwargs"] = policy_kwargs_for(self.algo, {**hyperparams, **self.scenario})
+        # rl_zoo3 divides eval/save frequencies by n_envs: every VecEnv step is one step per AV slot
+        self.n_envs = sum(
+            copy_av_counts(self.env_name.gym_id, self.scenario.get("env_config"), self.scenario.get("n_copies"))
+        )
+        return hyperparams, env_wrapper, callbacks, vec_env_wrapper
+
+    # ---- env, callbacks, model ----------------------------------------------------------------
+
+    def create_envs(self, n_envs: int, eval_env: bool = False, no_log: bool = False) -> VecEnv:
+        monitor_dir = None if eval_env or no_log else self.save_path
+        return make_venv(self.env_name.gym_id, self.scenario, self.seed, self.vec_backend, monitor_dir=monitor_dir)
+
+    def create_callbacks(self) -> None:
+        if self.show_progress:
+            self.callbacks.append(ProgressBarCallback())
+        self.callbacks.append(DrivingMetricsCallback())
+        if self.save_freq > 0:
+            self.callbacks.append(
+                AtomicCheckpointCallback(max(self.save_freq // self.n_envs, 1), self.save_path, "rl_model", verbose=1)
+            )
+        if self.eval_freq > 0:
+            self.callbacks.append(
+                ScenarioEvalCallback(
+                    self.env_name.gym_id,
+                    eval_freq=max(self.eval_freq // self.n_envs, 1),
+                    n_eval_episodes=self.n_eval_episodes,
+                    seed=self.seed + EVAL_SEED_OFFSET,
+                    config=self.scenario.get("env_config"),
+                    log_path=self.save_path,
+                    best_model_save_path=self.save_path,
+                    verbose=self.verbose,
+                )
+            )
+
+    def learn(self, model: BaseAlgorithm) -> None:
+        """Train to ``n_timesteps`` in total (resumed runs continue their count); Ctrl-C or SIGTERM
+        stops training cleanly so that the model can be saved."""
+        remaining = self.n_timesteps - model.num_timesteps if self.continue_training else self.n_timesteps
+        kwargs: dict[str, Any] = {"callback": self.callbacks, "tb_log_name": self.algo.upper()}
+        if self.log_interval > -1:
+            kwargs["log_interval"] = self.log_interval
+        try:
+            if remaining > 0:
+                model.learn(remaining, reset_num_timesteps=not self.continue_training, **kwargs)
+            else:
+                print(f"The loaded model has {model.num_timesteps} timesteps >= n_timesteps={self.n_timesteps}.")
+        except KeyboardInterrupt:
+            self.interrupted = True
+        finally:
+            if self.callbacks:
+                self.callbacks[0].on_training_end()
+            assert model.env is not None
+            model.env.close()
+
+    def save_trained_model(self, model: BaseAlgorithm) -> None:
+        path = atomic_save(model, os.path.join(self.save_path, f"{self.env_name}.zip"))
+        print(f"Saved the model ({model.num_timesteps} timesteps) to {path}")
+
+
+__all__ = ["EVAL_SEED_OFFSET", "MARLExperimentManager"]

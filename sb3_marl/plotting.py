@@ -1,0 +1,80 @@
+"""Learning-curve PNGs of one or several runs in rl-zoo's log layout.
+
+Training returns come from each run's ``monitor.csv`` through SB3's ``load_results`` / ``ts2xy`` /
+``window_func`` (the helpers rl_zoo3's ``plot_train`` uses); evaluation return (mean ± std over
+the evaluation episodes) and collision rate from ``evaluations.npz``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")  # headless: files only
+
+import numpy as np
+from matplotlib import pyplot as plt
+from stable_baselines3.common.monitor import LoadMonitorResultsError, load_results
+from stable_baselines3.common.results_plotter import X_TIMESTEPS, ts2xy, window_func
+
+#: file name -> (y label, what is plotted)
+FIGURES = {
+    "train_return.png": "Training episode return per AV (rolling mean)",
+    "eval_return.png": "Evaluation episode return (mean ± std)",
+    "collision_rate.png": "Evaluation collision rate",
+}
+
+
+def plot_runs(runs: dict[str, Path], out_dir: str | Path, window: int = 100) -> list[Path]:
+    """Write the :data:`FIGURES` for ``runs`` (label -> run folder) into ``out_dir``; returns the
+    files written. Runs without the needed log file are left out of that figure."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = []
+    for name, title in FIGURES.items():
+        fig, ax = plt.subplots(figsize=(7, 4.5))
+        plotted = 0
+        for label, folder in runs.items():
+            plotted += _plot_one(ax, name, label, Path(folder), window)
+        if plotted:
+            ax.set_title(title)
+            ax.set_xlabel("Timesteps (AV-steps)")
+            ax.set_ylabel(title.split(" (")[0])
+            ax.grid(alpha=0.3)
+            ax.legend(fontsize=8)
+            fig.tight_layout()
+            fig.savefig(out_dir / name, dpi=100)
+            written.append(out_dir / name)
+        plt.close(fig)
+    return written
+
+
+def _plot_one(ax: plt.Axes, figure: str, label: str, folder: Path, window: int) -> int:
+    """Plot one run's curve of ``figure``; 1 if it had data, else 0."""
+    if figure == "train_return.png":
+        try:
+            x, y = ts2xy(load_results(str(folder)), X_TIMESTEPS)
+        except LoadMonitorResultsError:
+            return 0
+        if len(x) == 0:
+            return 0
+        if len(x) >= window:
+            x, y = window_func(x, y, window, np.mean)
+        ax.plot(x, y, label=label)
+        return 1
+    path = folder / "evaluations.npz"
+    if not path.is_file():
+        return 0
+    log = np.load(path)
+    if figure == "eval_return.png":
+        mean, std = log["results"].mean(axis=1), log["results"].std(axis=1)
+        ax.plot(log["timesteps"], mean, marker="o", label=label)
+        ax.fill_between(log["timesteps"], mean - std, mean + std, alpha=0.2)
+    else:
+        ax.plot(log["timesteps"], log["collision_rate"], marker="o", label=label)
+        ax.set_ylim(-0.05, 1.05)
+    return 1
+
+
+__all__ = ["FIGURES", "plot_runs"]

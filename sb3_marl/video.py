@@ -1,0 +1,56 @@
+"""Headless mp4 of evaluation episodes, drawn by highway-env's renderer and encoded by
+imageio-ffmpeg (its wheel ships the ffmpeg binary: nothing is downloaded at run time)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import imageio.v2 as imageio
+import numpy as np
+
+from sb3_marl.envs import copy_av_counts
+from sb3_marl.envs.lane_change_env import LaneChangeEnv
+from sb3_marl.evaluation import Policy
+
+
+def record_video(
+    policy: Policy,
+    env_id: str,
+    path: str | Path,
+    n_episodes: int = 1,
+    seed: int = 0,
+    config: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Play ``n_episodes`` seeded episodes (cycling through the density's AV counts) and write them
+    to the mp4 ``path``, one frame per policy step (5 Hz, played at 5 fps: real time).
+
+    :return: ``{"path", "frames", "episodes", "fps"}``
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    counts = copy_av_counts(env_id, config, n_episodes)
+    frames: list[np.ndarray] = []
+    fps = None
+    for episode, n_avs in enumerate(counts):
+        env: LaneChangeEnv = gym.make(env_id, config={**(config or {}), "n_avs": n_avs}, render_mode="rgb_array").unwrapped
+        fps = env.config["policy_frequency"]
+        obs, _ = env.reset(seed=seed + episode)
+        frames.append(env.render())
+        done = False
+        while not done:
+            obs, _, terminated, truncated, _ = env.step(policy(env, obs))
+            frames.append(env.render())
+            done = terminated or truncated
+        env.close()
+    temporary = path.with_name(f".{path.stem}.partial.mp4")
+    # libx264 needs even frame sizes; macro_block_size=2 pads odd ones instead of rescaling
+    with imageio.get_writer(temporary, fps=fps, codec="libx264", macro_block_size=2, format="FFMPEG") as writer:
+        for frame in frames:
+            writer.append_data(frame)
+    temporary.replace(path)
+    return {"path": str(path), "frames": len(frames), "episodes": n_episodes, "fps": fps}
+
+
+__all__ = ["record_video"]
