@@ -14,9 +14,15 @@ $(STAMP): setup.py
 
 install: $(STAMP)
 
-## run: the main job (scenario with reference policies, density 1; training lands with the learners)
+## run: the main job: train MA2C on density 1 (short budget), evaluate it beside the reference
+## policies, plot the learning curves; TensorBoard logs in logs/tensorboard
+RUN_ENV ?= sb3_marl/LaneChange-density1-v0
+RUN_TIMESTEPS ?= 100000
 run: $(STAMP)
-	$(PYTHON) -m sb3_marl
+	$(VENV)/bin/sb3-marl train --algo ma2c --env $(RUN_ENV) -n $(RUN_TIMESTEPS) --eval-freq 20000 --eval-episodes 6 --progress --verbose 0
+	$(VENV)/bin/sb3-marl evaluate --algo ma2c --env $(RUN_ENV) --eval-episodes 30 --with-baselines
+	$(VENV)/bin/sb3-marl plot --algo ma2c --env $(RUN_ENV)
+	@echo "TensorBoard: $(VENV)/bin/tensorboard --logdir logs/tensorboard"
 
 ## test: the whole test suite
 test: $(STAMP)

@@ -105,6 +105,8 @@ def build_parser() -> argparse.ArgumentParser:
         _add_run_selection(evaluate)
         evaluate.add_argument("--eval-episodes", type=_positive(), default=30, help="episodes (default: 30)")
         evaluate.add_argument("-o", "--output", default=None, help="JSON file (default: <run>/evaluation.json)")
+        evaluate.add_argument("--with-baselines", action="store_true",
+                              help="add the reference policies (random, IDM/MOBIL) on the same seeds to the table")
 
     plot = commands.add_parser("plot", help="learning-curve PNGs of one or several runs")
     plot.add_argument("--algo", "--algos", dest="algos", nargs="+", default=["ma2c"], choices=sorted(ALGOS))
@@ -219,7 +221,16 @@ def evaluate(args: argparse.Namespace) -> int:
         "deterministic": not args.stochastic, "seeds": [seed, seed + args.eval_episodes - 1], "env_config": run.env_config,
         **summary, "returns": [r.episode_return for r in records],
     }
-    table = markdown_table([({"algo": args.algo, "timesteps": model.num_timesteps}, summary)])
+    rows = [({"policy": args.algo, "timesteps": model.num_timesteps}, summary)]
+    if args.with_baselines:
+        from sb3_marl.baselines import BASELINES
+
+        result["baselines"] = {}
+        for name, policy_class in BASELINES.items():
+            baseline = summarize(evaluation_records(policy_class(), args.env, args.eval_episodes, seed, run.env_config))
+            result["baselines"][name] = baseline
+            rows.append(({"policy": name, "timesteps": "-"}, baseline))
+    table = markdown_table(rows)
     print(f"{args.env}: {args.eval_episodes} episodes, seeds {seed}..{seed + args.eval_episodes - 1}, model {run.model_path}\n")
     print(table)
     output = Path(args.output) if args.output else run.log_path / "evaluation.json"

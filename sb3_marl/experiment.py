@@ -25,6 +25,7 @@ import rl_zoo3.utils as zoo_utils
 from rl_zoo3.exp_manager import ExperimentManager
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import ProgressBarCallback
+from stable_baselines3.common.logger import Logger, make_output_format
 from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_marl.algos import ALGOS
@@ -87,8 +88,7 @@ class MARLExperimentManager(ExperimentManager):
         hyperparams = load_hyperparams(self.algo, self.env_name.gym_id, path=self.config)
         hyperparams.update(self.custom_hyperparams or {})
         hyperparams.update(self.cli_overrides)
-        validate_hyperparams(self.algo, hyperparams)
-        copy_av_counts(self.env_name.gym_id, hyperparams.get("env_config"), hyperparams.get("n_copies"))
+        validate_hyperparams(self.algo, hyperparams, self.env_name.gym_id)
         saved_hyperparams = OrderedDict((key, hyperparams[key]) for key in sorted(hyperparams))
         if self.verbose > 0:
             print(f"Hyperparameters for {self.algo} on {self.env_name.gym_id} (from {self.config}):")
@@ -138,7 +138,14 @@ class MARLExperimentManager(ExperimentManager):
         """Train to ``n_timesteps`` in total (resumed runs continue their count); Ctrl-C or SIGTERM
         stops training cleanly so that the model can be saved."""
         remaining = self.n_timesteps - model.num_timesteps if self.continue_training else self.n_timesteps
-        kwargs: dict[str, Any] = {"callback": self.callbacks, "tb_log_name": self.algo.upper()}
+        # TensorBoard run <ALGO>_<id> matches the log folder <env>_<id>, resumed runs included
+        outputs = [make_output_format("stdout", "")] if self.verbose >= 1 else []
+        tensorboard_folder = None
+        if self.tensorboard_log:
+            tensorboard_folder = os.path.join(self.tensorboard_log, f"{self.algo.upper()}_{self.run_id}")
+            outputs.append(make_output_format("tensorboard", tensorboard_folder))
+        model.set_logger(Logger(tensorboard_folder, outputs))
+        kwargs: dict[str, Any] = {"callback": self.callbacks}
         if self.log_interval > -1:
             kwargs["log_interval"] = self.log_interval
         try:
@@ -151,8 +158,14 @@ class MARLExperimentManager(ExperimentManager):
         finally:
             if self.callbacks:
                 self.callbacks[0].on_training_end()
+            model.logger.close()  # flushes the TensorBoard events
             assert model.env is not None
             model.env.close()
+
+    @property
+    def run_id(self) -> int:
+        """The run's id: ``<env>_<id>`` of its log folder."""
+        return int(self.save_path.rsplit("_", 1)[1])
 
     def save_trained_model(self, model: BaseAlgorithm) -> None:
         path = atomic_save(model, os.path.join(self.save_path, f"{self.env_name}.zip"))

@@ -17,10 +17,13 @@ import inspect
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import yaml
 
 from sb3_marl.algos import get_algo
+from sb3_marl.envs import default_config, validate_config
 from sb3_marl.policies import ARCHITECTURES, ma2c_policy_kwargs, ma2c_q_policy_kwargs
+from wrappers.parameter_sharing import REWARD_MODES
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "zoo_configs"
 SCENARIO_KEYS = ("reward_mode", "n_copies", "env_config", "reward_scale", "architecture")
@@ -39,7 +42,7 @@ def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> 
     if env_id not in entries:
         raise ValueError(f"{path} has no entry for env {env_id!r}: it has {sorted(entries)}.")
     hyperparams = dict(entries[env_id])
-    validate_hyperparams(algo, hyperparams)
+    validate_hyperparams(algo, hyperparams, env_id)
     return hyperparams
 
 
@@ -54,8 +57,9 @@ def is_q_learning(algo: str) -> bool:
     return "exploration_fraction" in algorithm_arguments(algo)
 
 
-def validate_hyperparams(algo: str, hyperparams: dict[str, Any]) -> None:
-    """Unknown keys, or an architecture the algorithm cannot use: a ValueError naming it and the valid ones."""
+def validate_hyperparams(algo: str, hyperparams: dict[str, Any], env_id: str | None = None) -> None:
+    """Unknown keys, an architecture or policy the algorithm cannot use, or (with ``env_id``) bad
+    scenario keys: a ValueError naming the bad item and the valid ones."""
     allowed = algorithm_arguments(algo)
     valid = sorted({*allowed, *SCENARIO_KEYS, *ZOO_KEYS})
     unknown = sorted(set(hyperparams) - set(valid))
@@ -73,6 +77,26 @@ def validate_hyperparams(algo: str, hyperparams: dict[str, Any]) -> None:
     aliases = sorted(get_algo(algo).policy_aliases)
     if policy not in aliases:
         raise ValueError(f"Invalid policy {policy!r} for {algo!r}: expected one of {aliases}.")
+    if env_id is not None:
+        validate_scenario(hyperparams, env_id)
+
+
+def validate_scenario(hyperparams: dict[str, Any], env_id: str) -> None:
+    """The scenario keys of an entry for ``env_id``: reward mode, copies, reward scale, env config."""
+    reward_mode = hyperparams.get("reward_mode", "local")
+    if reward_mode not in REWARD_MODES:
+        raise ValueError(f"Invalid reward_mode={reward_mode!r}: expected one of {list(REWARD_MODES)}.")
+    n_copies = hyperparams.get("n_copies")
+    if n_copies is not None and (isinstance(n_copies, bool) or not isinstance(n_copies, int) or n_copies < 1):
+        raise ValueError(f"Invalid n_copies={n_copies!r}: expected an integer >= 1 (or null: one per AV count).")
+    scale = hyperparams.get("reward_scale", 1.0)
+    if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not scale > 0:
+        raise ValueError(f"Invalid reward_scale={scale!r}: expected a number > 0.")
+    env_config = hyperparams.get("env_config") or {}
+    if not isinstance(env_config, dict):
+        raise ValueError(f"Invalid env_config={env_config!r}: expected a mapping of scenario config keys.")
+    density = (gym.spec(env_id).kwargs or {}).get("density", 1)
+    validate_config({**default_config(), "density": density, **env_config})
 
 
 def policy_kwargs_for(algo: str, hyperparams: dict[str, Any]) -> dict[str, Any]:

@@ -1,0 +1,221 @@
+"""The sb3-marl command line: rl-zoo log layout, TensorBoard metrics, evaluate, plot, video, resume,
+interruption and bad input. Real training runs, kept tiny (a few thousand AV-steps)."""
+
+import json
+import os
+import pickle
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import imageio.v2 as imageio
+import numpy as np
+import pytest
+import yaml
+from stable_baselines3 import A2C
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+from sb3_marl.callbacks import atomic_save
+from sb3_marl.cli import main
+
+ENV = "sb3_marl/LaneChange-density1-v0"
+ENV_NAME = "sb3_marl-LaneChange-density1-v0"
+# density 1: copies with 1, 2 and 3 AVs = 6 slots; 20-step rollouts = 120 AV-steps per update
+TINY = ["-n", "1200", "--eval-freq", "600", "--eval-episodes", "2", "--save-freq", "600",
+        "-params", "n_steps:20", "--log-interval", "1", "--verbose", "0"]
+
+
+def run_dir(folder: Path, exp_id: int, algo: str = "ma2c") -> Path:
+    return folder / algo / f"{ENV_NAME}_{exp_id}"
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory) -> Path:
+    """Two identical tiny MA2C runs (ids 1 and 2, same seed) in one log folder."""
+    folder = tmp_path_factory.mktemp("logs")
+    for _ in range(2):
+        assert main(["train", "-f", str(folder), "--seed", "3", *TINY]) == 0
+    return folder
+
+
+def test_train_writes_rl_zoo_layout(logs):
+    run = run_dir(logs, 1)
+    for name in (f"{ENV_NAME}.zip", "best_model.zip", "rl_model_600_steps.zip", "rl_model_1200_steps.zip",
+                 "evaluations.npz", "monitor.csv", f"{ENV_NAME}/config.yml", f"{ENV_NAME}/args.yml"):
+        assert (run / name).is_file(), name
+    assert not list(run.glob(".*partial*")), "no temporary files left"
+    config = yaml.load((run / ENV_NAME / "config.yml").read_text(), Loader=yaml.UnsafeLoader)
+    assert config["n_steps"] == 20 and config["reward_mode"] == "local" and config["architecture"] == "shared"
+    args = yaml.load((run / ENV_NAME / "args.yml").read_text(), Loader=yaml.UnsafeLoader)
+    assert args["algo"] == "ma2c" and args["seed"] == 3
+    evaluations = np.load(run / "evaluations.npz")
+    assert evaluations["timesteps"].tolist() == [600, 1200]
+    assert evaluations["results"].shape == (2, 2) and evaluations["ep_lengths"].shape == (2, 2)
+    assert ((0 <= evaluations["collision_rate"]) & (evaluations["collision_rate"] <= 1)).all()
+    assert A2C.load(run / f"{ENV_NAME}.zip").num_timesteps == 1200
+
+
+def test_same_seed_and_flags_give_same_results(logs, tmp_path):
+    first, second = np.load(run_dir(logs, 1) / "evaluations.npz"), np.load(run_dir(logs, 2) / "evaluations.npz")
+    np.testing.assert_array_equal(first["results"], second["results"])
+    outputs = []
+    for exp_id in (1, 2):
+        out = tmp_path / f"eval{exp_id}.json"
+        assert main(["evaluate", "-f", str(logs), "--exp-id", str(exp_id), "--eval-episodes", "3", "-o", str(out)]) == 0
+        outputs.append(json.loads(out.read_text()))
+    assert outputs[0]["returns"] == outputs[1]["returns"]
+    assert outputs[0]["collision_rate"] == outputs[1]["collision_rate"]
+
+
+def test_tensorboard_has_driving_metrics_and_reward_terms(logs):
+    runs = sorted((logs / "tensorboard" / ENV_NAME).iterdir())
+    assert [r.name for r in runs] == ["MA2C_1", "MA2C_2"]
+    events = EventAccumulator(str(runs[0])).Reload()
+    tags = set(events.Tags()["scalars"])
+    for metric in ("collision_rate", "success_rate", "speed_mean", "headway_mean", "acceleration_std",
+                   "lane_changes_per_episode"):
+        assert f"rollout/{metric}" in tags and f"eval/{metric}" in tags, metric
+    for term in ("safety", "headway", "speed", "comfort", "harsh_acceleration", "lane_change"):
+        assert f"rollout/reward_{term}" in tags, term
+    assert {"rollout/episode_return", "eval/mean_reward", "train/value_loss", "rollout/ep_rew_mean"} <= tags
+    speeds = [event.value for event in events.Scalars("rollout/speed_mean")]
+    assert all(15 < v < 40 for v in speeds)  # m/s: the scenario's speed range
+    collisions = [event.value for event in events.Scalars("eval/collision_rate")]
+    assert [e.step for e in events.Scalars("eval/collision_rate")] == [600, 1200]
+    assert all(0 <= v <= 1 for v in collisions)
+
+
+def test_evaluate_prints_and_saves_the_paper_metrics(logs, capsys):
+    assert main(["enjoy", "-f", str(logs), "--exp-id", "1", "--load-best", "--eval-episodes", "3", "--with-baselines"]) == 0
+    result = json.loads((run_dir(logs, 1) / "evaluation.json").read_text())
+    for key in ("return_mean", "return_std", "collision_rate", "success_rate", "speed_mean", "headway_mean",
+                "acceleration_std", "lane_changes_per_episode"):
+        assert np.isfinite(result[key]), key
+    assert result["model"].endswith("best_model.zip") and result["seeds"] == [10_000, 10_002]
+    assert result["return_mean"] == pytest.approx(np.mean(result["returns"]))
+    assert sorted(result["baselines"]) == ["idm-mobil", "random"]
+    assert result["baselines"]["idm-mobil"]["collision_rate"] == 0.0
+    out = capsys.readouterr().out
+    assert "| ma2c | 1200 |" in out and "| random | - |" in out and "| idm-mobil | - |" in out
+
+
+def test_plot_and_rl_zoo3_plots_read_our_logs(logs, tmp_path, monkeypatch):
+    assert main(["plot", "-f", str(logs), "-w", "2", "-o", str(tmp_path / "plots")]) == 0
+    for name in ("train_return.png", "eval_return.png", "collision_rate.png"):
+        assert imageio.imread(tmp_path / "plots" / name).std() > 0, name
+
+    from matplotlib import pyplot as plt
+    from rl_zoo3.plots.all_plots import all_plots
+    from rl_zoo3.plots.plot_train import plot_train
+
+    out = tmp_path / "all_plots"
+    monkeypatch.setattr(sys, "argv", ["all_plots", "-a", "ma2c", "-e", "LaneChange-density1", "-f", str(logs),
+                                      "--no-display", "-o", str(out)])
+    all_plots()
+    with open(f"{out}.pkl", "rb") as file:
+        curves = pickle.load(file)["LaneChange-density1"][f"MA2C-{logs}"]
+    assert curves["timesteps"].tolist() == [600, 1200]
+    expected = np.mean([np.load(run_dir(logs, i) / "evaluations.npz")["results"].mean(axis=1) for i in (1, 2)], axis=0)
+    np.testing.assert_allclose(curves["mean"], expected)
+
+    plt.close("all")
+    monkeypatch.setattr(sys, "argv", ["plot_train", "-a", "ma2c", "-e", "LaneChange-density1", "-f", str(logs), "-w", "2"])
+    monkeypatch.setattr(plt, "show", lambda: None)
+    plot_train()
+    assert len(plt.gca().lines) == 2  # one training curve per run, from monitor.csv
+    plt.close("all")
+
+
+def test_record_video_writes_a_playable_mp4(logs, tmp_path, capsys):
+    path = tmp_path / "replay.mp4"
+    assert main(["record-video", "-f", str(logs), "-o", str(path)]) == 0
+    frames = list(imageio.get_reader(path).iter_data())
+    assert f"{len(frames)} frames at 5 fps" in capsys.readouterr().out
+    assert 2 <= len(frames) <= 101  # one frame per policy step of one episode (100 steps at most)
+    assert frames[0].shape[:2] == (120, 1200) and frames[0].std() > 0  # the road is drawn, not a black frame
+
+
+def test_resume_continues_the_timestep_count(logs):
+    final = run_dir(logs, 1) / f"{ENV_NAME}.zip"
+    assert main(["train", "-f", str(logs), "-i", str(final), *TINY[:1], "1800", *TINY[2:]]) == 0
+    resumed = run_dir(logs, 3)
+    assert A2C.load(resumed / f"{ENV_NAME}.zip").num_timesteps == 1800
+    assert np.load(resumed / "evaluations.npz")["timesteps"].tolist() == [1800]
+    assert sorted(p.name for p in resumed.glob("rl_model_*")) == ["rl_model_1800_steps.zip"]
+
+
+def test_sigterm_saves_the_model_and_logs(tmp_path):
+    command = [sys.executable, "-m", "sb3_marl", "train", "-f", str(tmp_path), "-n", "10000000", "--save-freq", "240",
+               "--eval-freq", "-1", "-params", "n_steps:20", "--verbose", "0"]
+    process = subprocess.Popen(command, env={**os.environ, "OMP_NUM_THREADS": "1"})
+    run = run_dir(tmp_path, 1)
+    deadline = time.time() + 120
+    while not list(run.glob("rl_model_*_steps.zip")) and time.time() < deadline and process.poll() is None:
+        time.sleep(0.2)
+    assert process.poll() is None, "training ended before the signal"
+    process.send_signal(signal.SIGTERM)
+    assert process.wait(timeout=60) == 143
+    model = A2C.load(run / f"{ENV_NAME}.zip")
+    assert model.num_timesteps >= 240
+    assert (run / "monitor.csv").is_file() and list((tmp_path / "tensorboard" / ENV_NAME / "MA2C_1").iterdir())
+    assert not list(run.glob(".*partial*"))
+
+
+def test_atomic_save_keeps_the_previous_file_when_saving_fails(tmp_path, monkeypatch):
+    model = A2C("MlpPolicy", "CartPole-v1", n_steps=8, seed=0)
+    path = atomic_save(model, tmp_path / "rl_model_8_steps.zip")
+    before = path.read_bytes()
+
+    def crash(target, *args, **kwargs):
+        Path(target).write_bytes(b"half a zip")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(model, "save", crash)
+    with pytest.raises(KeyboardInterrupt):
+        atomic_save(model, path)
+    assert path.read_bytes() == before
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["train", "--algo", "a3c"], "invalid choice: 'a3c' (choose from 'ma2c'"),
+        (["train", "--env", "highway-v0"], "invalid choice: 'highway-v0'"),
+        (["train", "--bogus-flag"], "unrecognized arguments: --bogus-flag"),
+        (["train", "--n-envs", "0"], "expected a value >= 1"),
+        (["train", "-params", "n_steps"], "expected key:value"),
+    ],
+)
+def test_bad_flags_are_usage_errors(argv, message, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    assert exit_info.value.code == 2
+    assert message in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["train", "-params", "n_step:20"], "Unknown hyperparameter(s) ['n_step'] for 'ma2c': valid keys are"),
+        (["train", "--algo", "madqn", "-params", "architecture:'separate'"], "Invalid architecture 'separate'"),
+        (["train", "-params", "policy:'CnnPolicyX'"], "Invalid policy 'CnnPolicyX' for 'ma2c': expected one of"),
+        (["train", "-params", "reward_mode:'team'"], "reward_mode"),
+        (["train", "-i", "missing.zip"], "'missing.zip' is not an existing .zip model file"),
+        (["evaluate", "--exp-id", "7"], "not found"),
+        (["record-video"], "No run of ma2c"),
+    ],
+)
+def test_bad_input_fails_before_any_work(argv, message, tmp_path, capsys):
+    assert main([*argv, "-f", str(tmp_path)]) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "ma2c").exists() and not (tmp_path / "tensorboard").exists()
+
+
+def test_baselines_table(tmp_path, capsys):
+    out = tmp_path / "baselines.md"
+    assert main(["baselines", "--episodes", "1", "--out", str(out)]) == 0
+    rows = json.loads(out.with_suffix(".json").read_text())
+    assert [(r["policy"], r["n_avs"]) for r in rows] == [(p, n) for p in ("random", "idm-mobil") for n in (1, 2, 3)]
+    assert "| idm-mobil | 3 |" in out.read_text()
