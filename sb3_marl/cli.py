@@ -4,6 +4,8 @@
     sb3-marl evaluate --algo ma2c --env sb3_marl/LaneChange-density1-v0 -f logs   (alias: enjoy)
     sb3-marl plot --algo ma2c mappo --env sb3_marl/LaneChange-density1-v0 -f logs
     sb3-marl record-video --algo ma2c --env sb3_marl/LaneChange-density1-v0 -f logs
+    sb3-marl push-to-hub --algo ma2c --env sb3_marl/LaneChange-density1-v0 -f logs -orga ORG [--dry-run PATH]
+    sb3-marl load-from-hub --repo-id ORG/NAME -f logs
     sb3-marl baselines --density 1        (reference policies: random and IDM/MOBIL)
 
 Timesteps (``-n``, ``--eval-freq``, ``--save-freq``) count AV-steps, SB3's timesteps on the
@@ -120,6 +122,20 @@ def build_parser() -> argparse.ArgumentParser:
     _add_run_selection(video)
     video.add_argument("--n-episodes", type=_positive(), default=1, help="episodes in the video (default: 1)")
     video.add_argument("-o", "--output", default=None, help="mp4 file (default: <run>/videos/<model>.mp4)")
+
+    push = commands.add_parser("push-to-hub", help="build a model folder with a model card and upload it (rl-zoo's flags)")
+    _add_run_selection(push)
+    push.add_argument("--repo-name", default=None, help="default: <algo>-<env name>")
+    push.add_argument("-orga", "--organization", required=True, help="Hub user or organisation")
+    push.add_argument("-m", "--commit-message", default="Upload sb3-marl model")
+    push.add_argument("--eval-episodes", type=_positive(), default=10, help="episodes of the card's evaluation")
+    push.add_argument("--no-video", action="store_true", help="leave replay.mp4 out")
+    push.add_argument("--private", action="store_true")
+    push.add_argument("--dry-run", metavar="PATH", default=None, help="only build the folder at PATH")
+
+    load = commands.add_parser("load-from-hub", help="download a model into the log layout (then evaluate/enjoy it)")
+    load.add_argument("--repo-id", required=True, help="ORG/NAME")
+    load.add_argument("-f", "--folder", "--log-folder", dest="folder", default="logs")
 
     baselines = commands.add_parser("baselines", help="metrics of the reference policies (random, IDM/MOBIL)")
     baselines.add_argument("--density", type=int, choices=sorted(DENSITIES), default=1)
@@ -255,6 +271,40 @@ def record_video_command(args: argparse.Namespace) -> int:
     return 0
 
 
+def push_to_hub(args: argparse.Namespace) -> int:
+    from rl_zoo3.utils import EnvironmentName
+
+    from sb3_marl.experiment import EVAL_SEED_OFFSET
+    from sb3_marl.hub import HubError, build_model_folder, push_folder
+
+    run = _find_run(args)
+    repo_id = f"{args.organization}/{args.repo_name or f'{args.algo}-{EnvironmentName(args.env)}'}"
+    folder = Path(args.dry_run) if args.dry_run else run.log_path / "hub"
+    build_model_folder(run, folder, repo_id, args.eval_episodes, args.seed + EVAL_SEED_OFFSET, not args.no_video)
+    print(f"built the model folder {folder} for {repo_id}")
+    if args.dry_run:
+        return 0
+    try:
+        url = push_folder(folder, repo_id, args.commit_message, private=args.private)
+    except HubError as error:
+        print(f"sb3-marl push-to-hub: error: {error}", file=sys.stderr)
+        return 1
+    print(f"uploaded to {url}")
+    return 0
+
+
+def load_from_hub_command(args: argparse.Namespace) -> int:
+    from sb3_marl.hub import HubError, load_from_hub
+
+    try:
+        run = load_from_hub(args.repo_id, args.folder)
+    except HubError as error:
+        print(f"sb3-marl load-from-hub: error: {error}", file=sys.stderr)
+        return 1
+    print(f"downloaded {args.repo_id} into {run}")
+    return 0
+
+
 def plot(args: argparse.Namespace) -> int:
     from sb3_marl.plotting import plot_runs
     from sb3_marl.runs import run_folders
@@ -303,7 +353,8 @@ class UsageError(Exception):
 
 
 COMMANDS = {"train": train, "evaluate": evaluate, "enjoy": evaluate, "plot": plot,
-            "record-video": record_video_command, "baselines": baselines}
+            "record-video": record_video_command, "push-to-hub": push_to_hub, "load-from-hub": load_from_hub_command,
+            "baselines": baselines}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -3,8 +3,8 @@
 import gymnasium as gym
 import numpy as np
 import pytest
-
 from helpers import make
+
 from sb3_marl.envs import ENV_IDS, default_config, validate_config
 
 BAD_CONFIGS = [

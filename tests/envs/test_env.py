@@ -4,9 +4,9 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
+from helpers import make, place, rollout
 from highway_env.envs.common.action import DiscreteMetaAction
 
-from helpers import make, place, rollout
 from sb3_marl.envs import ENV_IDS
 from sb3_marl.envs.lane_change_env import ACTION_INDEX
 from sb3_marl.envs.observation import observe

@@ -4,8 +4,8 @@ import math
 
 import numpy as np
 import pytest
-
 from helpers import make, place
+
 from sb3_marl.envs import default_config
 from sb3_marl.envs.lane_change_env import ACTION_INDEX
 from sb3_marl.envs.reward import neighbour_matrix, reward_terms, total_reward

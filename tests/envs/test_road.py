@@ -2,11 +2,11 @@
 
 import numpy as np
 import pytest
+from helpers import make, place, rollout
 from highway_env.road.road import Road
 from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.controller import MDPVehicle
 
-from helpers import make, place, rollout
 from sb3_marl.envs import LaneChangeEnv
 
 

@@ -1,0 +1,210 @@
+"""Share trained runs on the Hugging Face Hub with huggingface_hub: build a model folder with a
+model card, upload it, and download a model back into rl-zoo's log layout.
+
+The folder holds ``<algo>-<env name>.zip`` (the SB3 model), ``config.yml`` / ``config.json`` (the
+hyperparameters, scenario keys included), ``results.json`` (a fresh seeded evaluation),
+``replay.mp4`` and ``README.md`` (model card with model-index metadata, usage and citation).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import httpx2  # huggingface_hub's HTTP client: its errors cover Hub errors (HfHubHTTPError) and the network
+import yaml
+from huggingface_hub import (
+    EvalResult,
+    HfApi,
+    ModelCard,
+    ModelCardData,
+    get_token,
+    snapshot_download,
+)
+from huggingface_hub.errors import LocalEntryNotFoundError
+from rl_zoo3.utils import EnvironmentName, get_latest_run_id
+
+from sb3_marl.algos import get_algo
+from sb3_marl.evaluation import evaluation_records, model_policy, summarize
+from sb3_marl.runs import Run
+from sb3_marl.video import record_video
+
+CITATION = """@article{zhou2022multi,
+  title   = {Multi-agent reinforcement learning for cooperative lane changing of connected and
+             autonomous vehicles in mixed traffic},
+  author  = {Zhou, Wei and Chen, Dong and Yan, Jun and Li, Zhaojian and Yin, Huilin and Ge, Wanchen},
+  journal = {Autonomous Intelligent Systems},
+  year    = {2022},
+  note    = {arXiv:2111.06318}
+}"""
+
+#: metric of results.json -> (model-index metric type, format of its value)
+CARD_METRICS = {
+    "collision_rate": "collision_rate",
+    "success_rate": "success_rate",
+    "speed_mean": "mean_speed_m_per_s",
+    "acceleration_std": "acceleration_std_m_per_s2",
+}
+
+
+class HubError(RuntimeError):
+    """Uploading or downloading failed: no token, network or Hub error (the message says which)."""
+
+
+def model_file_name(algo: str, env_id: str) -> str:
+    return f"{algo}-{EnvironmentName(env_id)}.zip"
+
+
+def build_model_folder(
+    run: Run, folder: str | Path, repo_id: str, n_eval_episodes: int = 10, seed: int = 10_000, video: bool = True
+) -> Path:
+    """Write the model folder of ``run`` (see module doc) into ``folder``; returns it."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    model = run.load_model("cpu")
+    shutil.copyfile(run.model_path, folder / model_file_name(run.algo, run.env_id))
+    (folder / "config.yml").write_text(yaml.safe_dump(_plain(run.hyperparams), sort_keys=True))
+    (folder / "config.json").write_text(json.dumps(_plain(run.hyperparams), indent=2, sort_keys=True))
+
+    policy = model_policy(model)
+    records = evaluation_records(policy, run.env_id, n_eval_episodes, seed, run.env_config)
+    summary = summarize(records)
+    results = {
+        "algo": run.algo, "env_id": run.env_id, "num_timesteps": int(model.num_timesteps), "deterministic": True,
+        "seeds": [seed, seed + n_eval_episodes - 1], "env_config": run.env_config, **summary,
+        "returns": [r.episode_return for r in records],
+    }
+    (folder / "results.json").write_text(json.dumps(results, indent=2))
+    if video:
+        record_video(policy, run.env_id, folder / "replay.mp4", 1, seed, run.env_config)
+    model_card(results, repo_id).save(folder / "README.md")
+    return folder
+
+
+def model_card(results: dict[str, Any], repo_id: str) -> ModelCard:
+    """A model card whose model-index carries the evaluation of ``results`` (a results.json)."""
+    algo, env_id = results["algo"], results["env_id"]
+    evaluation = {"task_type": "reinforcement-learning", "dataset_type": env_id, "dataset_name": env_id}
+    eval_results = [EvalResult(**evaluation, metric_type="mean_reward",
+                               metric_value=f"{results['return_mean']:.2f} +/- {results['return_std']:.2f}")]
+    eval_results += [EvalResult(**evaluation, metric_type=name, metric_value=round(results[key], 4))
+                     for key, name in CARD_METRICS.items()]
+    data = ModelCardData(
+        library_name="stable-baselines3", model_name=f"{algo.upper()}-{env_id}", eval_results=eval_results,
+        tags=[env_id, "reinforcement-learning", "deep-reinforcement-learning", "stable-baselines3",
+              "multi-agent-reinforcement-learning", "autonomous-driving", "sb3-marl"],
+    )
+    body = f"""
+# {algo.upper()} on {env_id}
+
+A policy shared by all connected autonomous vehicles (AVs) of the cooperative lane-changing
+scenario of Zhou, Chen et al. (two-lane 520 m highway with human-driven vehicles), trained with
+sb3-marl (`{algo}`: {get_algo(algo).__name__} with one policy shared by all AVs),
+{results['num_timesteps']} timesteps (AV-steps).
+
+## Evaluation
+
+{results['episodes']} seeded episodes (seeds {results['seeds'][0]}..{results['seeds'][1]}), deterministic policy:
+
+| metric | value |
+|---|---|
+| episode return (sum over steps of the mean AV reward) | {results['return_mean']:.2f} ± {results['return_std']:.2f} |
+| collision rate | {results['collision_rate']:.2f} |
+| success rate (no crash) | {results['success_rate']:.2f} |
+| mean speed [m/s] | {results['speed_mean']:.2f} |
+| mean headway [m] | {results['headway_mean']:.1f} |
+| acceleration std [m/s²] | {results['acceleration_std']:.3f} |
+| lane changes per episode | {results['lane_changes_per_episode']:.2f} |
+
+## Usage
+
+```bash
+sb3-marl load-from-hub --repo-id {repo_id} -f logs
+sb3-marl evaluate --algo {algo} --env {env_id} -f logs
+sb3-marl record-video --algo {algo} --env {env_id} -f logs
+```
+
+Hyperparameters: `config.yml`. Evaluation: `results.json`. Replay: `replay.mp4`.
+
+## Citation
+
+```bibtex
+{CITATION}
+```
+"""
+    return ModelCard(f"---\n{data.to_yaml()}\n---\n{body}")
+
+
+def push_folder(folder: str | Path, repo_id: str, commit_message: str, token: str | None = None,
+                private: bool = False) -> str:
+    """Create ``repo_id`` if needed and upload ``folder``; returns the commit URL.
+
+    :raises HubError: without a token, or on a network / Hub error (the folder stays in place)
+    """
+    token = token or get_token()
+    if token is None:
+        raise HubError(
+            "No Hugging Face token: run `hf auth login` or set HF_TOKEN. "
+            f"The model folder is ready in {folder}; nothing was uploaded."
+        )
+    api = HfApi(token=token)
+    try:
+        api.create_repo(repo_id, exist_ok=True, private=private)
+        commit = api.upload_folder(repo_id=repo_id, folder_path=str(folder), commit_message=commit_message)
+    except (httpx2.HTTPError, OSError) as error:
+        raise HubError(f"Upload of {folder} to {repo_id} failed: {error}. The model folder stays in {folder}.") from None
+    return str(commit.commit_url)
+
+
+def load_from_hub(repo_id: str, log_folder: str | Path, token: str | None = None) -> Path:
+    """Download ``repo_id`` into a new run folder ``<log_folder>/<algo>/<env name>_<id>/`` laid out
+    as ``train`` writes it, so ``evaluate`` / ``enjoy`` / ``record-video`` run on it; returns it.
+
+    :raises HubError: on a network / Hub error or a repo that is not an sb3-marl model
+    """
+    with tempfile.TemporaryDirectory() as download:
+        try:
+            snapshot = Path(snapshot_download(repo_id, token=token, local_dir=download))
+        except (httpx2.HTTPError, LocalEntryNotFoundError, OSError) as error:
+            raise HubError(f"Download of {repo_id} failed: {error}") from None
+        return _place_run(repo_id, snapshot, Path(log_folder))
+
+
+def _place_run(repo_id: str, snapshot: Path, log_folder: Path) -> Path:
+    """Copy a downloaded model folder into a new run folder of the log layout."""
+    results_path = snapshot / "results.json"
+    if not results_path.is_file():
+        raise HubError(f"{repo_id} is not an sb3-marl model: it has no results.json.")
+    results = json.loads(results_path.read_text())
+    algo, env_id = results["algo"], results["env_id"]
+    model_path = snapshot / model_file_name(algo, env_id)
+    if not model_path.is_file():
+        raise HubError(f"{repo_id} has no model file {model_path.name}.")
+    env_name = EnvironmentName(env_id)
+    algo_folder = Path(log_folder) / algo
+    run = algo_folder / f"{env_name}_{get_latest_run_id(str(algo_folder), env_name) + 1}"
+    (run / str(env_name)).mkdir(parents=True)
+    shutil.copyfile(model_path, run / f"{env_name}.zip")
+    if (snapshot / "config.yml").is_file():
+        shutil.copyfile(snapshot / "config.yml", run / str(env_name) / "config.yml")
+    for name in ("results.json", "README.md", "replay.mp4"):
+        if (snapshot / name).is_file():
+            shutil.copyfile(snapshot / name, run / name)
+    return run
+
+
+def _plain(value: Any) -> Any:
+    """Hyperparameters as plain YAML/JSON types (rl_zoo3 stores OrderedDicts and tuples)."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, (str, int, float, bool)) or value is None:
+        return value
+    return str(value)
+
+
+__all__ = ["HubError", "build_model_folder", "load_from_hub", "model_card", "push_folder"]

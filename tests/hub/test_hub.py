@@ -1,0 +1,110 @@
+"""push-to-hub / load-from-hub: the folder built for real, its model card parsed back by
+huggingface_hub, upload and download through huggingface_hub's client with only HTTP replaced."""
+
+import json
+import sys
+from pathlib import Path
+
+import httpx2
+import huggingface_hub
+import numpy as np
+import pytest
+from huggingface_hub import ModelCard, metadata_load
+from huggingface_hub.utils._http import default_client_factory
+from stable_baselines3 import A2C
+
+from sb3_marl.cli import main
+
+sys.path.insert(0, str(Path(__file__).parent))
+from fake_hub import FakeHub  # noqa: E402
+
+ENV_NAME = "sb3_marl-LaneChange-density1-v0"
+MODEL = f"ma2c-{ENV_NAME}.zip"
+FILES = {"README.md", "config.yml", "config.json", "results.json", "replay.mp4", MODEL}
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("logs")
+    assert main(["train", "-f", str(folder), "-n", "240", "--eval-freq", "-1", "-params", "n_steps:20",
+                 "--verbose", "0"]) == 0
+    return folder
+
+
+@pytest.fixture
+def hub(monkeypatch) -> FakeHub:
+    fake = FakeHub()
+    huggingface_hub.set_client_factory(fake.client)
+    monkeypatch.setenv("HF_TOKEN", "hf_test_token")
+    yield fake
+    huggingface_hub.set_client_factory(default_client_factory)
+    huggingface_hub.close_session()
+
+
+def test_dry_run_builds_the_folder_with_a_model_card_matching_the_evaluation(logs, tmp_path):
+    folder = tmp_path / "card"
+    assert main(["push-to-hub", "-f", str(logs), "-orga", "me", "--eval-episodes", "3", "--dry-run", str(folder)]) == 0
+    assert {p.name for p in folder.iterdir()} == FILES
+    results = json.loads((folder / "results.json").read_text())
+    assert results["episodes"] == 3 and results["num_timesteps"] == 240
+
+    card = ModelCard.load(folder / "README.md")
+    assert card.data.library_name == "stable-baselines3" and "sb3_marl/LaneChange-density1-v0" in card.data.tags
+    metrics = {r.metric_type: r.metric_value for r in card.data.eval_results}
+    assert metrics["mean_reward"] == f"{results['return_mean']:.2f} +/- {results['return_std']:.2f}"
+    assert metrics["collision_rate"] == pytest.approx(results["collision_rate"], abs=1e-4)
+    assert metrics["mean_speed_m_per_s"] == pytest.approx(results["speed_mean"], abs=1e-4)
+    assert metrics["acceleration_std_m_per_s2"] == pytest.approx(results["acceleration_std"], abs=1e-4)
+    assert all(r.dataset_type == "sb3_marl/LaneChange-density1-v0" for r in card.data.eval_results)
+    assert metadata_load(folder / "README.md")["model-index"][0]["name"] == "MA2C-sb3_marl/LaneChange-density1-v0"
+    assert "@article{zhou2022multi" in card.text and "sb3-marl load-from-hub --repo-id me/ma2c-" in card.text
+    assert A2C.load(folder / MODEL).num_timesteps == 240
+
+
+def test_push_then_load_round_trip(logs, tmp_path, hub, capsys):
+    assert main(["push-to-hub", "-f", str(logs), "-orga", "me", "--repo-name", "lane", "--eval-episodes", "2",
+                 "-m", "first upload"]) == 0
+    assert set(hub.repos["me/lane"]) == FILES
+    assert hub.commits[-1]["summary"] == "first upload"
+    assert "uploaded to https://huggingface.co/me/lane/commit/" in capsys.readouterr().out
+    built = next(logs.glob(f"ma2c/{ENV_NAME}_1/hub"))
+    assert hub.repos["me/lane"][MODEL] == (built / MODEL).read_bytes()
+
+    downloaded = tmp_path / "downloaded"
+    assert main(["load-from-hub", "--repo-id", "me/lane", "-f", str(downloaded)]) == 0
+    run = downloaded / "ma2c" / f"{ENV_NAME}_1"
+    assert (run / f"{ENV_NAME}.zip").read_bytes() == hub.repos["me/lane"][MODEL]
+    assert (run / ENV_NAME / "config.yml").is_file()
+    # the downloaded run is evaluated like a trained one, with the same numbers as the original
+    for folder, out in ((downloaded, "a.json"), (logs, "b.json")):
+        assert main(["enjoy", "-f", str(folder), "--exp-id", "1", "--eval-episodes", "2", "-o", str(tmp_path / out)]) == 0
+    a, b = (json.loads((tmp_path / out).read_text()) for out in ("a.json", "b.json"))
+    np.testing.assert_array_equal(a["returns"], b["returns"])
+
+
+def test_missing_token_keeps_the_built_folder(logs, tmp_path, monkeypatch, capsys):
+    monkeypatch.delenv("HF_TOKEN", raising=False)
+    monkeypatch.delenv("HUGGING_FACE_HUB_TOKEN", raising=False)
+    monkeypatch.setattr(huggingface_hub.constants, "HF_TOKEN_PATH", str(tmp_path / "no_token"))
+    assert main(["push-to-hub", "-f", str(logs), "-orga", "me", "--eval-episodes", "1", "--no-video"]) == 1
+    err = capsys.readouterr().err
+    assert "No Hugging Face token" in err and "HF_TOKEN" in err
+    built = logs / "ma2c" / f"{ENV_NAME}_1" / "hub"
+    assert (built / "README.md").is_file() and (built / MODEL).is_file()
+
+
+def test_network_errors_are_reported_clearly(logs, tmp_path, hub, capsys):
+    hub.fail_with = httpx2.ConnectError("Name or service not known")
+    assert main(["push-to-hub", "-f", str(logs), "-orga", "me", "--eval-episodes", "1", "--no-video"]) == 1
+    err = capsys.readouterr().err
+    assert "Upload of" in err and "failed" in err and "stays in" in err
+    assert (logs / "ma2c" / f"{ENV_NAME}_1" / "hub" / "README.md").is_file()
+
+    assert main(["load-from-hub", "--repo-id", "me/lane", "-f", str(tmp_path)]) == 1
+    assert "Download of me/lane failed" in capsys.readouterr().err
+    assert not (tmp_path / "ma2c").exists()
+
+
+def test_load_from_hub_of_a_missing_repo(tmp_path, hub, capsys):
+    assert main(["load-from-hub", "--repo-id", "me/nothing", "-f", str(tmp_path)]) == 1
+    assert "Download of me/nothing failed" in capsys.readouterr().err
