@@ -9,8 +9,9 @@ setup(
     long_description=open("README.md", encoding="utf-8").read(),
     long_description_content_type="text/markdown",
     python_requires=">=3.10",
-    packages=find_packages(include=["sb3_marl", "sb3_marl.*", "wrappers", "wrappers.*"]),
-    package_data={"": ["*.yml"]},
+    # zoo_configs/ ships beside the packages, so sb3_marl finds it installed as in a checkout
+    packages=[*find_packages(include=["sb3_marl", "sb3_marl.*", "wrappers", "wrappers.*"]), "zoo_configs"],
+    package_data={"zoo_configs": ["*.yml"]},
     install_requires=[
         # torch is installed first as `pip install torch==2.13.0` (a local CPU wheel here)
         "torch==2.13.0",

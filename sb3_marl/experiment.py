@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import os
 from collections import OrderedDict
-from pathlib import Path
 from typing import Any
 
 import rl_zoo3.utils as zoo_utils
@@ -37,6 +36,7 @@ from sb3_marl.callbacks import (
 )
 from sb3_marl.envs import copy_av_counts
 from sb3_marl.hyperparams import (
+    CONFIG_DIR,
     SCENARIO_KEYS,
     load_hyperparams,
     policy_kwargs_for,
@@ -73,7 +73,7 @@ class MARLExperimentManager(ExperimentManager):
         vec_env_type: str = "dummy",
         **kwargs: Any,
     ) -> None:
-        config = conf_file or str(Path(__file__).resolve().parent.parent / "zoo_configs" / f"{algo}.yml")
+        config = conf_file or str(CONFIG_DIR / f"{algo}.yml")
         super().__init__(args, algo, env_id, log_folder, config=config, vec_env_type="dummy", **kwargs)
         self.vec_backend = vec_env_type
         self.cli_overrides = {
