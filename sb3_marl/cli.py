@@ -287,8 +287,7 @@ def push_to_hub(args: argparse.Namespace) -> int:
     try:
         url = push_folder(folder, repo_id, args.commit_message, private=args.private)
     except HubError as error:
-        print(f"sb3-marl push-to-hub: error: {error}", file=sys.stderr)
-        return 1
+        raise CommandFailed(str(error)) from None
     print(f"uploaded to {url}")
     return 0
 
@@ -299,8 +298,7 @@ def load_from_hub_command(args: argparse.Namespace) -> int:
     try:
         run = load_from_hub(args.repo_id, args.folder)
     except HubError as error:
-        print(f"sb3-marl load-from-hub: error: {error}", file=sys.stderr)
-        return 1
+        raise CommandFailed(str(error)) from None
     print(f"downloaded {args.repo_id} into {run}")
     return 0
 
@@ -352,6 +350,10 @@ class UsageError(Exception):
     """Bad input found before any work: printed as ``sb3-marl <command>: error: ...``, exit code 2."""
 
 
+class CommandFailed(Exception):
+    """The work could not be done (e.g. no Hub token, network error): printed like a UsageError, exit code 1."""
+
+
 COMMANDS = {"train": train, "evaluate": evaluate, "enjoy": evaluate, "plot": plot,
             "record-video": record_video_command, "push-to-hub": push_to_hub, "load-from-hub": load_from_hub_command,
             "baselines": baselines}
@@ -363,9 +365,9 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
     try:
         return COMMANDS[args.command](args)
-    except UsageError as error:
+    except (UsageError, CommandFailed) as error:
         print(f"sb3-marl {args.command}: error: {error}", file=sys.stderr)
-        return 2
+        return 2 if isinstance(error, UsageError) else 1
 
 
 if __name__ == "__main__":
