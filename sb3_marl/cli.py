@@ -218,26 +218,15 @@ def _find_run(args: argparse.Namespace) -> Any:
 
 
 def evaluate(args: argparse.Namespace) -> int:
-    from sb3_marl.evaluation import (
-        evaluation_records,
-        markdown_table,
-        model_policy,
-        summarize,
-    )
+    from sb3_marl.evaluation import evaluation_records, markdown_table, summarize
     from sb3_marl.experiment import EVAL_SEED_OFFSET
 
     run = _find_run(args)
     model = run.load_model(args.device)
     seed = args.seed + EVAL_SEED_OFFSET
     start = time.perf_counter()
-    records = evaluation_records(model_policy(model, not args.stochastic), args.env, args.eval_episodes, seed, run.env_config)
-    summary = summarize(records)
-    result = {
-        "algo": args.algo, "env_id": args.env, "model": str(run.model_path), "num_timesteps": int(model.num_timesteps),
-        "deterministic": not args.stochastic, "seeds": [seed, seed + args.eval_episodes - 1], "env_config": run.env_config,
-        **summary, "returns": [r.episode_return for r in records],
-    }
-    rows = [({"policy": args.algo, "timesteps": model.num_timesteps}, summary)]
+    result = {"model": str(run.model_path), **run.evaluate(model, args.eval_episodes, seed, not args.stochastic)}
+    rows = [({"policy": args.algo, "timesteps": model.num_timesteps}, result)]
     if args.with_baselines:
         from sb3_marl.baselines import BASELINES
 

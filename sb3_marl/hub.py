@@ -28,7 +28,7 @@ from huggingface_hub.errors import LocalEntryNotFoundError
 from rl_zoo3.utils import EnvironmentName, get_latest_run_id
 
 from sb3_marl.algos import get_algo
-from sb3_marl.evaluation import evaluation_records, model_policy, summarize
+from sb3_marl.evaluation import model_policy
 from sb3_marl.runs import Run
 from sb3_marl.video import record_video
 
@@ -69,17 +69,10 @@ def build_model_folder(
     (folder / "config.yml").write_text(yaml.safe_dump(_plain(run.hyperparams), sort_keys=True))
     (folder / "config.json").write_text(json.dumps(_plain(run.hyperparams), indent=2, sort_keys=True))
 
-    policy = model_policy(model)
-    records = evaluation_records(policy, run.env_id, n_eval_episodes, seed, run.env_config)
-    summary = summarize(records)
-    results = {
-        "algo": run.algo, "env_id": run.env_id, "num_timesteps": int(model.num_timesteps), "deterministic": True,
-        "seeds": [seed, seed + n_eval_episodes - 1], "env_config": run.env_config, **summary,
-        "returns": [r.episode_return for r in records],
-    }
+    results = run.evaluate(model, n_eval_episodes, seed)
     (folder / "results.json").write_text(json.dumps(results, indent=2))
     if video:
-        record_video(policy, run.env_id, folder / "replay.mp4", 1, seed, run.env_config)
+        record_video(model_policy(model), run.env_id, folder / "replay.mp4", 1, seed, run.env_config)
     model_card(results, repo_id).save(folder / "README.md")
     return folder
 

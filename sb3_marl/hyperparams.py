@@ -23,7 +23,7 @@ import yaml
 from sb3_marl.algos import get_algo
 from sb3_marl.envs import default_config, validate_config
 from sb3_marl.policies import ARCHITECTURES, ma2c_policy_kwargs, ma2c_q_policy_kwargs
-from wrappers.parameter_sharing import REWARD_MODES
+from wrappers.parameter_sharing import check_reward_scale, check_sharing_options
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "zoo_configs"
 SCENARIO_KEYS = ("reward_mode", "n_copies", "env_config", "reward_scale", "architecture")
@@ -83,15 +83,8 @@ def validate_hyperparams(algo: str, hyperparams: dict[str, Any], env_id: str | N
 
 def validate_scenario(hyperparams: dict[str, Any], env_id: str) -> None:
     """The scenario keys of an entry for ``env_id``: reward mode, copies, reward scale, env config."""
-    reward_mode = hyperparams.get("reward_mode", "local")
-    if reward_mode not in REWARD_MODES:
-        raise ValueError(f"Invalid reward_mode={reward_mode!r}: expected one of {list(REWARD_MODES)}.")
-    n_copies = hyperparams.get("n_copies")
-    if n_copies is not None and (isinstance(n_copies, bool) or not isinstance(n_copies, int) or n_copies < 1):
-        raise ValueError(f"Invalid n_copies={n_copies!r}: expected an integer >= 1 (or null: one per AV count).")
-    scale = hyperparams.get("reward_scale", 1.0)
-    if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not scale > 0:
-        raise ValueError(f"Invalid reward_scale={scale!r}: expected a number > 0.")
+    check_sharing_options(hyperparams.get("reward_mode", "local"), hyperparams.get("n_copies"))
+    check_reward_scale(hyperparams.get("reward_scale", 1.0), "reward_scale")
     env_config = hyperparams.get("env_config") or {}
     if not isinstance(env_config, dict):
         raise ValueError(f"Invalid env_config={env_config!r}: expected a mapping of scenario config keys.")

@@ -40,6 +40,20 @@ PER_AGENT_INFO = ("speed", "headway", "acceleration", "lane_change", "crashed", 
 EnvFactory = Callable[[int], gym.Env]
 
 
+def check_sharing_options(reward_mode: str, n_copies: int | None) -> None:
+    """``reward_mode`` and ``n_copies`` (None: one copy per AV count): a ValueError naming the bad one."""
+    if reward_mode not in REWARD_MODES:
+        raise ValueError(f"Invalid reward_mode={reward_mode!r}: expected one of {list(REWARD_MODES)}.")
+    if n_copies is not None and (isinstance(n_copies, bool) or not isinstance(n_copies, int) or n_copies < 1):
+        raise ValueError(f"Invalid n_copies={n_copies!r}: expected an integer >= 1 (or None: one per AV count).")
+
+
+def check_reward_scale(scale: float, name: str = "scale") -> None:
+    """A reward scale must be a number > 0; a ValueError naming ``name`` otherwise."""
+    if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not scale > 0:
+        raise ValueError(f"Invalid {name}={scale!r}: expected a number > 0.")
+
+
 def _make_copy(env: str | EnvFactory, index: int, config: dict[str, Any], render_mode: str | None) -> gym.Env:
     """Copy ``index``: ``env`` called with the index, or ``gymnasium.make(env, config=config)``."""
     if callable(env):
@@ -270,14 +284,11 @@ class ParameterSharingVecEnv(VecEnv):
         n_workers: int | None = None,
         start_method: str | None = None,
     ) -> None:
-        if reward_mode not in REWARD_MODES:
-            raise ValueError(f"Invalid reward_mode={reward_mode!r}: expected one of {list(REWARD_MODES)}.")
+        check_sharing_options(reward_mode, n_copies)
         if vec_backend not in VEC_BACKENDS:
             raise ValueError(f"Invalid vec_backend={vec_backend!r}: expected one of {list(VEC_BACKENDS)}.")
         config = dict(config or {})
         n_copies = (1 if callable(env) else len(av_counts(env, config))) if n_copies is None else n_copies
-        if isinstance(n_copies, bool) or not isinstance(n_copies, int) or n_copies < 1:
-            raise ValueError(f"Invalid n_copies={n_copies!r}: expected an integer >= 1.")
         copy_counts = [None] * n_copies if callable(env) else copy_av_counts(env, config, n_copies)
         if vec_backend == "dummy":
             n_workers = 1
@@ -503,8 +514,7 @@ class VecRewardScale(VecEnvWrapper):
     """
 
     def __init__(self, venv: VecEnv, scale: float) -> None:
-        if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not scale > 0:
-            raise ValueError(f"Invalid scale={scale!r}: expected a number > 0.")
+        check_reward_scale(scale)
         super().__init__(venv)
         self.scale = float(scale)
 
