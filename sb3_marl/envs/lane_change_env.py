@@ -10,13 +10,13 @@ from gymnasium import spaces
 from highway_env.envs.common.abstract import AbstractEnv
 from highway_env.envs.common.action import DiscreteMetaAction
 from highway_env.envs.common.graphics import EnvViewer
-from highway_env.road.road import Road
 from highway_env.vehicle.controller import MDPVehicle
 
 from sb3_marl.envs import config as cfg
 from sb3_marl.envs.observation import observation_space, observe
 from sb3_marl.envs.reward import neighbour_matrix, reward_terms, total_reward
-from sb3_marl.envs.road import PrefilteredCollisionRoad, make_road, spawn_vehicles
+from sb3_marl.envs.road import make_road, spawn_vehicles
+from sb3_marl.envs.simulator import FAST, Simulator
 from sb3_marl.envs.traffic import TrafficSnapshot
 
 #: Meta-action index -> label, highway-env's ``DiscreteMetaAction`` numbering.
@@ -47,7 +47,8 @@ class LaneChangeEnv(AbstractEnv):
     """
 
     metadata = {"render_modes": ["human", "rgb_array"]}
-    road_class: type[Road] = PrefilteredCollisionRoad
+    #: highway-env classes the scenario is built from; ``simulator.STOCK`` gives the same episodes, slower.
+    simulator: Simulator = FAST
 
     def __init__(
         self,
@@ -114,10 +115,12 @@ class LaneChangeEnv(AbstractEnv):
         return obs, info
 
     def _reset(self) -> None:
-        self.road = make_road(self.config, self.np_random, self.road_class)
+        self.road = make_road(self.config, self.np_random, self.simulator)
         lo, hi = cfg.resolved_hdv_range(self.config)
         self.n_hdvs = int(self.np_random.integers(lo, hi + 1))
-        self.avs, _ = spawn_vehicles(self.road, self.config, self.n_avs, self.n_hdvs, self.np_random)
+        self.avs, _ = spawn_vehicles(
+            self.road, self.config, self.n_avs, self.n_hdvs, self.np_random, self.simulator
+        )
         self.controlled_vehicles = list(self.avs)
         self._exited = np.zeros(self.n_avs, dtype=bool)
 

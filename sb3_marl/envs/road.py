@@ -9,77 +9,23 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from highway_env.road.lane import LineType, StraightLane
-from highway_env.road.road import Road, RoadNetwork
+from highway_env.road.lane import LineType
+from highway_env.road.road import Road
 from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.controller import MDPVehicle
 
-
-class PrefilteredCollisionRoad(Road):
-    """highway-env's ``Road`` with the pairwise collision tests pre-filtered for all pairs at once.
-
-    ``Road.step`` calls ``handle_collisions(vehicles[i], vehicles[j])`` on every pair i < j. That
-    routine does nothing unless (1) the centres are within the "spherical" reach
-    ``(diag_i + diag_j) / 2 + speed_i * dt`` and (2) highway-env's separating-axis test finds the
-    rectangles intersecting now or after the displacement ``velocity * dt``. Here both are bounded
-    for all pairs in numpy: (1) exactly, and (2) on the two axes of vehicle i's rectangle, which the
-    separating-axis test also checks; a pair is skipped only when it is separated on one of them by
-    more than ``SLACK`` m even after the whole relative displacement. The other pairs reach
-    highway-env's exact routine in the stock order, so trajectories are identical to ``Road``'s
-    (tests/envs/test_road.py checks it on crash-heavy random episodes).
-    """
-
-    SLACK = 1e-6  # [m], far above the rounding error of positions of a few hundred m
-
-    def step(self, dt: float) -> None:
-        """Step every vehicle's dynamics by ``dt`` s, then resolve collisions."""
-        vehicles = self.vehicles
-        for vehicle in vehicles:
-            vehicle.step(dt)
-        if len(vehicles) > 1:
-            for i, j in self._candidate_pairs(dt):
-                vehicles[i].handle_collisions(vehicles[j], dt)
-        for vehicle in vehicles:
-            for other in self.objects:
-                vehicle.handle_collisions(other, dt)
-
-    def _candidate_pairs(self, dt: float) -> np.ndarray:
-        """(k, 2) pairs i < j, row-major, that may collide within ``dt`` s."""
-        state = np.array(
-            [(*v.position, v.heading, v.speed, v.diagonal, v.LENGTH, v.WIDTH) for v in self.vehicles]
-        )
-        x, y, heading, speed, diagonal, length, width = state.T
-        centre_gap = np.stack([x[None, :] - x[:, None], y[None, :] - y[:, None]])  # [., i, j]: j - i
-        velocity = speed * np.stack([np.cos(heading), np.sin(heading)])
-        relative_motion = (velocity[:, :, None] - velocity[:, None, :]) * dt  # [., i, j]: i - j
-        maybe = np.hypot(*centre_gap) <= (diagonal[:, None] + diagonal[None, :]) / 2 + speed[:, None] * dt
-        cos_d = np.abs(np.cos(heading[None, :] - heading[:, None]))
-        sin_d = np.abs(np.sin(heading[None, :] - heading[:, None]))
-        half_l, half_w = length / 2, width / 2
-        for axis, own_half, other_half in (
-            (np.stack([np.cos(heading), np.sin(heading)]), half_l, half_l[None, :] * cos_d + half_w[None, :] * sin_d),
-            (np.stack([-np.sin(heading), np.cos(heading)]), half_w, half_l[None, :] * sin_d + half_w[None, :] * cos_d),
-        ):
-            separation = (
-                np.abs(np.einsum("ci,cij->ij", axis, centre_gap))
-                - own_half[:, None]
-                - other_half
-                - np.abs(np.einsum("ci,cij->ij", axis, relative_motion))
-            )
-            maybe &= separation <= self.SLACK
-        return np.argwhere(np.triu(maybe, k=1))
+from sb3_marl.envs.simulator import FAST, Simulator
 
 
-def make_road(
-    config: dict[str, Any], np_random: np.random.Generator, road_class: type[Road] = PrefilteredCollisionRoad
-) -> Road:
+def make_road(config: dict[str, Any], np_random: np.random.Generator, simulator: Simulator = FAST) -> Road:
     """A one-way highway of ``lanes_count`` straight lanes of ``road_length`` m.
 
     :param config: the scenario config
     :param np_random: the env's random generator, shared with the vehicles' behaviour
-    :param road_class: highway-env's ``Road`` or a faster equivalent
+    :param simulator: highway-env's classes (:data:`~sb3_marl.envs.simulator.STOCK`) or the faster
+        equivalents (:data:`~sb3_marl.envs.simulator.FAST`)
     """
-    network = RoadNetwork()
+    network = simulator.network()
     lanes = config["lanes_count"]
     width = config["lane_width"]
     for lane in range(lanes):
@@ -91,7 +37,7 @@ def make_road(
         network.add_lane(
             "start",
             "end",
-            StraightLane(
+            simulator.lane(
                 [0.0, y],
                 [config["road_length"], y],
                 width=width,
@@ -99,7 +45,7 @@ def make_road(
                 speed_limit=config["speed_limit"],
             ),
         )
-    return road_class(network=network, np_random=np_random, record_history=config["show_trajectories"])
+    return simulator.road(network=network, np_random=np_random, record_history=config["show_trajectories"])
 
 
 def configure_hdv(vehicle: IDMVehicle, config: dict[str, Any]) -> None:
@@ -120,6 +66,7 @@ def spawn_vehicles(
     n_avs: int,
     n_hdvs: int,
     np_random: np.random.Generator,
+    simulator: Simulator = FAST,
 ) -> tuple[list[MDPVehicle], list[IDMVehicle]]:
     """Place AVs and HDVs in distinct random slots of a grid along every lane.
 
@@ -128,6 +75,7 @@ def spawn_vehicles(
     exceeds the 5 m vehicle length plus twice the noise). Initial speeds are uniform in
     ``spawn_speed_range`` (m/s). AVs come first in ``road.vehicles``.
 
+    :param simulator: the vehicle classes to spawn (``simulator.av`` and ``simulator.hdv``)
     :return: the AVs (highway-env ``MDPVehicle``) and the HDVs (``IDMVehicle`` with MOBIL)
     """
     lanes = road.network.lanes_list()
@@ -143,10 +91,10 @@ def spawn_vehicles(
         x = config["spawn_start"] + (slot % per_lane) * config["spawn_spacing"] + dx
         position, heading = lane.position(x, 0.0), lane.heading_at(x)
         if i < n_avs:
-            av = MDPVehicle(road, position, heading, float(speed), target_speeds=config["target_speeds"])
+            av = simulator.av(road, position, heading, float(speed), target_speeds=config["target_speeds"])
             avs.append(av)
         else:
-            hdv = IDMVehicle(road, position, heading, float(speed))
+            hdv = simulator.hdv(road, position, heading, float(speed))
             configure_hdv(hdv, config)
             hdvs.append(hdv)
     road.vehicles.extend(avs)

@@ -1,0 +1,352 @@
+"""highway-env's road, lane and vehicle classes with the scenario's hot routines made cheaper.
+
+highway-env computes with numpy on scalars and 2-vectors (``np.clip`` of one float, ``np.dot`` of
+two 2-vectors, ``np.array`` per velocity), which costs a few microseconds per call and dominates a
+step of this scenario. The subclasses below redo those routines on Python floats, operation for
+operation, so they return bit-identical numbers; every other behaviour is highway-env's own code.
+Transcendental functions stay numpy's (``np.sin``, ``np.arcsin``, ``np.power``...), so the same
+libm/SIMD routine rounds them. tests/envs/test_simulator.py checks that seeded random-action
+episodes give identical trajectories with :data:`STOCK` and :data:`FAST`.
+
+Where exactness needs a precondition it is checked: :class:`FastStraightLane` only accepts lanes
+parallel to an axis (direction (±1, 0) or (0, ±1)), where every product in highway-env's
+``np.dot`` is exact, so a BLAS dot with fused multiply-add rounds the same as Python.
+:meth:`FastIDMVehicle.desired_gap` takes its fast path only for an ego heading of exactly 0 rad
+for the same reason, and otherwise calls highway-env's.
+
+Units: positions and distances in m, speeds in m/s, accelerations in m/s², angles in rad, time in s.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from highway_env import utils
+from highway_env.road.lane import StraightLane
+from highway_env.road.road import LaneIndex, Road, RoadNetwork
+from highway_env.vehicle.behavior import IDMVehicle
+from highway_env.vehicle.controller import ControlledVehicle, MDPVehicle
+from highway_env.vehicle.kinematics import Vehicle
+from highway_env.vehicle.objects import Landmark
+
+_HIGH_LEVEL_ACTIONS = frozenset(("FASTER", "SLOWER", "LANE_LEFT", "LANE_RIGHT"))
+
+
+def clip(value: float, low: float, high: float) -> float:
+    """``np.clip`` of one number: the same comparisons (max with ``low``, then min with ``high``)."""
+    return min(max(value, low), high)
+
+
+def xy(position: np.ndarray) -> tuple[float, float]:
+    """A 2-D position (an array, as highway-env keeps it, or a sequence) as two Python floats (exact)."""
+    try:
+        x, y = position.tolist()
+    except AttributeError:
+        x, y = position
+    return float(x), float(y)
+
+
+class FastStraightLane(StraightLane):
+    """``StraightLane`` for a lane parallel to the x or y axis, with float local coordinates."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        direction = self.direction.tolist()
+        if sorted(abs(component) for component in direction) != [0.0, 1.0]:
+            raise ValueError(
+                f"FastStraightLane needs a lane parallel to an axis, got direction {direction}; "
+                "use highway-env's StraightLane for other lanes."
+            )
+        self._start = self.start.astype(float).tolist()
+        self._direction = direction
+        self._lateral = self.direction_lateral.tolist()
+        self._length = float(self.length)
+
+    def local_coordinates(self, position: np.ndarray) -> tuple[float, float]:
+        """(longitudinal, lateral) [m] of a world position."""
+        return self.local_xy(*xy(position))
+
+    def local_xy(self, x: float, y: float) -> tuple[float, float]:
+        """(longitudinal, lateral) [m] of the world point (x, y); highway-env's ``np.dot`` sums
+        from 0.0 in this order, and every product is exact on an axis-parallel lane."""
+        dx, dy = x - self._start[0], y - self._start[1]
+        (ux, uy), (lx, ly) = self._direction, self._lateral
+        return (0.0 + dx * ux) + dy * uy, (0.0 + dx * lx) + dy * ly
+
+    def on_lane(self, position, longitudinal=None, lateral=None, margin=0) -> bool:
+        if longitudinal is None or lateral is None:
+            longitudinal, lateral = self.local_coordinates(position)
+        return (
+            abs(lateral) <= self.width_at(longitudinal) / 2 + margin
+            and -self.VEHICLE_LENGTH <= longitudinal < self._length + self.VEHICLE_LENGTH
+        )
+
+    def is_reachable_from(self, position: np.ndarray) -> bool:
+        if self.forbidden:
+            return False
+        longitudinal, lateral = self.local_coordinates(position)
+        return abs(lateral) <= 2 * self.width_at(longitudinal) and 0 <= longitudinal < self._length + self.VEHICLE_LENGTH
+
+    def distance_with_heading(self, position: np.ndarray, heading: float | None, heading_weight: float = 1.0):
+        if heading is None:
+            return self.distance(position)
+        s, r = self.local_coordinates(position)
+        angle = abs(self.local_angle(heading, s))
+        return abs(r) + max(s - self._length, 0) + max(0 - s, 0) + heading_weight * angle
+
+
+class FastRoadNetwork(RoadNetwork):
+    """``RoadNetwork`` whose closest-lane search keeps the first minimum without numpy."""
+
+    def get_closest_lane_index(self, position: np.ndarray, heading: float | None = None) -> LaneIndex:
+        closest, closest_distance = None, None
+        for _from, to_dict in self.graph.items():
+            for _to, lanes in to_dict.items():
+                for _id, lane in enumerate(lanes):
+                    distance = lane.distance_with_heading(position, heading)
+                    if closest is None or distance < closest_distance:  # np.argmin: the first minimum
+                        closest, closest_distance = (_from, _to, _id), distance
+        return closest
+
+
+class FastRoad(Road):
+    """``Road`` with a float neighbour search and pre-filtered pairwise collision tests.
+
+    ``Road.step`` calls ``handle_collisions(vehicles[i], vehicles[j])`` on every pair i < j. That
+    routine does nothing unless (1) the centres are within the "spherical" reach
+    ``(diagonal_i + diagonal_j) / 2 + speed_i * dt`` and (2) highway-env's separating-axis test
+    finds the rectangles intersecting now or after the displacement ``velocity * dt``. Here a pair
+    is skipped only when (1) fails by more than ``SLACK`` m, or when the rectangles are separated
+    by more than ``SLACK`` m on one of vehicle i's two axes (which the separating-axis test also
+    checks) even after the whole relative displacement. The other pairs reach highway-env's exact
+    routine in the stock order.
+    """
+
+    SLACK = 1e-6  # [m], far above the rounding error of positions of a few hundred m
+
+    def step(self, dt: float) -> None:
+        """Step every vehicle's dynamics by ``dt`` s, then resolve collisions in ``Road.step``'s order."""
+        vehicles = self.vehicles
+        for vehicle in vehicles:
+            vehicle.step(dt)
+        candidates = self._candidate_pairs(dt)
+        for i, vehicle in enumerate(vehicles):
+            for j in candidates.get(i, ()):
+                vehicle.handle_collisions(vehicles[j], dt)
+            for other in self.objects:
+                vehicle.handle_collisions(other, dt)
+
+    def _candidate_pairs(self, dt: float) -> dict[int, list[int]]:
+        """For each vehicle i, the vehicles j > i (ascending) that may collide with it within ``dt`` s."""
+        vehicles = self.vehicles
+        if len(vehicles) < 2:
+            return {}
+        states = [(*xy(v.position), v.heading, v.speed, v.diagonal, v.LENGTH / 2, v.WIDTH / 2) for v in vehicles]
+        max_reach = max(state[4] for state in states) + max(state[3] for state in states) * dt + self.SLACK
+        by_x = sorted(range(len(states)), key=lambda k: states[k][0])
+        candidates: dict[int, list[int]] = {}
+        for rank, a in enumerate(by_x):  # sweep along x: only vehicles within max_reach m can touch
+            for b in by_x[rank + 1 :]:
+                if states[b][0] - states[a][0] > max_reach:
+                    break
+                i, j = min(a, b), max(a, b)
+                if self._may_collide(states[i], states[j], dt):
+                    candidates.setdefault(i, []).append(j)
+        for later in candidates.values():
+            later.sort()
+        return candidates
+
+    @classmethod
+    def _may_collide(cls, state_i: tuple, state_j: tuple, dt: float) -> bool:
+        xi, yi, hi, si, di, half_li, half_wi = state_i
+        xj, yj, hj, sj, dj, half_lj, half_wj = state_j
+        dx, dy = xj - xi, yj - yi
+        reach = (di + dj) / 2 + si * dt + cls.SLACK
+        if dx * dx + dy * dy > reach * reach:
+            return False
+        cos_i, sin_i = np.cos(hi), np.sin(hi)
+        cos_d, sin_d = abs(np.cos(hj - hi)), abs(np.sin(hj - hi))
+        rel_x = (si * cos_i - sj * np.cos(hj)) * dt  # relative displacement of i w.r.t. j
+        rel_y = (si * sin_i - sj * np.sin(hj)) * dt
+        for (ax, ay), own_half, other_half in (
+            ((cos_i, sin_i), half_li, half_lj * cos_d + half_wj * sin_d),
+            ((-sin_i, cos_i), half_wi, half_lj * sin_d + half_wj * cos_d),
+        ):
+            gap = abs(ax * dx + ay * dy) - own_half - other_half - abs(ax * rel_x + ay * rel_y)
+            if gap > cls.SLACK:
+                return False
+        return True
+
+    def act(self) -> None:
+        """Every vehicle decides its action; positions stay fixed meanwhile, so the lanes'
+        occupants (see :meth:`neighbour_vehicles`) are computed once per lane for the whole phase."""
+        self._occupants: dict[LaneIndex, list[tuple[float, Vehicle]]] | None = {}
+        try:
+            super().act()
+        finally:
+            self._occupants = None
+
+    def lane_occupants(self, lane_index: LaneIndex) -> list[tuple[float, Vehicle]]:
+        """(longitudinal coordinate [m], vehicle) of the vehicles and objects on a lane, road order.
+
+        "On the lane" is highway-env's ``on_lane`` with a 1 m margin, as in its neighbour search.
+        """
+        cache = getattr(self, "_occupants", None)
+        if cache is not None and lane_index in cache:
+            return cache[lane_index]
+        lane = self.network.get_lane(lane_index)
+        occupants = []
+        for v in self.vehicles + self.objects:
+            if isinstance(v, Landmark):
+                continue
+            s_v, lat_v = lane.local_coordinates(v.position)
+            if lane.on_lane(v.position, s_v, lat_v, margin=1):
+                occupants.append((s_v + 0, v))  # highway-env adds the segment offset, 0 here
+        if cache is not None:
+            cache[lane_index] = occupants
+        return occupants
+
+    def neighbour_vehicles(self, vehicle: Vehicle, lane_index: LaneIndex = None) -> tuple[Vehicle | None, Vehicle | None]:
+        """Preceding and following vehicle on ``lane_index`` (default: the vehicle's lane)."""
+        if self.neighbour_vehicles_connected_lanes:
+            return super().neighbour_vehicles(vehicle, lane_index)
+        lane_index = lane_index or vehicle.lane_index
+        if not lane_index:
+            return None, None
+        s = self.network.get_lane(lane_index).local_coordinates(vehicle.position)[0]
+        s_front = s_rear = None
+        v_front = v_rear = None
+        for s_v, v in self.lane_occupants(lane_index):
+            if v is vehicle:
+                continue
+            if s <= s_v and (s_front is None or s_v <= s_front):
+                s_front, v_front = s_v, v
+            if s_v < s and (s_rear is None or s_v > s_rear):
+                s_rear, v_rear = s_v, v
+        return v_front, v_rear
+
+
+class FastControlledVehicle(ControlledVehicle):
+    """``ControlledVehicle`` with float kinematics, steering control and low-level act."""
+
+    def act(self, action: dict | str = None) -> None:
+        if action in _HIGH_LEVEL_ACTIONS or isinstance(action, dict):
+            super().act(action)
+            return
+        self.follow_road()
+        steering = self.steering_control(self.target_lane_index)
+        Vehicle.act(
+            self,
+            {
+                "steering": clip(steering, -self.MAX_STEERING_ANGLE, self.MAX_STEERING_ANGLE),
+                "acceleration": self.speed_control(self.target_speed),
+            },
+        )
+
+    def steering_control(self, target_lane_index: LaneIndex) -> float:
+        target_lane = self.road.network.get_lane(target_lane_index)
+        longitudinal, lateral = target_lane.local_coordinates(self.position)
+        lane_future_heading = target_lane.heading_at(longitudinal + self.speed * self.TAU_PURSUIT)
+        lateral_speed_command = -self.KP_LATERAL * lateral
+        heading_command = float(np.arcsin(clip(lateral_speed_command / utils.not_zero(self.speed), -1.0, 1.0)))
+        heading_ref = lane_future_heading + clip(heading_command, -np.pi / 4, np.pi / 4)
+        heading_rate_command = self.KP_HEADING * utils.wrap_to_pi(heading_ref - self.heading)
+        slip_angle = float(
+            np.arcsin(clip(self.LENGTH / 2 / utils.not_zero(self.speed) * heading_rate_command, -1.0, 1.0))
+        )
+        steering_angle = float(np.arctan(2 * np.tan(slip_angle)))
+        return float(clip(steering_angle, -self.MAX_STEERING_ANGLE, self.MAX_STEERING_ANGLE))
+
+    def step(self, dt: float) -> None:
+        """highway-env's kinematic bicycle step, on floats."""
+        self.clip_actions()
+        beta = float(np.arctan(1 / 2 * np.tan(self.action["steering"])))
+        heading, speed = self.heading, self.speed
+        x, y = xy(self.position)
+        self.position[0] = x + speed * float(np.cos(heading + beta)) * dt
+        self.position[1] = y + speed * float(np.sin(heading + beta)) * dt
+        if self.impact is not None:
+            self.position += self.impact
+            self.crashed = True
+            self.impact = None
+        self.heading = heading + speed * float(np.sin(beta)) / (self.LENGTH / 2) * dt
+        self.speed = speed + self.action["acceleration"] * dt
+        self.on_state_update()
+
+
+class FastMDPVehicle(MDPVehicle, FastControlledVehicle):
+    """highway-env's ``MDPVehicle`` (the AVs) on :class:`FastControlledVehicle`."""
+
+
+class FastIDMVehicle(IDMVehicle, FastControlledVehicle):
+    """highway-env's ``IDMVehicle`` (IDM + MOBIL, the HDVs) with float IDM routines."""
+
+    def act(self, action: dict | str = None) -> None:
+        if self.crashed:
+            return
+        self.follow_road()
+        if self.enable_lane_change:
+            self.change_lane_policy()
+        steering = clip(self.steering_control(self.target_lane_index), -self.MAX_STEERING_ANGLE, self.MAX_STEERING_ANGLE)
+        front_vehicle, rear_vehicle = self.road.neighbour_vehicles(self, self.lane_index)
+        acceleration = self.acceleration(ego_vehicle=self, front_vehicle=front_vehicle, rear_vehicle=rear_vehicle)
+        if self.lane_index != self.target_lane_index:
+            front_vehicle, rear_vehicle = self.road.neighbour_vehicles(self, self.target_lane_index)
+            target_acceleration = self.acceleration(
+                ego_vehicle=self, front_vehicle=front_vehicle, rear_vehicle=rear_vehicle
+            )
+            acceleration = min(acceleration, target_acceleration)
+        Vehicle.act(self, {"steering": steering, "acceleration": clip(acceleration, -self.ACC_MAX, self.ACC_MAX)})
+
+    def acceleration(self, ego_vehicle: ControlledVehicle, front_vehicle: Vehicle = None, rear_vehicle: Vehicle = None) -> float:
+        """IDM acceleration [m/s²] of ``ego_vehicle`` behind ``front_vehicle``."""
+        if not ego_vehicle or not isinstance(ego_vehicle, Vehicle):
+            return 0
+        ego_target_speed = getattr(ego_vehicle, "target_speed", 0)
+        if ego_vehicle.lane and ego_vehicle.lane.speed_limit is not None:
+            ego_target_speed = clip(ego_target_speed, 0, ego_vehicle.lane.speed_limit)
+        ratio = max(ego_vehicle.speed, 0) / abs(utils.not_zero(ego_target_speed))
+        acceleration = self.COMFORT_ACC_MAX * (1 - float(np.power(ratio, self.DELTA)))
+        if front_vehicle:
+            d = ego_vehicle.lane_distance_to(front_vehicle)
+            acceleration -= self.COMFORT_ACC_MAX * float(
+                np.power(self.desired_gap(ego_vehicle, front_vehicle) / utils.not_zero(d), 2)
+            )
+        return acceleration
+
+    def desired_gap(self, ego_vehicle: Vehicle, front_vehicle: Vehicle = None, projected: bool = True) -> float:
+        """IDM desired gap [m]; highway-env's routine unless the ego heading is exactly 0 rad."""
+        if projected and ego_vehicle.heading != 0:
+            return super().desired_gap(ego_vehicle, front_vehicle, projected)
+        if projected:  # velocity difference along the ego direction (1, ±0): exact products
+            ego_cos, ego_sin = float(np.cos(ego_vehicle.heading)), float(np.sin(ego_vehicle.heading))
+            front_cos, front_sin = float(np.cos(front_vehicle.heading)), float(np.sin(front_vehicle.heading))
+            dv_x = ego_vehicle.speed * ego_cos - front_vehicle.speed * front_cos
+            dv_y = ego_vehicle.speed * ego_sin - front_vehicle.speed * front_sin
+            dv = (0.0 + dv_x * ego_cos) + dv_y * ego_sin
+        else:
+            dv = ego_vehicle.speed - front_vehicle.speed
+        ab = -self.COMFORT_ACC_MAX * self.COMFORT_ACC_MIN
+        return (
+            self.DISTANCE_WANTED
+            + ego_vehicle.speed * self.TIME_WANTED
+            + ego_vehicle.speed * dv / (2 * float(np.sqrt(ab)))
+        )
+
+
+@dataclass(frozen=True)
+class Simulator:
+    """The highway-env classes a scenario is built from."""
+
+    road: type[Road]
+    network: type[RoadNetwork]
+    lane: type[StraightLane]
+    av: type[MDPVehicle]
+    hdv: type[IDMVehicle]
+
+
+#: highway-env's own classes, the reference for parity tests.
+STOCK = Simulator(road=Road, network=RoadNetwork, lane=StraightLane, av=MDPVehicle, hdv=IDMVehicle)
+#: The same behaviour, cheaper (the scenario's default).
+FAST = Simulator(road=FastRoad, network=FastRoadNetwork, lane=FastStraightLane, av=FastMDPVehicle, hdv=FastIDMVehicle)
