@@ -28,10 +28,14 @@ REWARD_TERMS = ("safety", "headway", "speed", "comfort", "harsh_acceleration", "
 
 def headway_distances(snapshot: TrafficSnapshot, max_distance: float) -> np.ndarray:
     """(n_avs,) gap [m] to the nearest visible vehicle ahead in the same lane, capped at ``max_distance``."""
-    dx = snapshot.others_dx()
-    same_lane = snapshot.lane[None, :] == snapshot.lane[: snapshot.n_avs, None]
-    ahead = snapshot.seen_by_avs() & same_lane & (dx > 0)
-    return np.minimum(np.where(ahead, dx, np.inf).min(axis=1, initial=np.inf), max_distance)
+    x, lane = snapshot.x.tolist(), snapshot.lane.tolist()
+    return np.array(
+        [
+            min([x[j] - x[i] for j in others if lane[j] == lane[i] and x[j] > x[i]] + [max_distance])
+            for i, others in enumerate(snapshot.visible_others())
+        ],
+        dtype=np.float64,
+    )
 
 
 def reward_terms(
@@ -84,19 +88,23 @@ def neighbour_matrix(snapshot: TrafficSnapshot) -> np.ndarray:
     """(n_avs, n_avs) bool: row i is the neighbour set of AV i used by the local reward.
 
     The set holds AV i itself and, in AV i's lane and each adjacent lane, the nearest visible AV
-    ahead (dx >= 0) and the nearest visible AV behind (dx < 0). AVs past the road end are in no
-    other AV's set, and their own set is themselves only.
+    ahead (dx >= 0) and the nearest visible AV behind (dx < 0); among equally near AVs the first
+    one. AVs past the road end are in no other AV's set, and their own set is themselves only.
     """
     n = snapshot.n_avs
-    dx = snapshot.others_dx()[:, :n]
-    lane = snapshot.lane[:n]
-    candidate = snapshot.seen_by_avs()[:, :n] & snapshot.visible[:n, None]
+    x, lane, visible = snapshot.x.tolist(), snapshot.lane.tolist(), snapshot.visible.tolist()
     neighbours = np.eye(n, dtype=bool)
-    for side in (dx >= 0, dx < 0):
-        for lane_offset in (-1, 0, 1):
-            mask = candidate & side & (lane[None, :] == lane[:, None] + lane_offset)
-            gap = np.where(mask, np.abs(dx), np.inf)
-            nearest = gap.argmin(axis=1)
-            found = np.isfinite(gap[np.arange(n), nearest])
-            neighbours[np.arange(n)[found], nearest[found]] = True
+    for i, others in enumerate(snapshot.visible_others()):
+        if not visible[i]:
+            continue
+        nearest: dict[tuple[int, bool], tuple[float, int]] = {}  # (lane offset, ahead) -> (|dx|, AV)
+        for j in others:
+            if j >= n or abs(lane[j] - lane[i]) > 1:
+                continue
+            dx = x[j] - x[i]
+            key = (lane[j] - lane[i], dx >= 0)
+            if key not in nearest or abs(dx) < nearest[key][0]:
+                nearest[key] = (abs(dx), j)
+        for _, j in nearest.values():
+            neighbours[i, j] = True
     return neighbours

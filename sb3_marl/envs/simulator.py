@@ -19,6 +19,7 @@ Units: positions and distances in m, speeds in m/s, accelerations in m/s², angl
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,9 +34,27 @@ from highway_env.vehicle.objects import Landmark
 _HIGH_LEVEL_ACTIONS = frozenset(("FASTER", "SLOWER", "LANE_LEFT", "LANE_RIGHT"))
 
 
-def clip(value: float, low: float, high: float) -> float:
+def clip(value: float, low: float = -1.0, high: float = 1.0) -> float:
     """``np.clip`` of one number: the same comparisons (max with ``low``, then min with ``high``)."""
     return min(max(value, low), high)
+
+
+def _odd(function: np.ufunc) -> Callable[[float], float]:
+    """``function`` (sin, tan, arcsin, arctan: odd, with f(±0) = ±0 exactly in IEEE 754 / C99
+    Annex F) on one float, skipping numpy for the frequent ±0 input."""
+
+    def call(value: float) -> float:
+        return value if value == 0 else float(function(value))
+
+    return call
+
+
+sin, tan, arcsin, arctan = _odd(np.sin), _odd(np.tan), _odd(np.arcsin), _odd(np.arctan)
+
+
+def cos(value: float) -> float:
+    """``np.cos`` of one float; cos(±0) = 1 exactly."""
+    return 1.0 if value == 0 else float(np.cos(value))
 
 
 def xy(position: np.ndarray) -> tuple[float, float]:
@@ -91,8 +110,12 @@ class FastStraightLane(StraightLane):
     def distance_with_heading(self, position: np.ndarray, heading: float | None, heading_weight: float = 1.0):
         if heading is None:
             return self.distance(position)
-        s, r = self.local_coordinates(position)
-        angle = abs(self.local_angle(heading, s))
+        return self.distance_with_heading_xy(*xy(position), heading, heading_weight)
+
+    def distance_with_heading_xy(self, x: float, y: float, heading: float, heading_weight: float = 1.0) -> float:
+        """``distance_with_heading`` of the world point (x, y) [m] and a heading [rad]."""
+        s, r = self.local_xy(x, y)
+        angle = abs(utils.wrap_to_pi(heading - self.heading))  # local_angle: the lane heading is constant
         return abs(r) + max(s - self._length, 0) + max(0 - s, 0) + heading_weight * angle
 
 
@@ -100,11 +123,15 @@ class FastRoadNetwork(RoadNetwork):
     """``RoadNetwork`` whose closest-lane search keeps the first minimum without numpy."""
 
     def get_closest_lane_index(self, position: np.ndarray, heading: float | None = None) -> LaneIndex:
+        x, y = xy(position)
         closest, closest_distance = None, None
         for _from, to_dict in self.graph.items():
             for _to, lanes in to_dict.items():
                 for _id, lane in enumerate(lanes):
-                    distance = lane.distance_with_heading(position, heading)
+                    if heading is not None and isinstance(lane, FastStraightLane):
+                        distance = lane.distance_with_heading_xy(x, y, heading)
+                    else:
+                        distance = lane.distance_with_heading(position, heading)
                     if closest is None or distance < closest_distance:  # np.argmin: the first minimum
                         closest, closest_distance = (_from, _to, _id), distance
         return closest
@@ -165,10 +192,10 @@ class FastRoad(Road):
         reach = (di + dj) / 2 + si * dt + cls.SLACK
         if dx * dx + dy * dy > reach * reach:
             return False
-        cos_i, sin_i = np.cos(hi), np.sin(hi)
-        cos_d, sin_d = abs(np.cos(hj - hi)), abs(np.sin(hj - hi))
-        rel_x = (si * cos_i - sj * np.cos(hj)) * dt  # relative displacement of i w.r.t. j
-        rel_y = (si * sin_i - sj * np.sin(hj)) * dt
+        cos_i, sin_i = cos(hi), sin(hi)
+        cos_d, sin_d = abs(cos(hj - hi)), abs(sin(hj - hi))
+        rel_x = (si * cos_i - sj * cos(hj)) * dt  # relative displacement of i w.r.t. j
+        rel_y = (si * sin_i - sj * sin(hj)) * dt
         for (ax, ay), own_half, other_half in (
             ((cos_i, sin_i), half_li, half_lj * cos_d + half_wj * sin_d),
             ((-sin_i, cos_i), half_wi, half_lj * sin_d + half_wj * cos_d),
@@ -230,7 +257,7 @@ class FastRoad(Road):
 class FastControlledVehicle(ControlledVehicle):
     """``ControlledVehicle`` with float kinematics, steering control and low-level act."""
 
-    def act(self, action: dict | str = None) -> None:
+    def act(self, action: dict | str | None = None) -> None:
         if action in _HIGH_LEVEL_ACTIONS or isinstance(action, dict):
             super().act(action)
             return
@@ -249,28 +276,26 @@ class FastControlledVehicle(ControlledVehicle):
         longitudinal, lateral = target_lane.local_coordinates(self.position)
         lane_future_heading = target_lane.heading_at(longitudinal + self.speed * self.TAU_PURSUIT)
         lateral_speed_command = -self.KP_LATERAL * lateral
-        heading_command = float(np.arcsin(clip(lateral_speed_command / utils.not_zero(self.speed), -1.0, 1.0)))
+        heading_command = arcsin(clip(lateral_speed_command / utils.not_zero(self.speed), -1.0, 1.0))
         heading_ref = lane_future_heading + clip(heading_command, -np.pi / 4, np.pi / 4)
         heading_rate_command = self.KP_HEADING * utils.wrap_to_pi(heading_ref - self.heading)
-        slip_angle = float(
-            np.arcsin(clip(self.LENGTH / 2 / utils.not_zero(self.speed) * heading_rate_command, -1.0, 1.0))
-        )
-        steering_angle = float(np.arctan(2 * np.tan(slip_angle)))
+        slip_angle = arcsin(clip(self.LENGTH / 2 / utils.not_zero(self.speed) * heading_rate_command, -1.0, 1.0))
+        steering_angle = arctan(2 * tan(slip_angle))
         return float(clip(steering_angle, -self.MAX_STEERING_ANGLE, self.MAX_STEERING_ANGLE))
 
     def step(self, dt: float) -> None:
         """highway-env's kinematic bicycle step, on floats."""
         self.clip_actions()
-        beta = float(np.arctan(1 / 2 * np.tan(self.action["steering"])))
+        beta = arctan(1 / 2 * tan(self.action["steering"]))
         heading, speed = self.heading, self.speed
         x, y = xy(self.position)
-        self.position[0] = x + speed * float(np.cos(heading + beta)) * dt
-        self.position[1] = y + speed * float(np.sin(heading + beta)) * dt
+        self.position[0] = x + speed * cos(heading + beta) * dt
+        self.position[1] = y + speed * sin(heading + beta) * dt
         if self.impact is not None:
             self.position += self.impact
             self.crashed = True
             self.impact = None
-        self.heading = heading + speed * float(np.sin(beta)) / (self.LENGTH / 2) * dt
+        self.heading = heading + speed * sin(beta) / (self.LENGTH / 2) * dt
         self.speed = speed + self.action["acceleration"] * dt
         self.on_state_update()
 
@@ -282,7 +307,7 @@ class FastMDPVehicle(MDPVehicle, FastControlledVehicle):
 class FastIDMVehicle(IDMVehicle, FastControlledVehicle):
     """highway-env's ``IDMVehicle`` (IDM + MOBIL, the HDVs) with float IDM routines."""
 
-    def act(self, action: dict | str = None) -> None:
+    def act(self, action: dict | str | None = None) -> None:
         if self.crashed:
             return
         self.follow_road()
@@ -320,8 +345,8 @@ class FastIDMVehicle(IDMVehicle, FastControlledVehicle):
         if projected and ego_vehicle.heading != 0:
             return super().desired_gap(ego_vehicle, front_vehicle, projected)
         if projected:  # velocity difference along the ego direction (1, ±0): exact products
-            ego_cos, ego_sin = float(np.cos(ego_vehicle.heading)), float(np.sin(ego_vehicle.heading))
-            front_cos, front_sin = float(np.cos(front_vehicle.heading)), float(np.sin(front_vehicle.heading))
+            ego_cos, ego_sin = cos(ego_vehicle.heading), sin(ego_vehicle.heading)
+            front_cos, front_sin = cos(front_vehicle.heading), sin(front_vehicle.heading)
             dv_x = ego_vehicle.speed * ego_cos - front_vehicle.speed * front_cos
             dv_y = ego_vehicle.speed * ego_sin - front_vehicle.speed * front_sin
             dv = (0.0 + dv_x * ego_cos) + dv_y * ego_sin

@@ -7,6 +7,8 @@ from dataclasses import dataclass
 import numpy as np
 from highway_env.vehicle.kinematics import Vehicle
 
+from sb3_marl.envs.simulator import cos, sin, xy
+
 
 @dataclass(frozen=True)
 class TrafficSnapshot:
@@ -38,11 +40,8 @@ class TrafficSnapshot:
         :param road_length: [m] vehicles whose centre is past it are not visible
         """
         state = np.array(
-            [
-                (v.position[0], v.position[1], v.speed * np.cos(v.heading), v.speed * np.sin(v.heading),
-                 v.speed, v.lane_index[2])
-                for v in vehicles
-            ],
+            [(*xy(v.position), v.speed * cos(v.heading), v.speed * sin(v.heading), v.speed, v.lane_index[2])
+             for v in vehicles],
             dtype=np.float64,
         ).reshape(-1, 6)
         x = state[:, 0]
@@ -57,12 +56,7 @@ class TrafficSnapshot:
             n_avs=n_avs,
         )
 
-    def others_dx(self) -> np.ndarray:
-        """(n_avs, n_vehicles) longitudinal offsets x_j - x_i [m] of every vehicle j seen from AV i."""
-        return self.x[None, :] - self.x[: self.n_avs, None]
-
-    def seen_by_avs(self) -> np.ndarray:
-        """(n_avs, n_vehicles) mask: vehicle j is another, visible vehicle for AV i."""
-        seen = np.broadcast_to(self.visible, (self.n_avs, self.x.size)).copy()
-        seen[np.arange(self.n_avs), np.arange(self.n_avs)] = False
-        return seen
+    def visible_others(self) -> list[list[int]]:
+        """For each AV i, the indices j != i of the visible vehicles (what AV i can perceive)."""
+        visible = self.visible.tolist()
+        return [[j for j, seen in enumerate(visible) if seen and j != i] for i in range(self.n_avs)]

@@ -6,8 +6,6 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from highway_env.vehicle.behavior import IDMVehicle
-from highway_env.vehicle.controller import MDPVehicle
 
 import sb3_marl  # noqa: F401
 from sb3_marl.envs import ENV_IDS, LaneChangeEnv
@@ -28,12 +26,12 @@ def place(env: LaneChangeEnv, avs: list[Vehicle], hdvs: list[Vehicle] = ()) -> N
     lanes = road.network.lanes_list()
     road.vehicles = []
     env.avs = [
-        MDPVehicle(road, lanes[lane].position(x, 0), 0.0, speed, target_speeds=env.config["target_speeds"])
+        env.simulator.av(road, lanes[lane].position(x, 0), 0.0, speed, target_speeds=env.config["target_speeds"])
         for x, lane, speed in avs
     ]
     hdv_objects = []
     for x, lane, speed in hdvs:
-        hdv = IDMVehicle(road, lanes[lane].position(x, 0), 0.0, speed)
+        hdv = env.simulator.hdv(road, lanes[lane].position(x, 0), 0.0, speed)
         configure_hdv(hdv, env.config)
         hdv_objects.append(hdv)
     road.vehicles = [*env.avs, *hdv_objects]
