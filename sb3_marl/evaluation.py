@@ -15,6 +15,7 @@ import numpy as np
 
 from sb3_marl.envs import av_counts
 from sb3_marl.envs.lane_change_env import LaneChangeEnv
+from sb3_marl.policies import unchecked_distributions
 
 Policy = Callable[[LaneChangeEnv, np.ndarray], np.ndarray]
 
@@ -103,7 +104,12 @@ def run_episodes(env: LaneChangeEnv, policy: Policy, n_episodes: int, seed: int 
 
 def model_policy(model: Any, deterministic: bool = True) -> Policy:
     """A policy that acts with an SB3 model: each AV's observation row is one batch entry."""
-    return lambda env, obs: model.predict(obs, deterministic=deterministic)[0]
+
+    def act(env: LaneChangeEnv, obs: np.ndarray) -> np.ndarray:
+        with unchecked_distributions():
+            return model.predict(obs, deterministic=deterministic)[0]
+
+    return act
 
 
 def evaluation_records(

@@ -42,6 +42,7 @@ from sb3_marl.hyperparams import (
     policy_kwargs_for,
     validate_hyperparams,
 )
+from sb3_marl.policies import unchecked_distributions
 from sb3_marl.training import make_venv
 
 # rl_zoo3 builds and loads models through its ALGOS table; our learners join it under their own
@@ -150,7 +151,8 @@ class MARLExperimentManager(ExperimentManager):
             kwargs["log_interval"] = self.log_interval
         try:
             if remaining > 0:
-                model.learn(remaining, reset_num_timesteps=not self.continue_training, **kwargs)
+                with unchecked_distributions():
+                    model.learn(remaining, reset_num_timesteps=not self.continue_training, **kwargs)
             else:
                 print(f"The loaded model has {model.num_timesteps} timesteps >= n_timesteps={self.n_timesteps}.")
         except KeyboardInterrupt:
