@@ -36,8 +36,8 @@ from sb3_marl.callbacks import (
 )
 from sb3_marl.envs import copy_av_counts
 from sb3_marl.hyperparams import (
-    CONFIG_DIR,
     SCENARIO_KEYS,
+    config_file,
     load_hyperparams,
     policy_kwargs_for,
     validate_hyperparams,
@@ -74,7 +74,7 @@ class MARLExperimentManager(ExperimentManager):
         vec_env_type: str = "dummy",
         **kwargs: Any,
     ) -> None:
-        config = conf_file or str(CONFIG_DIR / f"{algo}.yml")
+        config = conf_file or str(config_file(algo))
         super().__init__(args, algo, env_id, log_folder, config=config, vec_env_type="dummy", **kwargs)
         self.vec_backend = vec_env_type
         self.cli_overrides = {

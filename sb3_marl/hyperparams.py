@@ -26,6 +26,8 @@ from sb3_marl.policies import ARCHITECTURES, ma2c_policy_kwargs, ma2c_q_policy_k
 from wrappers.parameter_sharing import check_reward_scale, check_sharing_options
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "zoo_configs"
+#: Algorithms registered under two names share one file: ``acktr`` reads ``maacktr.yml``.
+CONFIG_FILES = {"acktr": "maacktr"}
 SCENARIO_KEYS = ("reward_mode", "n_copies", "env_config", "reward_scale", "architecture")
 ZOO_KEYS = ("n_timesteps", "policy")
 #: Constructor arguments the training code sets itself.
@@ -35,7 +37,7 @@ RESERVED_KEYS = ("env", "seed", "device", "tensorboard_log", "verbose", "_init_s
 def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> dict[str, Any]:
     """The entry of ``env_id`` in ``zoo_configs/<algo>.yml`` (or ``path``), validated."""
     get_algo(algo)
-    path = Path(path) if path is not None else CONFIG_DIR / f"{algo}.yml"
+    path = Path(path) if path is not None else config_file(algo)
     if not path.is_file():
         raise ValueError(f"No hyperparameter file for algorithm {algo!r}: {path} does not exist.")
     entries = yaml.safe_load(path.read_text()) or {}
@@ -44,6 +46,11 @@ def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> 
     hyperparams = dict(entries[env_id])
     validate_hyperparams(algo, hyperparams, env_id)
     return hyperparams
+
+
+def config_file(algo: str) -> Path:
+    """The zoo config file of an algorithm: ``zoo_configs/<algo>.yml``."""
+    return CONFIG_DIR / f"{CONFIG_FILES.get(algo, algo)}.yml"
 
 
 def algorithm_arguments(algo: str) -> list[str]:

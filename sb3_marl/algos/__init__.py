@@ -1,7 +1,8 @@
 """The algorithm registry: names of the paper's learners -> SB3 / sb3-contrib classes.
 
 With :class:`~wrappers.ParameterSharingVecEnv` every AV is a slot of one VecEnv, so each SB3
-algorithm trains one policy shared by all AVs: A2C acts as MA2C, PPO as MAPPO, and so on.
+algorithm trains one policy shared by all AVs: A2C acts as MA2C, PPO as MAPPO, and so on; our
+own :class:`~sb3_marl.algos.acktr.ACKTR` (K-FAC) acts as MAACKTR.
 """
 
 from __future__ import annotations
@@ -10,12 +11,16 @@ from sb3_contrib import TRPO, MaskablePPO
 from stable_baselines3 import A2C, DQN, PPO
 from stable_baselines3.common.base_class import BaseAlgorithm
 
+from sb3_marl.algos.acktr import ACKTR
+
 ALGOS: dict[str, type[BaseAlgorithm]] = {
     "ma2c": A2C,
     "mappo": PPO,
     "madqn": DQN,
     "matrpo": TRPO,
     "mappo-mask": MaskablePPO,
+    "maacktr": ACKTR,
+    "acktr": ACKTR,
 }
 
 

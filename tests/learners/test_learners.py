@@ -7,7 +7,7 @@ from gymnasium import spaces
 
 from sb3_marl.algos import ALGOS, get_algo
 from sb3_marl.envs import ENV_IDS
-from sb3_marl.hyperparams import CONFIG_DIR, load_hyperparams, validate_hyperparams
+from sb3_marl.hyperparams import config_file, load_hyperparams, validate_hyperparams
 from sb3_marl.policies import MA2CFeaturesExtractor, ma2c_policy_kwargs
 from sb3_marl.training import make_model, make_venv
 from wrappers import VecRewardScale
@@ -55,7 +55,7 @@ def test_shared_and_separate_architectures():
 @pytest.mark.parametrize("algo", sorted(ALGOS))
 @pytest.mark.parametrize("density", [1, 2, 3])
 def test_every_zoo_config_builds_its_model(algo, density):
-    assert (CONFIG_DIR / f"{algo}.yml").is_file()
+    assert config_file(algo).is_file()
     hyperparams = load_hyperparams(algo, ENV_IDS[density])
     assert hyperparams["architecture"] == "shared" and hyperparams["reward_mode"] == "local"
     venv = make_venv(ENV_IDS[density], hyperparams, seed=0)
