@@ -181,7 +181,7 @@ def test_atomic_save_keeps_the_previous_file_when_saving_fails(tmp_path, monkeyp
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["train", "--algo", "a3c"], "invalid choice: 'a3c' (choose from 'ma2c'"),
+        (["train", "--algo", "a3c"], "invalid choice: 'a3c' (choose from 'acktr', 'ma2c'"),
         (["train", "--env", "highway-v0"], "invalid choice: 'highway-v0'"),
         (["train", "--bogus-flag"], "unrecognized arguments: --bogus-flag"),
         (["train", "--n-envs", "0"], "expected a value >= 1"),
