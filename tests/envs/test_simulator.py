@@ -7,7 +7,16 @@ from highway_env.road.lane import StraightLane
 from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.controller import MDPVehicle
 
-from sb3_marl.envs.simulator import FAST, STOCK, FastStraightLane, arcsin, arctan, cos, sin, tan
+from sb3_marl.envs.simulator import (
+    FAST,
+    STOCK,
+    FastStraightLane,
+    arcsin,
+    arctan,
+    cos,
+    sin,
+    tan,
+)
 
 #: Mostly IDLE, so that episodes last and HDVs overtake by MOBIL, with some lane changes and speed
 #: changes of the AVs; uniform random actions end most episodes in a crash within a few steps.
