@@ -7,12 +7,12 @@ Two tasks:
 - ``lanechange``: density 1 of our scenario with the zoo configs ``maacktr.yml`` and ``ma2c.yml``
   (the same rollouts, losses and network; only the optimiser differs).
 
-Every ``--eval-every`` env steps each model plays ``--eval-episodes`` seeded deterministic
-episodes (CartPole seeds 100...; the scenario's seeds 10000..., the paper's metric). Prints one
+``--evaluations`` times per run, at even intervals of env steps, each model plays
+``--eval-episodes`` seeded deterministic episodes (CartPole seeds 100...; the scenario's seeds 10000..., the paper's metric). Prints one
 line per evaluation and ``name: value unit`` lines for the final returns and wall times.
 
     python benchmarks/acktr_vs_a2c.py [--task cartpole lanechange] [--seeds 0 1] [--cartpole-steps 80000]
-        [--lanechange-steps 100000] [--eval-every 4] [--eval-episodes 10]
+        [--lanechange-steps 100000] [--evaluations 4] [--eval-episodes 10]
 """
 
 from __future__ import annotations
@@ -75,7 +75,7 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
     parser.add_argument("--cartpole-steps", type=int, default=80_000, help="env steps")
     parser.add_argument("--lanechange-steps", type=int, default=100_000, help="env steps (1M in the paper)")
-    parser.add_argument("--eval-every", type=int, default=4, help="evaluations per run")
+    parser.add_argument("--evaluations", type=int, default=4, help="evaluations per run, evenly spaced")
     parser.add_argument("--eval-episodes", type=int, default=10)
     args = parser.parse_args()
     torch.set_num_threads(1)
@@ -87,14 +87,14 @@ def main() -> None:
             for seed in args.seeds:
                 model, score, timesteps_per_env_step = build(algo, seed)
                 start, curve = time.perf_counter(), []
-                chunk = env_steps * timesteps_per_env_step // args.eval_every
+                chunk = env_steps * timesteps_per_env_step // args.evaluations
                 with unchecked_distributions():
-                    for _ in range(args.eval_every):
+                    for _ in range(args.evaluations):
                         model.learn(chunk, reset_num_timesteps=False)
                         curve.append(score(model, args.eval_episodes))
                 walls.append(time.perf_counter() - start)
                 finals.append(curve[-1])
-                steps = [env_steps * (k + 1) // args.eval_every for k in range(args.eval_every)]
+                steps = [env_steps * (k + 1) // args.evaluations for k in range(args.evaluations)]
                 print(f"{task} {algo} seed {seed}: " + " ".join(f"{s}:{r:.1f}" for s, r in zip(steps, curve)), flush=True)
             print(f"{task}_{algo}_final_return: {np.mean(finals):.2f} +- {np.std(finals):.2f} (over seeds {args.seeds})")
             print(f"{task}_{algo}_wall_time: {np.mean(walls):.0f} s per run (incl. evaluations)", flush=True)

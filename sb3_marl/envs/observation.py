@@ -42,7 +42,7 @@ def observe(snapshot: TrafficSnapshot, config: dict[str, Any]) -> np.ndarray:
     x_range, y_range, v_range = config["obs_x_range"], config["obs_y_range"], config["obs_speed_range"]
     road_length = config["road_length"]
     x, y, vx, vy = snapshot.x.tolist(), snapshot.y.tolist(), snapshot.vx.tolist(), snapshot.vy.tolist()
-    others = snapshot.visible_others()
+    others = snapshot.visible_others
     obs = np.zeros((n_avs, rows, len(FEATURES)), dtype=np.float32)
     for i in range(n_avs):
         matrix = [[1.0, clip(x[i] / road_length, 0.0, 1.0), clip(y[i] / y_range), clip(vx[i] / v_range),

@@ -32,7 +32,7 @@ def headway_distances(snapshot: TrafficSnapshot, max_distance: float) -> np.ndar
     return np.array(
         [
             min([x[j] - x[i] for j in others if lane[j] == lane[i] and x[j] > x[i]] + [max_distance])
-            for i, others in enumerate(snapshot.visible_others())
+            for i, others in enumerate(snapshot.visible_others)
         ],
         dtype=np.float64,
     )
@@ -94,7 +94,7 @@ def neighbour_matrix(snapshot: TrafficSnapshot) -> np.ndarray:
     n = snapshot.n_avs
     x, lane, visible = snapshot.x.tolist(), snapshot.lane.tolist(), snapshot.visible.tolist()
     neighbours = np.eye(n, dtype=bool)
-    for i, others in enumerate(snapshot.visible_others()):
+    for i, others in enumerate(snapshot.visible_others):
         if not visible[i]:
             continue
         nearest: dict[tuple[int, bool], tuple[float, int]] = {}  # (lane offset, ahead) -> (|dx|, AV)

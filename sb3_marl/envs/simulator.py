@@ -151,6 +151,8 @@ class FastRoad(Road):
     """
 
     SLACK = 1e-6  # [m], far above the rounding error of positions of a few hundred m
+    #: lane index -> occupants, valid during :meth:`act` only (None outside it)
+    _occupants: dict[LaneIndex, list[tuple[float, Vehicle]]] | None = None
 
     def step(self, dt: float) -> None:
         """Step every vehicle's dynamics by ``dt`` s, then resolve collisions in ``Road.step``'s order."""
@@ -208,7 +210,7 @@ class FastRoad(Road):
     def act(self) -> None:
         """Every vehicle decides its action; positions stay fixed meanwhile, so the lanes'
         occupants (see :meth:`neighbour_vehicles`) are computed once per lane for the whole phase."""
-        self._occupants: dict[LaneIndex, list[tuple[float, Vehicle]]] | None = {}
+        self._occupants = {}
         try:
             super().act()
         finally:
@@ -219,7 +221,7 @@ class FastRoad(Road):
 
         "On the lane" is highway-env's ``on_lane`` with a 1 m margin, as in its neighbour search.
         """
-        cache = getattr(self, "_occupants", None)
+        cache = self._occupants
         if cache is not None and lane_index in cache:
             return cache[lane_index]
         lane = self.network.get_lane(lane_index)
