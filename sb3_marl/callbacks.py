@@ -5,7 +5,6 @@ All three plug into any SB3 algorithm trained on a :class:`~wrappers.ParameterSh
 
 from __future__ import annotations
 
-import os
 from collections import defaultdict, deque
 from pathlib import Path
 from typing import Any
@@ -20,6 +19,7 @@ from sb3_marl.evaluation import (
     model_policy,
     summarize,
 )
+from sb3_marl.files import replaced_atomically
 
 #: Per-AV-step driving samples of the slot infos, averaged (speed, headway) or spread (acceleration).
 DRIVING_SAMPLES = ("speed", "headway", "acceleration")
@@ -28,10 +28,8 @@ DRIVING_SAMPLES = ("speed", "headway", "acceleration")
 def atomic_save(model: BaseAlgorithm, path: str | Path) -> Path:
     """``model.save(path)`` through a temporary file and a rename, so ``path`` is never half written."""
     path = Path(path).with_suffix(".zip")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = path.with_name(f".{path.stem}.partial.zip")
-    model.save(temporary)
-    os.replace(temporary, path)
+    with replaced_atomically(path) as temporary:
+        model.save(temporary)
     return path
 
 
@@ -160,10 +158,8 @@ class ScenarioEvalCallback(BaseCallback):
         for key, value in row.items():
             self.evaluations[key].append(value)
         if self.log_path is not None:
-            self.log_path.mkdir(parents=True, exist_ok=True)
-            temporary = self.log_path / ".evaluations.partial.npz"
-            np.savez(temporary, **{key: np.array(values) for key, values in self.evaluations.items()})
-            os.replace(temporary, self.log_path / "evaluations.npz")
+            with replaced_atomically(self.log_path / "evaluations.npz") as temporary:
+                np.savez(temporary, **{key: np.array(values) for key, values in self.evaluations.items()})
 
         self.logger.record("eval/mean_reward", summary["return_mean"])
         self.logger.record("eval/std_reward", summary["return_std"])

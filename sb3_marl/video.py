@@ -13,6 +13,7 @@ import numpy as np
 from sb3_marl.envs import copy_av_counts
 from sb3_marl.envs.lane_change_env import LaneChangeEnv
 from sb3_marl.evaluation import Policy
+from sb3_marl.files import replaced_atomically
 
 
 def record_video(
@@ -29,7 +30,6 @@ def record_video(
     :return: ``{"path", "frames", "episodes", "fps"}``
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     counts = copy_av_counts(env_id, config, n_episodes)
     frames: list[np.ndarray] = []
     fps = None
@@ -44,12 +44,12 @@ def record_video(
             frames.append(env.render())
             done = terminated or truncated
         env.close()
-    temporary = path.with_name(f".{path.stem}.partial.mp4")
     # libx264 needs even frame sizes; macro_block_size=2 pads odd ones instead of rescaling
-    with imageio.get_writer(temporary, fps=fps, codec="libx264", macro_block_size=2, format="FFMPEG") as writer:
+    with replaced_atomically(path) as temporary, imageio.get_writer(
+        temporary, fps=fps, codec="libx264", macro_block_size=2, format="FFMPEG"
+    ) as writer:
         for frame in frames:
             writer.append_data(frame)
-    temporary.replace(path)
     return {"path": str(path), "frames": len(frames), "episodes": n_episodes, "fps": fps}
 
 

@@ -176,6 +176,7 @@ def test_atomic_save_keeps_the_previous_file_when_saving_fails(tmp_path, monkeyp
     with pytest.raises(KeyboardInterrupt):
         atomic_save(model, path)
     assert path.read_bytes() == before
+    assert not list(tmp_path.glob(".*partial*")), "the half-written temporary file is removed"
 
 
 @pytest.mark.parametrize(
