@@ -111,7 +111,10 @@ class ScenarioEvalCallback(BaseCallback):
     (``seed, seed + 1, ...``) are used at every evaluation, so the curve compares like with like.
     Results go to ``<log_path>/evaluations.npz`` in SB3's layout (``timesteps``, ``results``,
     ``ep_lengths``) plus one array per driving metric, to the logger under ``eval/``, and the best
-    model so far to ``<best_model_save_path>/best_model.zip``.
+    model so far to ``<best_model_save_path>/best_model.zip``. ``callback_after_eval`` is called
+    after each evaluation (as in SB3's ``EvalCallback``; it sees this callback as ``parent``, with
+    the latest summary in ``last_summary``). With ``evaluate_at_end``, training that ends normally
+    ends with an evaluation of the final model (unless one was just made at that step).
     """
 
     METRICS = ("collision_rate", "success_rate", "speed_mean", "headway_mean", "acceleration_std",
@@ -127,9 +130,16 @@ class ScenarioEvalCallback(BaseCallback):
         log_path: str | Path | None = None,
         best_model_save_path: str | Path | None = None,
         deterministic: bool = True,
+        callback_after_eval: BaseCallback | None = None,
+        evaluate_at_end: bool = False,
         verbose: int = 1,
     ) -> None:
         super().__init__(verbose)
+        self.evaluate_at_end = evaluate_at_end
+        self.callback_after_eval = callback_after_eval
+        if callback_after_eval is not None:
+            callback_after_eval.parent = self
+        self.last_summary: dict[str, float] = {}
         self.env_id, self.config = env_id, config
         self.eval_freq, self.n_eval_episodes, self.seed = eval_freq, n_eval_episodes, seed
         self.log_path = Path(log_path) if log_path is not None else None
@@ -138,10 +148,36 @@ class ScenarioEvalCallback(BaseCallback):
         self.best_mean_reward = -np.inf
         self.evaluations: dict[str, list] = defaultdict(list)
 
+    def _init_callback(self) -> None:
+        if self.callback_after_eval is not None:
+            self.callback_after_eval.init_callback(self.model)
+
     def _on_step(self) -> bool:
         if self.eval_freq > 0 and self.n_calls % self.eval_freq == 0:
             self.evaluate()
         return True
+
+    def _on_training_end(self) -> None:
+        timesteps = self.evaluations["timesteps"]
+        if self.evaluate_at_end and (not timesteps or timesteps[-1] != self.num_timesteps):
+            self.evaluate()
+
+    def final_summary(self) -> dict[str, float]:
+        """The latest evaluation's summary, also when it was loaded with :meth:`load_history`."""
+        if not self.evaluations["results"]:
+            raise ValueError("No evaluation has been made.")
+        returns = np.asarray(self.evaluations["results"][-1])
+        return {"timesteps": int(self.evaluations["timesteps"][-1]), "return_mean": float(returns.mean()),
+                "return_std": float(returns.std()), **{m: float(self.evaluations[m][-1]) for m in self.METRICS}}
+
+    def load_history(self, path: str | Path, up_to_timesteps: int) -> None:
+        """Continue the evaluation history of ``path`` (an ``evaluations.npz`` of this callback),
+        keeping the evaluations at ``<= up_to_timesteps`` (those of a resumed checkpoint)."""
+        with np.load(path) as log:
+            keep = log["timesteps"] <= up_to_timesteps
+            self.evaluations = defaultdict(list, {key: list(log[key][keep]) for key in log.files})
+        if self.evaluations["results"]:
+            self.best_mean_reward = max(float(np.mean(results)) for results in self.evaluations["results"])
 
     def evaluate(self) -> dict[str, float]:
         """Run one evaluation now; returns its summary."""
@@ -178,6 +214,9 @@ class ScenarioEvalCallback(BaseCallback):
                 if self.verbose >= 1:
                     print("New best mean reward!")
         self.logger.dump(self.num_timesteps)
+        self.last_summary = summary
+        if self.callback_after_eval is not None:
+            self.callback_after_eval.on_step()
         return summary
 
 

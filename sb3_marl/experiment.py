@@ -23,7 +23,7 @@ from typing import Any
 import rl_zoo3.utils as zoo_utils
 from rl_zoo3.exp_manager import ExperimentManager
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.callbacks import ProgressBarCallback
+from stable_baselines3.common.callbacks import BaseCallback, ProgressBarCallback
 from stable_baselines3.common.logger import Logger, make_output_format
 from stable_baselines3.common.vec_env import VecEnv
 
@@ -59,6 +59,10 @@ class MARLExperimentManager(ExperimentManager):
     :param n_copies: scenario copies (``--n-envs``), overriding the config's ``n_copies``
     :param reward_mode: ``local``, ``global`` or ``individual``, overriding the config's
     :param vec_env_type: ``dummy`` (in process) or ``subproc`` (one worker process per core)
+    :param run_id: write to ``<env>_<run_id>/`` (an existing folder is continued) instead of the next free id
+    :param monitor_file: name of the training episodes' monitor file in the run folder
+    :param callback_after_eval: called after each evaluation, as SB3's ``EvalCallback(callback_after_eval=...)``
+    :param evaluate_at_end: evaluate the final model too (if the last evaluation was not at the last step)
     """
 
     def __init__(
@@ -72,6 +76,10 @@ class MARLExperimentManager(ExperimentManager):
         n_copies: int | None = None,
         reward_mode: str | None = None,
         vec_env_type: str = "dummy",
+        run_id: int | None = None,
+        monitor_file: str = "monitor.csv",
+        callback_after_eval: BaseCallback | None = None,
+        evaluate_at_end: bool = False,
         **kwargs: Any,
     ) -> None:
         config = conf_file or str(config_file(algo))
@@ -80,6 +88,12 @@ class MARLExperimentManager(ExperimentManager):
         self.cli_overrides = {
             key: value for key, value in (("n_copies", n_copies), ("reward_mode", reward_mode)) if value is not None
         }
+        if run_id is not None:
+            self.save_path = os.path.join(self.log_path, f"{self.env_name}_{run_id}")
+            self.params_path = os.path.join(self.save_path, str(self.env_name))
+        self.monitor_file = monitor_file
+        self.callback_after_eval = callback_after_eval
+        self.evaluate_at_end = evaluate_at_end
         self.scenario: dict[str, Any] = {}
         self.interrupted = False
 
@@ -111,7 +125,8 @@ class MARLExperimentManager(ExperimentManager):
 
     def create_envs(self, n_envs: int, eval_env: bool = False, no_log: bool = False) -> VecEnv:
         monitor_dir = None if eval_env or no_log else self.save_path
-        return make_venv(self.env_name.gym_id, self.scenario, self.seed, self.vec_backend, monitor_dir=monitor_dir)
+        return make_venv(self.env_name.gym_id, self.scenario, self.seed, self.vec_backend, monitor_dir=monitor_dir,
+                         monitor_file=self.monitor_file)
 
     def create_callbacks(self) -> None:
         if self.show_progress:
@@ -131,6 +146,8 @@ class MARLExperimentManager(ExperimentManager):
                     config=self.scenario.get("env_config"),
                     log_path=self.save_path,
                     best_model_save_path=self.save_path,
+                    callback_after_eval=self.callback_after_eval,
+                    evaluate_at_end=self.evaluate_at_end,
                     verbose=self.verbose,
                 )
             )

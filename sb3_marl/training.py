@@ -19,11 +19,17 @@ from wrappers import ParameterSharingVecEnv, VecRewardScale
 
 
 def make_venv(
-    env_id: str, hyperparams: dict[str, Any], seed: int, vec_backend: str = "dummy", monitor_dir: str | None = None
+    env_id: str,
+    hyperparams: dict[str, Any],
+    seed: int,
+    vec_backend: str = "dummy",
+    monitor_dir: str | None = None,
+    monitor_file: str = "monitor.csv",
 ) -> VecEnv:
     """The parameter-sharing VecEnv of the scenario, with the entry's reward mode, copies,
     scenario overrides and reward scale; with ``monitor_dir``, SB3's VecMonitor writes each AV's
-    episodes (unscaled return, length) to ``<monitor_dir>/monitor.csv``, as rl_zoo3 expects."""
+    episodes (unscaled return, length) to ``<monitor_dir>/<monitor_file>``, as rl_zoo3 expects (SB3's
+    ``load_results`` reads every ``*monitor.csv`` of a folder)."""
     venv: VecEnv = ParameterSharingVecEnv(
         env_id,
         n_copies=hyperparams.get("n_copies"),
@@ -34,7 +40,7 @@ def make_venv(
     )
     if monitor_dir is not None:
         os.makedirs(monitor_dir, exist_ok=True)
-        venv = VecMonitor(venv, os.path.join(monitor_dir, "monitor.csv"))
+        venv = VecMonitor(venv, os.path.join(monitor_dir, monitor_file))
     if hyperparams.get("reward_scale", 1.0) != 1.0:
         venv = VecRewardScale(venv, hyperparams["reward_scale"])
     return venv

@@ -1,0 +1,129 @@
+"""The experiment grid of the paper (experiments 1-5 of Zhou, Chen et al.) as a list of trials.
+
+A trial is one (algorithm, density, variant, seed). A *variant* is a named set of hyperparameter
+overrides on the algorithm's zoo config (``default`` = the paper's MA2C set-up: local reward, shared
+actor-critic trunk, comfort term on, HDV politeness 0). An *experiment* compares curves, each an
+(algorithm, variant), on the three densities; a *grid* is one or several experiments, with the
+trials they share run once.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any
+
+from sb3_marl.envs import DENSITIES, ENV_IDS, copy_av_counts
+
+#: The paper's budget: 1M env steps (10,000 episodes of 100 steps) per trial.
+PAPER_ENV_STEPS = 1_000_000
+#: The paper's evaluation: 3 episodes every 200 training episodes.
+PAPER_EVAL_EVERY_EPISODES = 200
+PAPER_EVAL_EPISODES = 3
+PAPER_SEEDS = 2
+#: Steps of a full episode (20 s at 5 Hz); evaluation intervals count training episodes of this length.
+EPISODE_STEPS = 100
+
+#: Variant name -> hyperparameter overrides of the algorithm's zoo config.
+VARIANTS: dict[str, dict[str, Any]] = {
+    "default": {},
+    "global-reward": {"reward_mode": "global"},
+    "separate-networks": {"architecture": "separate"},
+    "no-comfort": {"env_config": {"comfort": False}},
+    "politeness-1": {"env_config": {"hdv_politeness": 1.0}},
+}
+
+#: Experiment -> its curves: label -> (algorithm, variant). In the order of the paper's sections.
+EXPERIMENTS: dict[str, dict[str, tuple[str, str]]] = {
+    "reward": {"local reward": ("ma2c", "default"), "global reward": ("ma2c", "global-reward")},
+    "sharing": {"shared actor-critic": ("ma2c", "default"), "separate actor and critic": ("ma2c", "separate-networks")},
+    "comfort": {"comfort on": ("ma2c", "default"), "comfort off": ("ma2c", "no-comfort")},
+    "politeness": {"HDV politeness p=0": ("ma2c", "default"), "HDV politeness p=1": ("ma2c", "politeness-1")},
+    "baselines": {
+        "MADQN": ("madqn", "default"),
+        "MA2C": ("ma2c", "default"),
+        "MAACKTR": ("maacktr", "default"),
+        "MAPPO": ("mappo", "default"),
+    },
+}
+
+#: Grid name -> the experiments it runs.
+GRIDS: dict[str, tuple[str, ...]] = {"paper": tuple(EXPERIMENTS), **{name: (name,) for name in EXPERIMENTS}}
+
+
+@dataclass(frozen=True)
+class TrialSpec:
+    """One trial: ``algo`` trained on ``density`` with the ``variant``'s overrides and ``seed``."""
+
+    algo: str
+    density: int
+    variant: str
+    seed: int
+
+    @property
+    def trial_id(self) -> str:
+        """Folder name of the trial, e.g. ``ma2c_density1_default_seed0``."""
+        return f"{self.algo}_density{self.density}_{self.variant}_seed{self.seed}"
+
+    @property
+    def env_id(self) -> str:
+        return ENV_IDS[self.density]
+
+    @property
+    def hyperparams(self) -> dict[str, Any]:
+        """Overrides of the zoo config (rl-zoo's ``-params``)."""
+        return dict(VARIANTS[self.variant])
+
+    def av_steps_per_env_step(self) -> float:
+        """AV-steps (SB3 timesteps) per env step with the zoo config's copies: 2 / 3 / 5 at densities 1 / 2 / 3."""
+        counts = copy_av_counts(self.env_id, self.hyperparams.get("env_config"))
+        return sum(counts) / len(counts)
+
+    def n_timesteps(self, budget: float) -> int:
+        """Training AV-steps for ``budget`` (fraction of the paper's 1M env steps)."""
+        return max(1, round(budget * PAPER_ENV_STEPS * self.av_steps_per_env_step()))
+
+    def eval_freq(self, eval_every_episodes: float) -> int:
+        """AV-steps between evaluations, every ``eval_every_episodes`` training episodes of 100 steps."""
+        return max(1, round(eval_every_episodes * EPISODE_STEPS * self.av_steps_per_env_step()))
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def check_choice(field: str, value: Any, allowed: Any) -> None:
+    """A ValueError naming ``field``, the bad ``value`` and the allowed values."""
+    if value not in allowed:
+        raise ValueError(f"Invalid {field}={value!r}: expected one of {sorted(allowed)}.")
+
+
+def check_budget(budget: float) -> float:
+    """The fraction of the paper's 1M env steps per trial: in (0, 1]."""
+    if not isinstance(budget, (int, float)) or isinstance(budget, bool) or not 0 < budget <= 1:
+        raise ValueError(f"Invalid budget={budget!r}: expected a fraction in (0, 1] of the paper's 1M env steps per trial.")
+    return float(budget)
+
+
+def make_grid(grid: str = "paper", densities: tuple[int, ...] = (1, 2, 3), seeds: int = PAPER_SEEDS) -> list[TrialSpec]:
+    """The trials of ``grid`` on ``densities`` with seeds ``0 .. seeds-1``, each trial once.
+
+    :raises ValueError: naming the bad grid name, density or seed count
+    """
+    check_choice("grid", grid, GRIDS)
+    for density in densities:
+        check_choice("density", density, DENSITIES)
+    if not isinstance(seeds, int) or seeds < 1:
+        raise ValueError(f"Invalid seeds={seeds!r}: expected a number of seeds >= 1.")
+    trials: dict[str, TrialSpec] = {}
+    for experiment in GRIDS[grid]:
+        for algo, variant in EXPERIMENTS[experiment].values():
+            for density in sorted(set(densities)):
+                for seed in range(seeds):
+                    spec = TrialSpec(algo, density, variant, seed)
+                    trials.setdefault(spec.trial_id, spec)
+    return list(trials.values())
+
+
+__all__ = [
+    "EPISODE_STEPS", "EXPERIMENTS", "GRIDS", "PAPER_ENV_STEPS", "PAPER_EVAL_EPISODES", "PAPER_EVAL_EVERY_EPISODES",
+    "PAPER_SEEDS", "VARIANTS", "TrialSpec", "check_budget", "check_choice", "make_grid",
+]

@@ -1,0 +1,157 @@
+"""Run a grid of trials on Ray Tune: embedded local Ray by default, or an existing cluster.
+
+Layout of the log folder (default ``logs/benchmark``)::
+
+    benchmark.json            budget and evaluation schedule shared by all its trials
+    trials/<trial id>/        one rl-zoo log folder per trial (see :mod:`sb3_marl.benchmark.trial`)
+    ray/<grid>-<time>/        Ray Tune's experiment state and checkpoints
+
+Finished trials (with ``result.json``) are skipped; unfinished ones continue from their checkpoint.
+On a multi-node cluster the log folder must be on a file system every node sees.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from sb3_marl.benchmark.grid import (
+    PAPER_EVAL_EPISODES,
+    PAPER_EVAL_EVERY_EPISODES,
+    PAPER_SEEDS,
+    TrialSpec,
+    check_budget,
+    make_grid,
+)
+from sb3_marl.benchmark.trial import RESULT, run_trial, trial_folder
+
+SETTINGS_FILE = "benchmark.json"
+
+
+@dataclass
+class BenchmarkRun:
+    """What one invocation did: trials skipped (finished before), run, and failed for good."""
+
+    skipped: list[str] = field(default_factory=list)
+    completed: list[str] = field(default_factory=list)
+    failed: dict[str, str] = field(default_factory=dict)
+    wall_time_s: float = 0.0
+
+
+def check_settings(log_folder: Path, settings: dict[str, Any]) -> None:
+    """A log folder holds one budget and evaluation schedule: a ValueError if ``settings`` differ
+    from those it was started with (results at different budgets do not aggregate)."""
+    path = log_folder / SETTINGS_FILE
+    if path.is_file():
+        recorded = json.loads(path.read_text())
+        changed = {key: (recorded.get(key), value) for key, value in settings.items() if recorded.get(key) != value}
+        if changed:
+            details = ", ".join(f"{key}={new!r} (it has {old!r})" for key, (old, new) in changed.items())
+            raise ValueError(f"{log_folder} holds a benchmark with other settings: {details}; "
+                             "use another --log-folder or the same settings.")
+
+
+def run_benchmark(
+    grid: str = "paper",
+    log_folder: str | Path = "logs/benchmark",
+    budget: float = 1.0,
+    seeds: int = PAPER_SEEDS,
+    densities: tuple[int, ...] = (1, 2, 3),
+    eval_every_episodes: float = PAPER_EVAL_EVERY_EPISODES,
+    eval_episodes: int = PAPER_EVAL_EPISODES,
+    address: str | None = None,
+    max_concurrent: int | None = None,
+    max_failures: int = 2,
+    verbose: int = 1,
+) -> BenchmarkRun:
+    """Run the unfinished trials of ``grid`` as Ray Tune trials (one CPU each).
+
+    :param grid: ``paper`` or one experiment: ``baselines``, ``reward``, ``sharing``, ``comfort``, ``politeness``
+    :param budget: fraction in (0, 1] of the paper's 1M env steps per trial
+    :param seeds: seeds ``0 .. seeds-1`` per (algorithm, density, variant)
+    :param eval_every_episodes: evaluate every this many training episodes of 100 steps (the paper: 200)
+    :param eval_episodes: episodes per evaluation (the paper: 3)
+    :param address: Ray cluster to attach to (``ray.init(address=...)``); ``None``: a local Ray
+        with this machine's cores (an already initialised Ray is used as it is)
+    :param max_concurrent: at most this many trials at once (default: as many as free CPUs)
+    :param max_failures: Ray restarts a failed trial from its checkpoint this many times
+    :raises ValueError: on a bad argument, before Ray starts
+    """
+    trials = make_grid(grid, tuple(densities), seeds)
+    check_budget(budget)
+    if not eval_every_episodes > 0:
+        raise ValueError(f"Invalid eval_every_episodes={eval_every_episodes!r}: expected a number of training episodes > 0.")
+    if not (isinstance(eval_episodes, int) and eval_episodes >= 1):
+        raise ValueError(f"Invalid eval_episodes={eval_episodes!r}: expected an integer >= 1.")
+    if max_concurrent is not None and max_concurrent < 1:
+        raise ValueError(f"Invalid max_concurrent={max_concurrent!r}: expected an integer >= 1.")
+    log_folder = Path(log_folder).resolve()
+    settings = {"budget": float(budget), "eval_every_episodes": eval_every_episodes, "eval_episodes": eval_episodes}
+    check_settings(log_folder, settings)
+
+    outcome = BenchmarkRun()
+    todo: list[TrialSpec] = []
+    for spec in trials:
+        if (trial_folder(log_folder, spec) / RESULT).is_file():
+            outcome.skipped.append(spec.trial_id)
+        else:
+            todo.append(spec)
+    if verbose:
+        print(f"Benchmark grid {grid!r}: {len(trials)} trials, {len(outcome.skipped)} finished before, {len(todo)} to run "
+              f"(budget {budget:g} x 1M env steps, evaluation: {eval_episodes} episodes every {eval_every_episodes:g} "
+              f"training episodes) in {log_folder}")
+    if not todo:
+        return outcome
+
+    # short trials checkpoint often; Ray's advice to checkpoint less is noise here
+    os.environ.setdefault("TUNE_WARN_EXCESSIVE_EXPERIMENT_CHECKPOINT_SYNC_THRESHOLD_S", "0")
+    import ray
+    from ray import tune
+
+    log_folder.mkdir(parents=True, exist_ok=True)
+    (log_folder / SETTINGS_FILE).write_text(json.dumps(settings, indent=2) + "\n")
+    started_ray = not ray.is_initialized()
+    if started_ray:
+        ray.init(address=address, num_cpus=None if address else os.cpu_count(), include_dashboard=False,
+                 configure_logging=verbose > 0, log_to_driver=verbose > 1)
+    start = time.perf_counter()
+    try:
+        tuner = tune.Tuner(
+            tune.with_resources(run_trial, {"cpu": 1}),
+            param_space={"spec": tune.grid_search([spec.to_dict() for spec in todo]),
+                         "log_folder": str(log_folder), **settings},
+            tune_config=tune.TuneConfig(
+                max_concurrent_trials=max_concurrent,
+                trial_name_creator=_trial_id, trial_dirname_creator=_trial_id,
+            ),
+            run_config=tune.RunConfig(
+                name=f"{grid}-{time.strftime('%Y%m%d-%H%M%S')}",
+                storage_path=str(log_folder / "ray"),
+                failure_config=tune.FailureConfig(max_failures=max_failures),
+                checkpoint_config=tune.CheckpointConfig(num_to_keep=1),
+                verbose=min(verbose, 1),
+            ),
+        )
+        results = tuner.fit()
+    finally:
+        if started_ray:
+            ray.shutdown()
+    outcome.wall_time_s = time.perf_counter() - start
+    for result in results:
+        trial_id = TrialSpec(**result.config["spec"]).trial_id
+        if result.error is not None:
+            outcome.failed[trial_id] = f"{type(result.error).__name__}: {result.error}"
+        else:
+            outcome.completed.append(trial_id)
+    return outcome
+
+
+def _trial_id(trial: Any) -> str:
+    return TrialSpec(**trial.config["spec"]).trial_id
+
+
+__all__ = ["BenchmarkRun", "SETTINGS_FILE", "check_settings", "run_benchmark"]

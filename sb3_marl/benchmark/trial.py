@@ -1,0 +1,159 @@
+"""One benchmark trial as a Ray Tune function trainable, trained with the ``train`` machinery.
+
+The trial's folder ``<log folder>/trials/<trial id>/`` is an rl-zoo log folder: the run is
+``<algo>/<env name>_1/`` (model zip, ``evaluations.npz``, ``monitor.csv``, ``<env name>/config.yml``)
+and TensorBoard logs are in ``tensorboard/``, so ``sb3-marl evaluate/plot -f <trial folder>`` work
+on it. Beside them:
+
+- ``checkpoint/`` (replaced atomically after every evaluation): ``model.zip``, the replay buffer of
+  off-policy learners, ``evaluations.npz`` and ``state.json``; the same files are reported to Ray
+  Tune as the trial's checkpoint, from which Ray restarts a trial whose worker died;
+- ``trial.json``: the trial and its settings, with one entry per attempt (start, host, pid);
+- ``result.json`` (written last): the final evaluation. A trial with it is finished and skipped
+  when the benchmark runs again; one without it continues from ``checkpoint/``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shutil
+import socket
+import time
+from pathlib import Path
+from typing import Any
+
+from stable_baselines3.common.callbacks import BaseCallback
+
+from sb3_marl.benchmark.grid import TrialSpec
+from sb3_marl.files import replaced_atomically
+
+RUN_ID = 1
+CHECKPOINT = "checkpoint"
+RESULT = "result.json"
+TRIAL = "trial.json"
+
+
+def trial_folder(log_folder: str | Path, spec: TrialSpec) -> Path:
+    return Path(log_folder) / "trials" / spec.trial_id
+
+
+def write_json(path: Path, data: dict[str, Any]) -> None:
+    with replaced_atomically(path) as temporary:
+        Path(temporary).write_text(json.dumps(data, indent=2) + "\n")
+
+
+class CheckpointAndReport(BaseCallback):
+    """After each evaluation (as ``callback_after_eval`` of the ScenarioEvalCallback): replace
+    ``checkpoint/`` with the model and the evaluations so far, then report the evaluation to Ray
+    Tune with that checkpoint."""
+
+    def __init__(self, folder: Path, spec: TrialSpec) -> None:
+        super().__init__()
+        self.folder, self.spec = folder, spec
+        self.run_folder = folder  # set to the rl-zoo run folder once the experiment manager chose it
+
+    def _on_step(self) -> bool:
+        from ray import tune
+
+        checkpoint = write_checkpoint(self.model, self.folder, self.run_folder)
+        tune.report(trial_metrics(self.spec, self.model.num_timesteps, self.parent.last_summary),
+                    checkpoint=tune.Checkpoint.from_directory(str(checkpoint)))
+        return True
+
+
+def write_checkpoint(model: Any, folder: Path, run_folder: Path) -> Path:
+    """``<folder>/checkpoint/`` with the model, its replay buffer, the evaluations and the step
+    count, written beside and renamed into place (a crash leaves the previous one whole)."""
+    final, staging = folder / CHECKPOINT, folder / f".{CHECKPOINT}.partial"
+    shutil.rmtree(staging, ignore_errors=True)
+    staging.mkdir(parents=True)
+    model.save(staging / "model.zip")
+    if hasattr(model, "save_replay_buffer"):
+        model.save_replay_buffer(staging / "replay_buffer.pkl")
+    shutil.copy2(run_folder / "evaluations.npz", staging / "evaluations.npz")
+    (staging / "state.json").write_text(json.dumps({"num_timesteps": int(model.num_timesteps)}))
+    previous = folder / f".{CHECKPOINT}.previous"
+    shutil.rmtree(previous, ignore_errors=True)
+    if final.exists():
+        final.rename(previous)
+    staging.rename(final)
+    shutil.rmtree(previous, ignore_errors=True)
+    return final
+
+
+def trial_metrics(spec: TrialSpec, num_timesteps: int, summary: dict[str, float]) -> dict[str, Any]:
+    """What the trial reports to Ray Tune: progress in AV-steps and env steps, and the evaluation."""
+    env_steps = num_timesteps / spec.av_steps_per_env_step()
+    return {"timesteps": int(num_timesteps), "env_steps": int(env_steps), **{f"eval_{k}": v for k, v in summary.items()}}
+
+
+def run_trial(config: dict[str, Any]) -> None:
+    """Train and evaluate one trial (Ray Tune function trainable).
+
+    ``config``: ``spec`` (a :class:`TrialSpec` as a dict), ``log_folder`` (absolute), ``budget``
+    (fraction of 1M env steps), ``eval_every_episodes``, ``eval_episodes``.
+    Resumes from Ray's checkpoint when Ray restarts the trial, else from ``checkpoint/`` of an
+    earlier run of the benchmark.
+    """
+    import torch
+    from ray import tune
+
+    from sb3_marl.callbacks import ScenarioEvalCallback
+    from sb3_marl.experiment import MARLExperimentManager
+
+    torch.set_num_threads(1)  # one core per trial: Ray schedules trials by CPU
+    spec = TrialSpec(**config["spec"])
+    folder = trial_folder(config["log_folder"], spec)
+    folder.mkdir(parents=True, exist_ok=True)
+    ray_checkpoint = tune.get_checkpoint()
+    if ray_checkpoint is not None:  # Ray restarted the trial: its checkpoint is the latest
+        with ray_checkpoint.as_directory() as directory:
+            if Path(directory).resolve() != (folder / CHECKPOINT).resolve():
+                shutil.rmtree(folder / CHECKPOINT, ignore_errors=True)
+                shutil.copytree(directory, folder / CHECKPOINT)
+    checkpoint = folder / CHECKPOINT
+    resumed_at = json.loads((checkpoint / "state.json").read_text())["num_timesteps"] if checkpoint.is_dir() else 0
+
+    info = json.loads((folder / TRIAL).read_text()) if (folder / TRIAL).is_file() else {
+        "trial": spec.to_dict(), "trial_id": spec.trial_id, "env_id": spec.env_id, "hyperparams": spec.hyperparams,
+        **{key: config[key] for key in ("budget", "eval_every_episodes", "eval_episodes")}, "attempts": [],
+    }
+    info["attempts"].append({"started": time.strftime("%Y-%m-%dT%H:%M:%S"), "host": socket.gethostname(),
+                             "pid": os.getpid(), "resumed_at_timesteps": resumed_at})
+    write_json(folder / TRIAL, info)
+
+    report = CheckpointAndReport(folder, spec)
+    args = argparse.Namespace(algo=spec.algo, env=spec.env_id, seed=spec.seed, trial_id=spec.trial_id,
+                              variant=spec.variant, **{key: config[key] for key in ("budget", "eval_every_episodes", "eval_episodes")})
+    manager = MARLExperimentManager(
+        args, spec.algo, spec.env_id, str(folder), run_id=RUN_ID,
+        monitor_file="monitor.csv" if not resumed_at else f"resumed_at_{resumed_at}.monitor.csv",
+        callback_after_eval=report, evaluate_at_end=True,
+        tensorboard_log=str(folder / "tensorboard"), n_timesteps=spec.n_timesteps(config["budget"]),
+        eval_freq=spec.eval_freq(config["eval_every_episodes"]), n_eval_episodes=config["eval_episodes"],
+        save_freq=-1, hyperparams=spec.hyperparams, trained_agent=str(checkpoint / "model.zip") if resumed_at else "",
+        seed=spec.seed, log_interval=-1, verbose=0, device="cpu",
+    )
+    report.run_folder = Path(manager.save_path)
+    model, _ = manager.setup_experiment()
+    evaluation = next(c for c in manager.callbacks if isinstance(c, ScenarioEvalCallback))
+    if resumed_at:
+        evaluation.load_history(checkpoint / "evaluations.npz", resumed_at)
+    start = time.perf_counter()
+    manager.learn(model)
+    if manager.interrupted:
+        raise KeyboardInterrupt(f"trial {spec.trial_id} interrupted")
+    manager.save_trained_model(model)
+    result = {
+        **info, "num_timesteps": int(model.num_timesteps), "env_steps": int(model.num_timesteps / spec.av_steps_per_env_step()),
+        "final_evaluation": evaluation.final_summary(),
+        "final_returns": [float(r) for r in evaluation.evaluations["results"][-1]],
+        "wall_time_s": round(time.perf_counter() - start, 1), "machine": f"{platform.node()} ({os.cpu_count()} cores)",
+    }
+    write_json(folder / RESULT, result)
+
+
+__all__ = ["CHECKPOINT", "RESULT", "TRIAL", "run_trial", "trial_folder"]
