@@ -30,8 +30,10 @@ setup(
         "rich",
     ],
     extras_require={
+        # Ray Tune runs the paper-reproduction benchmark (`sb3-marl benchmark`)
+        "ray": ["ray[tune]>=2.60,<2.61"],
         # seaborn and scipy: rl_zoo3's own plotting scripts, run by the tests on our logs
-        "dev": ["pytest>=8", "seaborn", "scipy"],
+        "dev": ["pytest>=8", "seaborn", "scipy", "ray[tune]>=2.60,<2.61"],
     },
     entry_points={"console_scripts": ["sb3-marl=sb3_marl.cli:main"]},
     classifiers=[

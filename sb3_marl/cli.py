@@ -7,6 +7,8 @@
     sb3-marl push-to-hub --algo ma2c --env sb3_marl/LaneChange-density1-v0 -f logs -orga ORG [--dry-run PATH]
     sb3-marl load-from-hub --repo-id ORG/NAME -f logs
     sb3-marl baselines --density 1        (reference policies: random and IDM/MOBIL)
+    sb3-marl benchmark --grid paper --budget 0.05   (the paper's experiments as Ray Tune trials)
+    sb3-marl benchmark report -f logs/benchmark -o results
 
 Timesteps (``-n``, ``--eval-freq``, ``--save-freq``) count AV-steps, SB3's timesteps on the
 parameter-sharing VecEnv: one step of a scenario copy with N AVs is N timesteps.
@@ -24,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from sb3_marl.algos import ALGOS
+from sb3_marl.benchmark.grid import GRIDS, PAPER_EVAL_EPISODES, PAPER_EVAL_EVERY_EPISODES, PAPER_SEEDS
 from sb3_marl.envs import DENSITIES, ENV_IDS
 
 DEFAULT_ENV = ENV_IDS[1]
@@ -142,7 +145,39 @@ def build_parser() -> argparse.ArgumentParser:
     baselines.add_argument("--episodes", type=_positive(), default=20, help="episodes per policy and AV count")
     baselines.add_argument("--seed", type=int, default=0)
     baselines.add_argument("--out", type=Path, default=Path("logs/scenario_baselines.md"))
+
+    benchmark = commands.add_parser("benchmark", help="the paper's experiment grid as Ray Tune trials; "
+                                    "`benchmark report` writes its table and figures")
+    benchmark.add_argument("action", nargs="?", choices=["run", "report"], default="run",
+                           help="run the grid (default) or report on it")
+    benchmark.add_argument("--grid", default="paper", choices=list(GRIDS),
+                           help="paper (all five experiments) or one experiment (default: paper)")
+    benchmark.add_argument("-f", "--log-folder", default="logs/benchmark", help="default: logs/benchmark")
+    benchmark.add_argument("--budget", type=_budget, default=1.0,
+                           help="fraction of the paper's 1M env steps per trial (default: 1)")
+    benchmark.add_argument("--seeds", type=_positive(), default=PAPER_SEEDS, help="seeds per trial setting (default: 2)")
+    benchmark.add_argument("--densities", type=int, nargs="+", choices=sorted(DENSITIES), default=sorted(DENSITIES))
+    benchmark.add_argument("--eval-every", type=_positive(float), default=PAPER_EVAL_EVERY_EPISODES,
+                           metavar="EPISODES", help="evaluate every N training episodes (default: 200, the paper's)")
+    benchmark.add_argument("--eval-episodes", type=_positive(), default=PAPER_EVAL_EPISODES,
+                           help="episodes per evaluation (default: 3, the paper's)")
+    benchmark.add_argument("--address", default=None, help="attach to this Ray cluster (default: a local Ray)")
+    benchmark.add_argument("--max-concurrent", type=_positive(), default=None,
+                           help="trials at once (default: one per free CPU)")
+    benchmark.add_argument("--max-failures", type=int, default=2, help="restarts of a failed trial (default: 2)")
+    benchmark.add_argument("-o", "--output", default="results", help="report: output folder (default: results)")
+    benchmark.add_argument("--verbose", type=int, default=1, choices=[0, 1, 2])
     return parser
+
+
+def _budget(text: str) -> float:
+    from sb3_marl.benchmark.grid import check_budget
+
+    try:
+        return check_budget(float(text))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected a fraction in (0, 1] of the paper's 1M env steps per trial, got {text!r}") from None
 
 
 # ---- train -------------------------------------------------------------------------------------
@@ -335,6 +370,38 @@ def baselines(args: argparse.Namespace) -> int:
     return 0
 
 
+def benchmark(args: argparse.Namespace) -> int:
+    if args.action == "report":
+        from sb3_marl.benchmark.report import write_report
+
+        try:
+            written = write_report(args.log_folder, args.output)
+        except FileNotFoundError as error:
+            raise UsageError(str(error)) from None
+        for path in written:
+            print(f"wrote {path}")
+        return 0
+
+    from sb3_marl.benchmark.runner import run_benchmark
+
+    try:
+        outcome = run_benchmark(
+            args.grid, args.log_folder, args.budget, args.seeds, tuple(args.densities), args.eval_every,
+            args.eval_episodes, args.address, args.max_concurrent, args.max_failures, args.verbose,
+        )
+    except ValueError as error:
+        raise UsageError(str(error)) from None
+    print(f"{len(outcome.completed)} trials completed, {len(outcome.skipped)} skipped (finished before), "
+          f"{len(outcome.failed)} failed in {outcome.wall_time_s:.0f} s")
+    for trial_id, error in outcome.failed.items():
+        print(f"  failed: {trial_id}: {error.splitlines()[0]}")
+    print(f"report: sb3-marl benchmark report -f {args.log_folder}")
+    if outcome.failed:
+        raise CommandFailed(f"{len(outcome.failed)} trial(s) failed after {args.max_failures} restarts: "
+                            f"{sorted(outcome.failed)}; run the command again to retry them.")
+    return 0
+
+
 class UsageError(Exception):
     """Bad input found before any work: printed as ``sb3-marl <command>: error: ...``, exit code 2."""
 
@@ -345,7 +412,7 @@ class CommandFailed(Exception):
 
 COMMANDS = {"train": train, "evaluate": evaluate, "enjoy": evaluate, "plot": plot,
             "record-video": record_video_command, "push-to-hub": push_to_hub, "load-from-hub": load_from_hub_command,
-            "baselines": baselines}
+            "baselines": baselines, "benchmark": benchmark}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,0 +1,263 @@
+"""Aggregate a benchmark log folder into the paper's table and figures.
+
+- ``paper_table.md``: per experiment, per curve and density, the final evaluation over seeds
+  (mean ± std of the seeds' final evaluation returns; collision rate, mean speed [m/s] and
+  acceleration std [m/s²] averaged over seeds) beside the paper's numbers and claims;
+- ``learning_curves_<experiment>.png``: evaluation return against training episodes, one panel
+  per density, mean over seeds with a shaded ± std band (the layout of the paper's figures);
+- ``comfort.png``: AV acceleration traces of one evaluation episode with the comfort term on and
+  off, and the acceleration std of the final evaluations.
+
+Only finished trials (with ``result.json``) enter the table; curves also show unfinished ones.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")  # headless: files only
+
+import numpy as np
+from matplotlib import pyplot as plt
+
+from sb3_marl.benchmark.grid import EPISODE_STEPS, EXPERIMENTS, TrialSpec
+from sb3_marl.benchmark.runner import SETTINGS_FILE
+from sb3_marl.benchmark.trial import RESULT, TRIAL
+
+#: Table 5 of the paper: mean evaluation episode reward ± std, per algorithm and density.
+PAPER_RETURNS: dict[tuple[str, int], tuple[float, float]] = {
+    ("madqn", 1): (47.45, 27.95), ("madqn", 2): (51.57, 32.94), ("madqn", 3): (48.51, 24.08),
+    ("ma2c", 1): (58.00, 9.31), ("ma2c", 2): (44.74, 10.90), ("ma2c", 3): (32.58, 8.16),
+    ("maacktr", 1): (8.81, 6.22), ("maacktr", 2): (3.76, 10.86), ("maacktr", 3): (4.89, 10.99),
+    ("mappo", 1): (31.99, 6.57), ("mappo", 2): (19.30, 16.10), ("mappo", 3): (5.07, 19.76),
+}
+#: Std of AV acceleration [m/s²] with the comfort term on and off (the paper's experiment 3).
+PAPER_ACCELERATION_STD = {"default": 0.455, "no-comfort": 0.582}
+#: Experiment -> (paper section title, the paper's finding).
+PAPER_FINDINGS = {
+    "reward": ("Experiment 1: local vs global reward", "local reward: higher return and lower variance"),
+    "sharing": ("Experiment 2: shared vs separate actor-critic", "shared network: higher return and lower variance"),
+    "comfort": ("Experiment 3: comfort term on vs off", "acceleration std 0.455 m/s² (on) vs 0.582 m/s² (off)"),
+    "politeness": ("Experiment 4: HDV politeness p=0 vs p=1", "stable performance under both"),
+    "baselines": ("Experiment 5: baselines", "MA2C best at densities 1 and 3 (MADQN at density 2)"),
+}
+
+
+@dataclass
+class TrialLog:
+    """A trial's logs: its evaluations (``evaluations.npz`` arrays) and its result if finished."""
+
+    spec: TrialSpec
+    evaluations: dict[str, np.ndarray]
+    result: dict[str, Any] | None
+
+    def training_episodes(self) -> np.ndarray:
+        """Evaluation points in training episodes of 100 steps (env steps / 100)."""
+        return self.evaluations["timesteps"] / self.spec.av_steps_per_env_step() / EPISODE_STEPS
+
+    def eval_returns(self) -> np.ndarray:
+        """Mean return of each evaluation."""
+        return self.evaluations["results"].mean(axis=1)
+
+
+def load_trials(log_folder: str | Path) -> list[TrialLog]:
+    """Every trial under ``<log_folder>/trials/`` that has evaluated at least once."""
+    trials = []
+    for info_path in sorted(Path(log_folder).glob(f"trials/*/{TRIAL}")):
+        spec = TrialSpec(**json.loads(info_path.read_text())["trial"])
+        npz = sorted(info_path.parent.glob(f"{spec.algo}/*_1/evaluations.npz"))
+        if not npz:
+            continue
+        with np.load(npz[0]) as log:
+            evaluations = {key: log[key] for key in log.files}
+        result_path = info_path.parent / RESULT
+        result = json.loads(result_path.read_text()) if result_path.is_file() else None
+        trials.append(TrialLog(spec, evaluations, result))
+    return trials
+
+
+def _select(trials: list[TrialLog], algo: str, variant: str, density: int) -> list[TrialLog]:
+    return sorted((t for t in trials if (t.spec.algo, t.spec.variant, t.spec.density) == (algo, variant, density)),
+                  key=lambda t: t.spec.seed)
+
+
+def final_over_seeds(trials: list[TrialLog]) -> dict[str, float] | None:
+    """Mean ± std over seeds of the finished trials' final evaluation return, and the seed means of
+    the driving metrics; None without a finished trial."""
+    finals = [t.result["final_evaluation"] for t in trials if t.result is not None]
+    if not finals:
+        return None
+    returns = np.array([f["return_mean"] for f in finals])
+    summary = {"seeds": len(finals), "return_mean": float(returns.mean()), "return_std": float(returns.std())}
+    for metric in ("collision_rate", "speed_mean", "acceleration_std"):
+        summary[metric] = float(np.mean([f[metric] for f in finals]))
+    summary["env_steps"] = int(np.mean([t.result["env_steps"] for t in trials if t.result is not None]))
+    return summary
+
+
+def paper_table(trials: list[TrialLog], settings: dict[str, Any] | None = None) -> str:
+    """The markdown of ``paper_table.md`` (see module doc)."""
+    lines = ["# Paper reproduction: final evaluation over seeds", ""]
+    if settings:
+        lines += [f"Budget {settings['budget']:g} x the paper's 1M env steps per trial; evaluation: "
+                  f"{settings['eval_episodes']} episodes every {settings['eval_every_episodes']:g} training episodes "
+                  "(the paper: 3 every 200). Return: the seeds' final evaluation returns (mean ± std over seeds); "
+                  "collision rate, speed and acceleration std: mean over seeds of the final evaluation.", ""]
+    finished = sum(t.result is not None for t in trials)
+    lines += [f"Trials: {finished} finished, {len(trials) - finished} unfinished (not in the table).", ""]
+    for experiment, curves in EXPERIMENTS.items():
+        title, finding = PAPER_FINDINGS[experiment]
+        rows = []
+        for density in (1, 2, 3):
+            for label, (algo, variant) in curves.items():
+                summary = final_over_seeds(_select(trials, algo, variant, density))
+                if summary is None:
+                    continue
+                paper = PAPER_RETURNS.get((algo, density)) if experiment == "baselines" else None
+                paper_return = f"{paper[0]:.2f} ± {paper[1]:.2f}" if paper else "—"
+                paper_accel = PAPER_ACCELERATION_STD.get(variant) if experiment == "comfort" else None
+                rows.append(
+                    f"| {label} | {density} | {summary['seeds']} | {summary['env_steps']:,} | "
+                    f"{summary['return_mean']:.2f} ± {summary['return_std']:.2f} | {paper_return} | "
+                    f"{summary['collision_rate']:.2f} | {summary['speed_mean']:.2f} | "
+                    f"{summary['acceleration_std']:.3f}" + (f" (paper {paper_accel})" if paper_accel else "") + " |"
+                )
+        if not rows:
+            continue
+        lines += [f"## {title}", "", f"The paper: {finding}.", "",
+                  "| curve | density | seeds | env steps | return (ours) | return (paper) | collision rate "
+                  "| mean speed [m/s] | accel. std [m/s²] |",
+                  "|---|---|---|---|---|---|---|---|---|", *rows, ""]
+    return "\n".join(lines)
+
+
+def plot_learning_curves(trials: list[TrialLog], out_dir: str | Path) -> list[Path]:
+    """One ``learning_curves_<experiment>.png`` per experiment with data (see module doc)."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = []
+    for experiment, curves in EXPERIMENTS.items():
+        densities = sorted({t.spec.density for t in trials
+                            if (t.spec.algo, t.spec.variant) in curves.values()})
+        if not densities:
+            continue
+        fig, axes = plt.subplots(1, len(densities), figsize=(5 * len(densities), 4), squeeze=False)
+        for ax, density in zip(axes[0], densities):
+            for label, (algo, variant) in curves.items():
+                selected = _select(trials, algo, variant, density)
+                if not selected:
+                    continue
+                length = min(len(t.eval_returns()) for t in selected)
+                x = selected[0].training_episodes()[:length]
+                returns = np.stack([t.eval_returns()[:length] for t in selected])
+                mean, std = returns.mean(axis=0), returns.std(axis=0)
+                ax.plot(x, mean, label=f"{label} ({len(selected)} seeds)")
+                ax.fill_between(x, mean - std, mean + std, alpha=0.25)
+            ax.set_title(f"density {density}")
+            ax.set_xlabel("training episodes")
+            ax.set_ylabel("evaluation episode return")
+            ax.grid(alpha=0.3)
+            ax.legend(fontsize=8)
+        fig.suptitle(PAPER_FINDINGS[experiment][0])
+        fig.tight_layout()
+        path = out_dir / f"learning_curves_{experiment}.png"
+        fig.savefig(path, dpi=100)
+        plt.close(fig)
+        written.append(path)
+    return written
+
+
+def acceleration_traces(trial: TrialLog, log_folder: str | Path, seed: int) -> np.ndarray:
+    """Accelerations [m/s²] of each AV (columns) at each step (rows) of one evaluation episode of the
+    trial's final model, with the density's largest AV count and episode seed ``seed``."""
+    import gymnasium as gym
+
+    from sb3_marl.envs import av_counts
+    from sb3_marl.evaluation import model_policy
+    from sb3_marl.runs import find_run
+
+    run = find_run(Path(log_folder) / "trials" / trial.spec.trial_id, trial.spec.algo, trial.spec.env_id)
+    policy = model_policy(run.load_model("cpu"))
+    n_avs = max(av_counts(trial.spec.env_id, run.env_config))
+    env = gym.make(trial.spec.env_id, config={**run.env_config, "n_avs": n_avs}).unwrapped
+    obs, _ = env.reset(seed=seed)
+    accelerations, done = [], False
+    while not done:
+        obs, _, terminated, truncated, info = env.step(policy(env, obs))
+        accelerations.append(np.asarray(info["acceleration"], dtype=float))
+        done = terminated or truncated
+    env.close()
+    return np.array(accelerations)
+
+
+def plot_comfort(trials: list[TrialLog], log_folder: str | Path, out_dir: str | Path, seed: int) -> Path | None:
+    """``comfort.png`` (see module doc); None without finished comfort-on and comfort-off trials."""
+    finished = [t for t in trials if t.result is not None and t.spec.algo == "ma2c"]
+    on = [t for t in finished if t.spec.variant == "default"]
+    off = [t for t in finished if t.spec.variant == "no-comfort"]
+    if not off or not on:
+        return None
+    density = min(t.spec.density for t in off)
+    pair = {"comfort on": _select(on, "ma2c", "default", density), "comfort off": _select(off, "ma2c", "no-comfort", density)}
+    if not all(pair.values()):
+        return None
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4))
+    for ax, (label, selected) in zip(axes[:2], pair.items()):
+        trace = acceleration_traces(selected[0], log_folder, seed)
+        time_s = np.arange(1, len(trace) + 1) / 5.0  # policy steps at 5 Hz
+        for av in range(trace.shape[1]):
+            ax.plot(time_s, trace[:, av], label=f"AV {av + 1}")
+        ax.set_title(f"{label}: density {density}, seed {selected[0].spec.seed}, episode seed {seed}")
+        ax.set_xlabel("time [s]")
+        ax.set_ylabel("acceleration [m/s²]")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    ax = axes[2]
+    densities = sorted({t.spec.density for t in on} & {t.spec.density for t in off})
+    width = 0.35
+    for k, (label, variant) in enumerate((("comfort on", "default"), ("comfort off", "no-comfort"))):
+        stds = [[t.result["final_evaluation"]["acceleration_std"] for t in _select(finished, "ma2c", variant, d)]
+                for d in densities]
+        ax.bar(np.arange(len(densities)) + (k - 0.5) * width, [np.mean(s) for s in stds], width,
+               yerr=[np.std(s) for s in stds], capsize=4,
+               label=f"{label} (paper {PAPER_ACCELERATION_STD[variant]} m/s²)")
+    ax.set_xticks(np.arange(len(densities)), [f"density {d}" for d in densities])
+    ax.set_ylabel("std of AV acceleration [m/s²]")
+    ax.set_title("Final evaluation: acceleration std (mean ± std over seeds)")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    path = Path(out_dir) / "comfort.png"
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def write_report(log_folder: str | Path, out_dir: str | Path = "results", seed: int = 10_000) -> list[Path]:
+    """Write ``paper_table.md``, the learning curves and the comfort figure of ``log_folder`` into
+    ``out_dir``; returns the files written.
+
+    :raises FileNotFoundError: if ``log_folder`` has no evaluated trial
+    """
+    trials = load_trials(log_folder)
+    if not trials:
+        raise FileNotFoundError(f"No evaluated benchmark trial under {Path(log_folder) / 'trials'}/ "
+                                "(run `sb3-marl benchmark` with this --log-folder first).")
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    settings_path = Path(log_folder) / SETTINGS_FILE
+    settings = json.loads(settings_path.read_text()) if settings_path.is_file() else None
+    table = out_dir / "paper_table.md"
+    table.write_text(paper_table(trials, settings))
+    written = [table, *plot_learning_curves(trials, out_dir)]
+    comfort = plot_comfort(trials, log_folder, out_dir, seed)
+    if comfort is not None:
+        written.append(comfort)
+    return written
+
+
+__all__ = ["PAPER_ACCELERATION_STD", "PAPER_RETURNS", "TrialLog", "load_trials", "paper_table", "write_report"]
