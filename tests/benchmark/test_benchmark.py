@@ -1,0 +1,172 @@
+"""The paper-reproduction benchmark on a real local Ray instance: tiny grids of 2 trials."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+from sb3_marl.benchmark import GRIDS, make_grid
+from sb3_marl.benchmark.report import load_trials, write_report
+from sb3_marl.benchmark.runner import run_benchmark
+from sb3_marl.cli import main
+
+ray = pytest.importorskip("ray")
+
+#: 2 trials (MA2C with local and with global reward) on density 1, one seed
+TINY = {"grid": "reward", "seeds": 1, "densities": (1,), "verbose": 0}
+
+
+@pytest.fixture(scope="module")
+def local_ray():
+    ray.init(num_cpus=2, include_dashboard=False, configure_logging=False, log_to_driver=False)
+    yield
+    ray.shutdown()
+
+
+@pytest.fixture(scope="module")
+def tiny_benchmark(local_ray, tmp_path_factory) -> Path:
+    """The tiny grid run once: 600 AV-steps (300 env steps) per trial, evaluated every episode."""
+    folder = tmp_path_factory.mktemp("benchmark")
+    outcome = run_benchmark(log_folder=folder, budget=0.0003, eval_every_episodes=1, **TINY)
+    assert sorted(outcome.completed) == ["ma2c_density1_default_seed0", "ma2c_density1_global-reward_seed0"]
+    assert not outcome.failed and not outcome.skipped
+    return folder
+
+
+def test_grids_hold_each_trial_once():
+    assert len(make_grid("baselines")) == 4 * 3 * 2
+    assert len(make_grid("reward")) == 2 * 3 * 2
+    # the paper grid shares the default MA2C trials between experiments: 4 algos + 4 MA2C variants
+    paper = make_grid("paper")
+    assert len(paper) == (4 + 4) * 3 * 2 == len({spec.trial_id for spec in paper})
+    assert set(GRIDS) == {"paper", "baselines", "reward", "sharing", "comfort", "politeness"}
+    spec = make_grid("comfort", densities=(2,), seeds=1)[1]
+    assert spec.hyperparams == {"env_config": {"comfort": False}}
+    assert spec.n_timesteps(1.0) == 3_000_000  # 1M env steps at 3 AV-steps per env step (copies of 2+3+4 AVs)
+    assert spec.eval_freq(200) == 60_000  # 200 episodes x 100 steps x 3 AV-steps
+
+
+def test_trials_write_the_rl_zoo_layout_and_tensorboard(tiny_benchmark):
+    for variant, reward_mode in (("default", "local"), ("global-reward", "global")):
+        trial = tiny_benchmark / "trials" / f"ma2c_density1_{variant}_seed0"
+        run = trial / "ma2c" / "sb3_marl-LaneChange-density1-v0_1"
+        assert (run / "sb3_marl-LaneChange-density1-v0.zip").is_file()
+        config = (run / "sb3_marl-LaneChange-density1-v0" / "config.yml").read_text()
+        assert f"- {reward_mode}" in config
+        evaluations = np.load(run / "evaluations.npz")
+        assert evaluations["results"].shape[1] == 3  # the paper's 3 episodes per evaluation
+        assert np.all(np.diff(evaluations["timesteps"]) > 0)
+        result = json.loads((trial / "result.json").read_text())
+        assert result["num_timesteps"] >= 600 and result["final_evaluation"]["timesteps"] == result["num_timesteps"]
+        assert evaluations["timesteps"][-1] == result["num_timesteps"]  # a final evaluation at the end
+        events = list((trial / "tensorboard").rglob("events.out.tfevents.*"))
+        accumulator = EventAccumulator(str(events[0].parent)).Reload()
+        assert "eval/mean_reward" in accumulator.Tags()["scalars"]
+
+
+def test_report_writes_the_table_and_the_figures(tiny_benchmark, tmp_path, capsys):
+    assert main(["benchmark", "report", "-f", str(tiny_benchmark), "-o", str(tmp_path)]) == 0
+    table = (tmp_path / "paper_table.md").read_text()
+    trials = {t.spec.variant: t for t in load_trials(tiny_benchmark)}
+    for label, variant in (("local reward", "default"), ("global reward", "global-reward")):
+        final = trials[variant].result["final_evaluation"]
+        assert f"| {label} | 1 | 1 | 300 | {final['return_mean']:.2f} ± 0.00 | — |" in table
+    assert "| MA2C | 1 | 1 | 300 |" in table and "58.00 ± 9.31" in table  # beside the paper's number
+    assert "budget 0.0003" in table.lower()
+    for experiment in ("reward", "baselines"):
+        png = tmp_path / f"learning_curves_{experiment}.png"
+        assert png.stat().st_size > 10_000 and png.read_bytes()[:4] == b"\x89PNG"
+    assert not (tmp_path / "comfort.png").exists()  # no comfort-off trial in this grid
+    assert "wrote" in capsys.readouterr().out
+
+
+def test_second_invocation_skips_finished_trials_and_resumes_unfinished(tiny_benchmark):
+    results = sorted((tiny_benchmark / "trials").glob("*/result.json"))
+    before = {path: path.read_text() for path in results}
+    outcome = run_benchmark(log_folder=tiny_benchmark, budget=0.0003, eval_every_episodes=1, **TINY)
+    assert sorted(outcome.skipped) == ["ma2c_density1_default_seed0", "ma2c_density1_global-reward_seed0"]
+    assert outcome.completed == [] and {path: path.read_text() for path in results} == before
+    # an unfinished trial (no result.json) continues from its checkpoint instead of starting over
+    unfinished = results[1]
+    final = json.loads(unfinished.read_text())["final_evaluation"]
+    unfinished.unlink()
+    outcome = run_benchmark(log_folder=tiny_benchmark, budget=0.0003, eval_every_episodes=1, **TINY)
+    assert outcome.completed == [unfinished.parent.name] and len(outcome.skipped) == 1
+    attempts = json.loads((unfinished.parent / "trial.json").read_text())["attempts"]
+    assert attempts[-1]["resumed_at_timesteps"] == final["timesteps"]
+    assert json.loads(unfinished.read_text())["final_evaluation"] == final
+
+
+def test_a_trial_whose_worker_dies_is_retried_from_its_checkpoint(local_ray, tmp_path):
+    """SIGKILL the Ray worker of a trial once it has checkpointed: Ray restarts the trial, which
+    continues from that checkpoint and finishes."""
+    killed: dict[str, int] = {}
+
+    def kill_first_checkpointed_trial() -> None:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and not killed:
+            for info in tmp_path.glob("trials/*/trial.json"):
+                state = info.parent / "checkpoint" / "state.json"
+                if state.is_file() and not (info.parent / "result.json").exists():
+                    pid = json.loads(info.read_text())["attempts"][0]["pid"]
+                    os.kill(pid, signal.SIGKILL)
+                    killed.update(trial=info.parent.name, pid=pid)
+                    return
+            time.sleep(0.02)
+
+    killer = threading.Thread(target=kill_first_checkpointed_trial, daemon=True)
+    killer.start()
+    # 4000 AV-steps per trial, a checkpoint at every evaluation (every 400 AV-steps)
+    outcome = run_benchmark(log_folder=tmp_path, budget=0.002, eval_every_episodes=2, max_failures=1, **TINY)
+    killer.join()
+    assert killed, "no trial checkpointed in time"
+    assert not outcome.failed and killed["trial"] in outcome.completed
+    trial = tmp_path / "trials" / killed["trial"]
+    attempts = json.loads((trial / "trial.json").read_text())["attempts"]
+    assert len(attempts) == 2 and attempts[1]["pid"] != killed["pid"]
+    resumed_at = attempts[1]["resumed_at_timesteps"]
+    assert resumed_at > 0
+    result = json.loads((trial / "result.json").read_text())
+    assert result["num_timesteps"] >= 4000
+    timesteps = np.load(trial / "ma2c" / "sb3_marl-LaneChange-density1-v0_1" / "evaluations.npz")["timesteps"]
+    assert np.all(np.diff(timesteps) > 0) and resumed_at in timesteps  # one history, continued
+    assert (trial / "ma2c" / "sb3_marl-LaneChange-density1-v0_1" / f"resumed_at_{resumed_at}.monitor.csv").is_file()
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--grid", "papers"], "argument --grid: invalid choice: 'papers' (choose from 'paper', 'reward'"),
+        (["--budget", "0"], "argument --budget: expected a fraction in (0, 1] of the paper's 1M env steps"),
+        (["--budget", "1.5"], "argument --budget: expected a fraction in (0, 1]"),
+        (["--seeds", "0"], "argument --seeds: expected a value >= 1"),
+        (["--densities", "4"], "argument --densities: invalid choice: 4"),
+    ],
+)
+def test_bad_arguments_are_rejected_before_any_work(argv, message, capsys, tmp_path):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["benchmark", "-f", str(tmp_path), *argv])
+    assert exit_info.value.code == 2
+    assert message in capsys.readouterr().err
+    assert not any(tmp_path.iterdir())
+
+
+def test_bad_api_arguments_and_changed_settings_name_the_field(tiny_benchmark, tmp_path, capsys):
+    with pytest.raises(ValueError, match=r"Invalid grid='papers': expected one of \['baselines', 'comfort'"):
+        run_benchmark("papers", tmp_path)
+    with pytest.raises(ValueError, match=r"Invalid budget=2: expected a fraction in \(0, 1\]"):
+        run_benchmark("reward", tmp_path, budget=2)
+    with pytest.raises(ValueError, match=r"Invalid density=4: expected one of \[1, 2, 3\]"):
+        run_benchmark("reward", tmp_path, densities=(4,))
+    assert main(["benchmark", "--grid", "reward", "-f", str(tiny_benchmark), "--budget", "0.5"]) == 2
+    assert "holds a benchmark with other settings: budget=0.5 (it has 0.0003)" in capsys.readouterr().err
+    assert main(["benchmark", "report", "-f", str(tmp_path / "empty")]) == 2
+    assert "No evaluated benchmark trial under" in capsys.readouterr().err
