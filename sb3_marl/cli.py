@@ -26,7 +26,12 @@ from pathlib import Path
 from typing import Any
 
 from sb3_marl.algos import ALGOS
-from sb3_marl.benchmark.grid import GRIDS, PAPER_EVAL_EPISODES, PAPER_EVAL_EVERY_EPISODES, PAPER_SEEDS
+from sb3_marl.benchmark.grid import (
+    GRIDS,
+    PAPER_EVAL_EPISODES,
+    PAPER_EVAL_EVERY_EPISODES,
+    PAPER_SEEDS,
+)
 from sb3_marl.envs import DENSITIES, ENV_IDS
 
 DEFAULT_ENV = ENV_IDS[1]

@@ -130,10 +130,37 @@ def paper_table(trials: list[TrialLog], settings: dict[str, Any] | None = None) 
         if not rows:
             continue
         lines += [f"## {title}", "", f"The paper: {finding}.", "",
-                  "| curve | density | seeds | env steps | return (ours) | return (paper) | collision rate "
-                  "| mean speed [m/s] | accel. std [m/s²] |",
-                  "|---|---|---|---|---|---|---|---|---|", *rows, ""]
+                  ("| curve | density | seeds | env steps | return (ours) | return (paper) | collision rate "
+                   "| mean speed [m/s] | accel. std [m/s²] |"),
+                  "|---|---|---|---|---|---|---|---|---|", *rows, "", *_findings(experiment, trials), ""]
     return "\n".join(lines)
+
+
+def _findings(experiment: str, trials: list[TrialLog]) -> list[str]:
+    """Here, per density with every curve finished: the comparison the paper's finding makes."""
+    curves = EXPERIMENTS[experiment]
+    lines = []
+    for density in (1, 2, 3):
+        finals = {label: final_over_seeds(_select(trials, algo, variant, density))
+                  for label, (algo, variant) in curves.items()}
+        if any(summary is None for summary in finals.values()):
+            continue
+        (first, a), (second, b) = list(finals.items())[:2]
+        if experiment in ("reward", "sharing"):
+            finding = (f"{first} {'higher' if a['return_mean'] > b['return_mean'] else 'not higher'} return, "
+                       f"{'lower' if a['return_std'] < b['return_std'] else 'not lower'} std over seeds than {second}")
+        elif experiment == "comfort":
+            finding = (f"acceleration std {a['acceleration_std']:.3f} m/s² ({first}) vs {b['acceleration_std']:.3f} m/s² "
+                       f"({second}): {'lower' if a['acceleration_std'] < b['acceleration_std'] else 'not lower'} with comfort")
+        elif experiment == "politeness":
+            gap = abs(a["return_mean"] - b["return_mean"])
+            finding = (f"returns differ by {gap:.2f}, {'within' if gap <= max(a['return_std'], b['return_std']) else 'beyond'}"
+                       " the larger std over seeds")
+        else:
+            best = max(finals, key=lambda label: finals[label]["return_mean"])
+            finding = f"best final return: {best}"
+        lines.append(f"- Here, density {density}: {finding}.")
+    return lines
 
 
 def plot_learning_curves(trials: list[TrialLog], out_dir: str | Path) -> list[Path]:

@@ -154,4 +154,4 @@ def _trial_id(trial: Any) -> str:
     return TrialSpec(**trial.config["spec"]).trial_id
 
 
-__all__ = ["BenchmarkRun", "SETTINGS_FILE", "check_settings", "run_benchmark"]
+__all__ = ["SETTINGS_FILE", "BenchmarkRun", "check_settings", "run_benchmark"]

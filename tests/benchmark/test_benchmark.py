@@ -14,7 +14,7 @@ import pytest
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from sb3_marl.benchmark import GRIDS, make_grid
-from sb3_marl.benchmark.report import load_trials, write_report
+from sb3_marl.benchmark.report import acceleration_traces, load_trials, write_report
 from sb3_marl.benchmark.runner import run_benchmark
 from sb3_marl.cli import main
 
@@ -170,3 +170,19 @@ def test_bad_api_arguments_and_changed_settings_name_the_field(tiny_benchmark, t
     assert "holds a benchmark with other settings: budget=0.5 (it has 0.0003)" in capsys.readouterr().err
     assert main(["benchmark", "report", "-f", str(tmp_path / "empty")]) == 2
     assert "No evaluated benchmark trial under" in capsys.readouterr().err
+
+
+def test_comfort_grid_reports_the_comfort_figure(local_ray, tmp_path):
+    outcome = run_benchmark("comfort", tmp_path / "logs", budget=0.0003, seeds=1, densities=(1,),
+                            eval_every_episodes=1, verbose=0)
+    assert sorted(outcome.completed) == ["ma2c_density1_default_seed0", "ma2c_density1_no-comfort_seed0"]
+    written = write_report(tmp_path / "logs", tmp_path / "results")
+    assert tmp_path / "results" / "comfort.png" in written
+    assert (tmp_path / "results" / "comfort.png").stat().st_size > 20_000
+    table = (tmp_path / "results" / "paper_table.md").read_text()
+    assert "| comfort off | 1 | 1 | 300 |" in table and "(paper 0.582)" in table
+    assert "- Here, density 1: acceleration std" in table
+    trial = next(t for t in load_trials(tmp_path / "logs") if t.spec.variant == "no-comfort")
+    trace = acceleration_traces(trial, tmp_path / "logs", seed=10_000)
+    assert trace.shape[1] == 3 and 1 <= len(trace) <= 100  # 3 AVs (density 1's largest count), <= 20 s at 5 Hz
+    assert np.all(np.abs(trace) <= 10)  # [m/s²]
