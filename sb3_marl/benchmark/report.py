@@ -136,6 +136,10 @@ def paper_table(trials: list[TrialLog], settings: dict[str, Any] | None = None) 
     return "\n".join(lines)
 
 
+def _compare(a: float, b: float, above: str, below: str) -> str:
+    return "the same" if np.isclose(a, b, rtol=0, atol=1e-9) else above if a > b else below
+
+
 def _findings(experiment: str, trials: list[TrialLog]) -> list[str]:
     """Here, per density with every curve finished: the comparison the paper's finding makes."""
     curves = EXPERIMENTS[experiment]
@@ -147,11 +151,11 @@ def _findings(experiment: str, trials: list[TrialLog]) -> list[str]:
             continue
         (first, a), (second, b) = list(finals.items())[:2]
         if experiment in ("reward", "sharing"):
-            finding = (f"{first} {'higher' if a['return_mean'] > b['return_mean'] else 'not higher'} return, "
-                       f"{'lower' if a['return_std'] < b['return_std'] else 'not lower'} std over seeds than {second}")
+            finding = (f"{first} vs {second}: return {_compare(a['return_mean'], b['return_mean'], 'higher', 'lower')}, "
+                       f"std over seeds {_compare(a['return_std'], b['return_std'], 'higher', 'lower')}")
         elif experiment == "comfort":
             finding = (f"acceleration std {a['acceleration_std']:.3f} m/s² ({first}) vs {b['acceleration_std']:.3f} m/s² "
-                       f"({second}): {'lower' if a['acceleration_std'] < b['acceleration_std'] else 'not lower'} with comfort")
+                       f"({second}): {_compare(a['acceleration_std'], b['acceleration_std'], 'higher', 'lower')} with comfort")
         elif experiment == "politeness":
             gap = abs(a["return_mean"] - b["return_mean"])
             finding = (f"returns differ by {gap:.2f}, {'within' if gap <= max(a['return_std'], b['return_std']) else 'beyond'}"
