@@ -259,7 +259,7 @@ def plot_comfort(trials: list[TrialLog], log_folder: str | Path, out_dir: str | 
                label=f"{label} (paper {PAPER_ACCELERATION_STD[variant]} m/s²)")
     ax.set_xticks(np.arange(len(densities)), [f"density {d}" for d in densities])
     ax.set_ylabel("std of AV acceleration [m/s²]")
-    ax.set_title("Final evaluation: acceleration std (mean ± std over seeds)")
+    ax.set_title("Final evaluation: acceleration std (seeds: mean ± std)", fontsize=10)
     ax.legend(fontsize=8)
     fig.tight_layout()
     path = Path(out_dir) / "comfort.png"
