@@ -396,14 +396,19 @@ def benchmark(args: argparse.Namespace) -> int:
         )
     except ValueError as error:
         raise UsageError(str(error)) from None
+    except ModuleNotFoundError as error:
+        raise CommandFailed(str(error)) from None
     print(f"{len(outcome.completed)} trials completed, {len(outcome.skipped)} skipped (finished before), "
-          f"{len(outcome.failed)} failed in {outcome.wall_time_s:.0f} s")
+          f"{len(outcome.failed)} failed, {len(outcome.unfinished)} stopped unfinished in {outcome.wall_time_s:.0f} s")
     for trial_id, error in outcome.failed.items():
         print(f"  failed: {trial_id}: {error.splitlines()[0]}")
     print(f"report: sb3-marl benchmark report -f {args.log_folder}")
     if outcome.failed:
         raise CommandFailed(f"{len(outcome.failed)} trial(s) failed after {args.max_failures} restarts: "
                             f"{sorted(outcome.failed)}; run the command again to retry them.")
+    if outcome.unfinished:
+        print(f"{len(outcome.unfinished)} trial(s) stopped before the end; the same command continues them.")
+        return EXIT_INTERRUPTED[signal.SIGINT]
     return 0
 
 

@@ -34,11 +34,13 @@ SETTINGS_FILE = "benchmark.json"
 
 @dataclass
 class BenchmarkRun:
-    """What one invocation did: trials skipped (finished before), run, and failed for good."""
+    """What one invocation did: trials skipped (finished before), completed, failed for good (with
+    the error), and left unfinished (the run was stopped)."""
 
     skipped: list[str] = field(default_factory=list)
     completed: list[str] = field(default_factory=list)
     failed: dict[str, str] = field(default_factory=dict)
+    unfinished: list[str] = field(default_factory=list)
     wall_time_s: float = 0.0
 
 
@@ -109,8 +111,12 @@ def run_benchmark(
 
     # short trials checkpoint often; Ray's advice to checkpoint less is noise here
     os.environ.setdefault("TUNE_WARN_EXCESSIVE_EXPERIMENT_CHECKPOINT_SYNC_THRESHOLD_S", "0")
-    import ray
-    from ray import tune
+    try:
+        import ray
+        from ray import tune
+    except ImportError as error:
+        raise ModuleNotFoundError(f"The benchmark runs on Ray Tune, which is not installed ({error}): "
+                                  "pip install 'sb3-marl[ray]' (ray[tune] 2.60).") from None
 
     log_folder.mkdir(parents=True, exist_ok=True)
     (log_folder / SETTINGS_FILE).write_text(json.dumps(settings, indent=2) + "\n")
@@ -118,6 +124,9 @@ def run_benchmark(
     if started_ray:
         ray.init(address=address, num_cpus=None if address else os.cpu_count(), include_dashboard=False,
                  configure_logging=verbose > 0, log_to_driver=verbose > 1)
+    if verbose:
+        cpus = ray.cluster_resources().get("CPU", 0)
+        print(f"Ray cluster at {ray.get_runtime_context().gcs_address}: {cpus:g} CPUs, one per trial")
     start = time.perf_counter()
     try:
         tuner = tune.Tuner(
@@ -141,12 +150,14 @@ def run_benchmark(
         if started_ray:
             ray.shutdown()
     outcome.wall_time_s = time.perf_counter() - start
-    for result in results:
-        trial_id = TrialSpec(**result.config["spec"]).trial_id
-        if result.error is not None:
-            outcome.failed[trial_id] = f"{type(result.error).__name__}: {result.error}"
-        else:
-            outcome.completed.append(trial_id)
+    errors = {TrialSpec(**r.config["spec"]).trial_id: r.error for r in results if r.error is not None}
+    for spec in todo:
+        if (trial_folder(log_folder, spec) / RESULT).is_file():
+            outcome.completed.append(spec.trial_id)
+        elif spec.trial_id in errors:
+            outcome.failed[spec.trial_id] = f"{type(errors[spec.trial_id]).__name__}: {errors[spec.trial_id]}"
+        else:  # stopped before the end (Ctrl-C): continues from its checkpoint next time
+            outcome.unfinished.append(spec.trial_id)
     return outcome
 
 

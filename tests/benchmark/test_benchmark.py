@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 import os
 import signal
+import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -186,3 +188,21 @@ def test_comfort_grid_reports_the_comfort_figure(local_ray, tmp_path):
     trace = acceleration_traces(trial, tmp_path / "logs", seed=10_000)
     assert trace.shape[1] == 3 and 1 <= len(trace) <= 100  # 3 AVs (density 1's largest count), <= 20 s at 5 Hz
     assert np.all(np.abs(trace) <= 10)  # [m/s²]
+
+
+def test_cli_attaches_to_an_existing_ray_cluster(local_ray, tmp_path):
+    """`sb3-marl benchmark --address` in another process runs its trials on this test's Ray cluster."""
+    address = ray.get_runtime_context().gcs_address
+    command = [sys.executable, "-m", "sb3_marl", "benchmark", "--grid", "reward", "--densities", "1", "--seeds", "1",
+               "--budget", "0.0003", "--eval-every", "1", "--address", address, "-f", str(tmp_path)]
+    completed = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    assert completed.returncode == 0, completed.stdout[-3000:] + completed.stderr[-3000:]
+    assert "2 trials completed, 0 skipped (finished before), 0 failed, 0 stopped unfinished" in completed.stdout
+    assert f"Ray cluster at {address}: 2 CPUs, one per trial" in completed.stdout  # this test's, not a new one
+    assert len(list(tmp_path.glob("trials/*/result.json"))) == 2
+
+
+def test_without_ray_installed_the_command_says_how_to_install_it(monkeypatch, tmp_path, capsys):
+    monkeypatch.setitem(sys.modules, "ray", None)  # as if ray were not installed
+    assert main(["benchmark", "--grid", "reward", "--densities", "1", "--seeds", "1", "-f", str(tmp_path)]) == 1
+    assert "pip install 'sb3-marl[ray]'" in capsys.readouterr().err
