@@ -1,0 +1,55 @@
+"""ScenarioEvalCallback's hooks: a callback after each evaluation, a final evaluation, a resumed history."""
+
+import numpy as np
+from stable_baselines3.common.callbacks import BaseCallback
+
+from sb3_marl.callbacks import ScenarioEvalCallback
+from sb3_marl.envs import ENV_IDS
+from sb3_marl.training import make_model, make_venv
+
+
+class RecordEvaluations(BaseCallback):
+    def __init__(self) -> None:
+        super().__init__()
+        self.seen: list[tuple[int, float]] = []
+
+    def _on_step(self) -> bool:
+        self.seen.append((self.num_timesteps, self.parent.last_summary["return_mean"]))
+        return True
+
+
+def train_with_evaluations(tmp_path, eval_freq: int) -> tuple[ScenarioEvalCallback, RecordEvaluations]:
+    """MA2C on density 1 (6 AV slots) for 240 AV-steps = 40 VecEnv steps."""
+    hyperparams = {"architecture": "shared", "n_steps": 10}
+    venv = make_venv(ENV_IDS[1], hyperparams, seed=0)
+    model = make_model("ma2c", venv, hyperparams, seed=0)
+    record = RecordEvaluations()
+    evaluation = ScenarioEvalCallback(ENV_IDS[1], eval_freq=eval_freq, n_eval_episodes=2, log_path=tmp_path,
+                                      callback_after_eval=record, evaluate_at_end=True, verbose=0)
+    model.learn(240, callback=evaluation)
+    venv.close()
+    return evaluation, record
+
+
+def test_callback_after_each_evaluation_and_a_final_evaluation(tmp_path):
+    evaluation, record = train_with_evaluations(tmp_path, eval_freq=25)  # periodic: VecEnv step 25 only
+    log = np.load(tmp_path / "evaluations.npz")
+    np.testing.assert_array_equal(log["timesteps"], [150, 240])
+    assert record.seen == [(150, log["results"][0].mean()), (240, log["results"][1].mean())]
+    assert evaluation.final_summary()["timesteps"] == 240
+
+
+def test_no_second_final_evaluation_when_the_last_one_was_at_the_end(tmp_path):
+    train_with_evaluations(tmp_path, eval_freq=20)
+    np.testing.assert_array_equal(np.load(tmp_path / "evaluations.npz")["timesteps"], [120, 240])
+
+
+def test_load_history_keeps_the_evaluations_up_to_the_checkpoint(tmp_path):
+    train_with_evaluations(tmp_path, eval_freq=25)
+    log = np.load(tmp_path / "evaluations.npz")
+    resumed = ScenarioEvalCallback(ENV_IDS[1], eval_freq=25, verbose=0)
+    resumed.load_history(tmp_path / "evaluations.npz", up_to_timesteps=150)
+    final = resumed.final_summary()
+    assert final["timesteps"] == 150 and final["return_mean"] == log["results"][0].mean()
+    assert final["collision_rate"] == log["collision_rate"][0]
+    assert resumed.best_mean_reward == log["results"][0].mean()
