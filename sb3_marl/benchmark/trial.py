@@ -32,6 +32,9 @@ from sb3_marl.files import replaced_atomically
 
 RUN_ID = 1
 CHECKPOINT = "checkpoint"
+PREVIOUS_CHECKPOINT = f".{CHECKPOINT}.previous"
+#: Benchmark settings every trial of a log folder shares (``benchmark.json``).
+SETTINGS = ("budget", "eval_every_episodes", "eval_episodes")
 RESULT = "result.json"
 TRIAL = "trial.json"
 
@@ -75,7 +78,7 @@ def write_checkpoint(model: Any, folder: Path, run_folder: Path) -> Path:
         model.save_replay_buffer(staging / "replay_buffer.pkl")
     shutil.copy2(run_folder / "evaluations.npz", staging / "evaluations.npz")
     (staging / "state.json").write_text(json.dumps({"num_timesteps": int(model.num_timesteps)}))
-    previous = folder / f".{CHECKPOINT}.previous"
+    previous = folder / PREVIOUS_CHECKPOINT
     shutil.rmtree(previous, ignore_errors=True)
     if final.exists():
         final.rename(previous)
@@ -115,11 +118,13 @@ def run_trial(config: dict[str, Any]) -> None:
                 shutil.rmtree(folder / CHECKPOINT, ignore_errors=True)
                 shutil.copytree(directory, folder / CHECKPOINT)
     checkpoint = folder / CHECKPOINT
+    if not checkpoint.is_dir() and (folder / PREVIOUS_CHECKPOINT).is_dir():  # killed between the two renames
+        (folder / PREVIOUS_CHECKPOINT).rename(checkpoint)
     resumed_at = json.loads((checkpoint / "state.json").read_text())["num_timesteps"] if checkpoint.is_dir() else 0
 
     info = json.loads((folder / TRIAL).read_text()) if (folder / TRIAL).is_file() else {
         "trial": spec.to_dict(), "trial_id": spec.trial_id, "env_id": spec.env_id, "hyperparams": spec.hyperparams,
-        **{key: config[key] for key in ("budget", "eval_every_episodes", "eval_episodes")}, "attempts": [],
+        **{key: config[key] for key in SETTINGS}, "attempts": [],
     }
     info["attempts"].append({"started": time.strftime("%Y-%m-%dT%H:%M:%S"), "host": socket.gethostname(),
                              "pid": os.getpid(), "resumed_at_timesteps": resumed_at})
@@ -127,7 +132,7 @@ def run_trial(config: dict[str, Any]) -> None:
 
     report = CheckpointAndReport(folder, spec)
     args = argparse.Namespace(algo=spec.algo, env=spec.env_id, seed=spec.seed, trial_id=spec.trial_id,
-                              variant=spec.variant, **{key: config[key] for key in ("budget", "eval_every_episodes", "eval_episodes")})
+                              variant=spec.variant, **{key: config[key] for key in SETTINGS})
     manager = MARLExperimentManager(
         args, spec.algo, spec.env_id, str(folder), run_id=RUN_ID,
         monitor_file="monitor.csv" if not resumed_at else f"resumed_at_{resumed_at}.monitor.csv",
@@ -156,4 +161,4 @@ def run_trial(config: dict[str, Any]) -> None:
     write_json(folder / RESULT, result)
 
 
-__all__ = ["CHECKPOINT", "RESULT", "TRIAL", "run_trial", "trial_folder"]
+__all__ = ["CHECKPOINT", "RESULT", "SETTINGS", "TRIAL", "run_trial", "trial_folder"]
