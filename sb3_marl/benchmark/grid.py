@@ -78,6 +78,10 @@ class TrialSpec:
         counts = copy_av_counts(self.env_id, self.hyperparams.get("env_config"))
         return sum(counts) / len(counts)
 
+    def env_steps(self, timesteps: Any) -> Any:
+        """Env steps of ``timesteps`` AV-steps (a number or an array)."""
+        return timesteps / self.av_steps_per_env_step()
+
     def n_timesteps(self, budget: float) -> int:
         """Training AV-steps for ``budget`` (fraction of the paper's 1M env steps)."""
         return max(1, round(budget * PAPER_ENV_STEPS * self.av_steps_per_env_step()))

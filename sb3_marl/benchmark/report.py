@@ -58,7 +58,7 @@ class TrialLog:
 
     def training_episodes(self) -> np.ndarray:
         """Evaluation points in training episodes of 100 steps (env steps / 100)."""
-        return self.evaluations["timesteps"] / self.spec.av_steps_per_env_step() / EPISODE_STEPS
+        return self.spec.env_steps(self.evaluations["timesteps"]) / EPISODE_STEPS
 
     def eval_returns(self) -> np.ndarray:
         """Mean return of each evaluation."""

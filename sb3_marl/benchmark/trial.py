@@ -56,27 +56,27 @@ class CheckpointAndReport(BaseCallback):
     def __init__(self, folder: Path, spec: TrialSpec) -> None:
         super().__init__()
         self.folder, self.spec = folder, spec
-        self.run_folder = folder  # set to the rl-zoo run folder once the experiment manager chose it
 
     def _on_step(self) -> bool:
         from ray import tune
 
-        checkpoint = write_checkpoint(self.model, self.folder, self.run_folder)
+        checkpoint = write_checkpoint(self.model, self.folder, self.parent.log_path / "evaluations.npz")
         tune.report(trial_metrics(self.spec, self.model.num_timesteps, self.parent.last_summary),
                     checkpoint=tune.Checkpoint.from_directory(str(checkpoint)))
         return True
 
 
-def write_checkpoint(model: Any, folder: Path, run_folder: Path) -> Path:
-    """``<folder>/checkpoint/`` with the model, its replay buffer, the evaluations and the step
-    count, written beside and renamed into place (a crash leaves the previous one whole)."""
+def write_checkpoint(model: Any, folder: Path, evaluations: Path) -> Path:
+    """``<folder>/checkpoint/`` with the model, its replay buffer, a copy of ``evaluations`` (the
+    ``evaluations.npz`` so far) and the step count, written beside and renamed into place (a crash
+    leaves the previous one whole)."""
     final, staging = folder / CHECKPOINT, folder / f".{CHECKPOINT}.partial"
     shutil.rmtree(staging, ignore_errors=True)
     staging.mkdir(parents=True)
     model.save(staging / "model.zip")
     if hasattr(model, "save_replay_buffer"):
         model.save_replay_buffer(staging / "replay_buffer.pkl")
-    shutil.copy2(run_folder / "evaluations.npz", staging / "evaluations.npz")
+    shutil.copy2(evaluations, staging / "evaluations.npz")
     (staging / "state.json").write_text(json.dumps({"num_timesteps": int(model.num_timesteps)}))
     previous = folder / PREVIOUS_CHECKPOINT
     shutil.rmtree(previous, ignore_errors=True)
@@ -89,8 +89,8 @@ def write_checkpoint(model: Any, folder: Path, run_folder: Path) -> Path:
 
 def trial_metrics(spec: TrialSpec, num_timesteps: int, summary: dict[str, float]) -> dict[str, Any]:
     """What the trial reports to Ray Tune: progress in AV-steps and env steps, and the evaluation."""
-    env_steps = num_timesteps / spec.av_steps_per_env_step()
-    return {"timesteps": int(num_timesteps), "env_steps": int(env_steps), **{f"eval_{k}": v for k, v in summary.items()}}
+    return {"timesteps": int(num_timesteps), "env_steps": int(spec.env_steps(num_timesteps)),
+            **{f"eval_{k}": v for k, v in summary.items()}}
 
 
 def run_trial(config: dict[str, Any]) -> None:
@@ -130,19 +130,17 @@ def run_trial(config: dict[str, Any]) -> None:
                              "pid": os.getpid(), "resumed_at_timesteps": resumed_at})
     write_json(folder / TRIAL, info)
 
-    report = CheckpointAndReport(folder, spec)
     args = argparse.Namespace(algo=spec.algo, env=spec.env_id, seed=spec.seed, trial_id=spec.trial_id,
                               variant=spec.variant, **{key: config[key] for key in SETTINGS})
     manager = MARLExperimentManager(
         args, spec.algo, spec.env_id, str(folder), run_id=RUN_ID,
         monitor_file="monitor.csv" if not resumed_at else f"resumed_at_{resumed_at}.monitor.csv",
-        callback_after_eval=report, evaluate_at_end=True,
+        callback_after_eval=CheckpointAndReport(folder, spec), evaluate_at_end=True,
         tensorboard_log=str(folder / "tensorboard"), n_timesteps=spec.n_timesteps(config["budget"]),
         eval_freq=spec.eval_freq(config["eval_every_episodes"]), n_eval_episodes=config["eval_episodes"],
         save_freq=-1, hyperparams=spec.hyperparams, trained_agent=str(checkpoint / "model.zip") if resumed_at else "",
         seed=spec.seed, log_interval=-1, verbose=0, device="cpu",
     )
-    report.run_folder = Path(manager.save_path)
     model, _ = manager.setup_experiment()
     evaluation = next(c for c in manager.callbacks if isinstance(c, ScenarioEvalCallback))
     if resumed_at:
@@ -153,7 +151,7 @@ def run_trial(config: dict[str, Any]) -> None:
         raise KeyboardInterrupt(f"trial {spec.trial_id} interrupted")
     manager.save_trained_model(model)
     result = {
-        **info, "num_timesteps": int(model.num_timesteps), "env_steps": int(model.num_timesteps / spec.av_steps_per_env_step()),
+        **info, "num_timesteps": int(model.num_timesteps), "env_steps": int(spec.env_steps(model.num_timesteps)),
         "final_evaluation": evaluation.final_summary(),
         "final_returns": [float(r) for r in evaluation.evaluations["results"][-1]],
         "wall_time_s": round(time.perf_counter() - start, 1), "machine": f"{platform.node()} ({os.cpu_count()} cores)",
