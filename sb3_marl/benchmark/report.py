@@ -228,17 +228,16 @@ def acceleration_traces(trial: TrialLog, log_folder: str | Path, seed: int) -> n
 
 def plot_comfort(trials: list[TrialLog], log_folder: str | Path, out_dir: str | Path, seed: int) -> Path | None:
     """``comfort.png`` (see module doc); None without finished comfort-on and comfort-off trials."""
-    finished = [t for t in trials if t.result is not None and t.spec.algo == "ma2c"]
-    on = [t for t in finished if t.spec.variant == "default"]
-    off = [t for t in finished if t.spec.variant == "no-comfort"]
-    if not off or not on:
+    finished = [t for t in trials if t.result is not None]
+    curves = {label: {d: _select(finished, algo, variant, d) for d in (1, 2, 3)}
+              for label, (algo, variant) in EXPERIMENTS["comfort"].items()}
+    densities = [d for d in (1, 2, 3) if all(by_density[d] for by_density in curves.values())]
+    if not densities:
         return None
-    density = min(t.spec.density for t in off)
-    pair = {"comfort on": _select(on, "ma2c", "default", density), "comfort off": _select(off, "ma2c", "no-comfort", density)}
-    if not all(pair.values()):
-        return None
+    density = densities[0]
     fig, axes = plt.subplots(1, 3, figsize=(15, 4))
-    for ax, (label, selected) in zip(axes[:2], pair.items()):
+    for ax, (label, by_density) in zip(axes[:2], curves.items()):
+        selected = by_density[density]
         trace = acceleration_traces(selected[0], log_folder, seed)
         time_s = np.arange(1, len(trace) + 1) / 5.0  # policy steps at 5 Hz
         for av in range(trace.shape[1]):
@@ -249,11 +248,10 @@ def plot_comfort(trials: list[TrialLog], log_folder: str | Path, out_dir: str | 
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
     ax = axes[2]
-    densities = sorted({t.spec.density for t in on} & {t.spec.density for t in off})
     width = 0.35
-    for k, (label, variant) in enumerate((("comfort on", "default"), ("comfort off", "no-comfort"))):
-        stds = [[t.result["final_evaluation"]["acceleration_std"] for t in _select(finished, "ma2c", variant, d)]
-                for d in densities]
+    for k, (label, by_density) in enumerate(curves.items()):
+        stds = [[t.result["final_evaluation"]["acceleration_std"] for t in by_density[d]] for d in densities]
+        variant = EXPERIMENTS["comfort"][label][1]
         ax.bar(np.arange(len(densities)) + (k - 0.5) * width, [np.mean(s) for s in stds], width,
                yerr=[np.std(s) for s in stds], capsize=4,
                label=f"{label} (paper {PAPER_ACCELERATION_STD[variant]} m/s²)")
