@@ -13,6 +13,7 @@ import numpy as np
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
 
+from sb3_marl.envs.lane_change_env import ACTIONS
 from sb3_marl.evaluation import (
     EpisodeRecord,
     evaluation_records,
@@ -51,7 +52,10 @@ class DrivingMetricsCallback(BaseCallback):
     [m/s], ``headway_mean`` [m], ``acceleration_std`` [m/s²] and each reward term (``reward_<term>``,
     unweighted). Over the last ``window`` finished scenario episodes: ``collision_rate``,
     ``success_rate`` (no crash), ``lane_changes_per_episode`` and ``episode_return`` (the paper's
-    metric: sum over steps of the mean AV reward, before any reward scaling).
+    metric: sum over steps of the mean AV reward, before any reward scaling) and ``crash_step_mean``
+    (the step at which crashed episodes ended). Learning diagnostics: ``supervisor_interventions``
+    (share of AV-steps whose action the safety supervisor replaced) and ``action_share_<ACTION>``
+    (share of each proposed meta-action).
     """
 
     def __init__(self, window: int = 100, verbose: int = 0) -> None:
@@ -64,6 +68,7 @@ class DrivingMetricsCallback(BaseCallback):
 
     def _reset_rollout(self) -> None:
         self._samples: dict[str, list[float]] = defaultdict(list)
+        self._action_counts = np.zeros(len(ACTIONS), dtype=np.int64)
 
     def _on_step(self) -> bool:
         finished = set()
@@ -81,6 +86,9 @@ class DrivingMetricsCallback(BaseCallback):
                     self._samples[key].append(float(info[key]))
                 for term, value in info["reward_terms"].items():
                     self._samples[f"reward_{term}"].append(value)
+                self._samples["supervisor_interventions"].append(float(info.get("intervened", False)))
+                if info.get("proposed_action", -1) >= 0:
+                    self._action_counts[int(info["proposed_action"])] += 1
             if done:
                 finished.add(info["copy"])
         for copy in finished:
@@ -91,9 +99,14 @@ class DrivingMetricsCallback(BaseCallback):
         for key, values in self._samples.items():
             if key == "acceleration":
                 self.logger.record_mean("rollout/acceleration_std", float(np.std(values)))
+            elif key == "supervisor_interventions":
+                self.logger.record_mean("rollout/supervisor_interventions", float(np.mean(values)))
             else:
                 self.logger.record_mean(f"rollout/{key}" if key.startswith("reward_") else f"rollout/{key}_mean",
                                         float(np.mean(values)))
+        if self._action_counts.sum():
+            for index, share in enumerate(self._action_counts / self._action_counts.sum()):
+                self.logger.record_mean(f"rollout/action_share_{ACTIONS[index]}", float(share))
         self._reset_rollout()
         if self.episodes:
             episodes = list(self.episodes)
@@ -101,6 +114,9 @@ class DrivingMetricsCallback(BaseCallback):
             self.logger.record("rollout/success_rate", float(np.mean([not e.crashed for e in episodes])))
             self.logger.record("rollout/lane_changes_per_episode", float(np.mean([e.lane_changes for e in episodes])))
             self.logger.record("rollout/episode_return", float(np.mean([e.episode_return for e in episodes])))
+            crash_steps = [e.length for e in episodes if e.crashed]
+            if crash_steps:
+                self.logger.record("rollout/crash_step_mean", float(np.mean(crash_steps)))
 
 
 class ScenarioEvalCallback(BaseCallback):
@@ -118,7 +134,7 @@ class ScenarioEvalCallback(BaseCallback):
     """
 
     METRICS = ("collision_rate", "success_rate", "speed_mean", "headway_mean", "acceleration_std",
-               "lane_changes_per_episode")
+               "lane_changes_per_episode", "intervention_rate")
 
     def __init__(
         self,
@@ -129,7 +145,7 @@ class ScenarioEvalCallback(BaseCallback):
         config: dict[str, Any] | None = None,
         log_path: str | Path | None = None,
         best_model_save_path: str | Path | None = None,
-        deterministic: bool = True,
+        deterministic: bool = False,
         callback_after_eval: BaseCallback | None = None,
         evaluate_at_end: bool = False,
         verbose: int = 1,

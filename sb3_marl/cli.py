@@ -76,7 +76,8 @@ def _add_run_selection(parser: argparse.ArgumentParser) -> None:
     picked.add_argument("--load-checkpoint", type=int, metavar="STEPS", help="load rl_model_<STEPS>_steps.zip")
     picked.add_argument("--load-last-checkpoint", action="store_true", help="load the latest checkpoint")
     parser.add_argument("--seed", type=int, default=0, help="episode seeds start at seed + 10000 (default: 0)")
-    parser.add_argument("--stochastic", action="store_true", help="sample actions instead of the argmax")
+    parser.add_argument("--deterministic", action="store_true",
+                        help="argmax actions (default: sampled from the policy, the authors' evaluation protocol)")
     parser.add_argument("--device", default="auto", help="torch device (default: auto)")
 
 
@@ -265,7 +266,7 @@ def evaluate(args: argparse.Namespace) -> int:
     model = run.load_model(args.device)
     seed = args.seed + EVAL_SEED_OFFSET
     start = time.perf_counter()
-    result = {"model": str(run.model_path), **run.evaluate(model, args.eval_episodes, seed, not args.stochastic)}
+    result = {"model": str(run.model_path), **run.evaluate(model, args.eval_episodes, seed, args.deterministic)}
     rows = [({"policy": args.algo, "timesteps": model.num_timesteps}, result)]
     if args.with_baselines:
         from sb3_marl.baselines import BASELINES
@@ -275,13 +276,16 @@ def evaluate(args: argparse.Namespace) -> int:
             baseline = summarize(evaluation_records(policy_class(), args.env, args.eval_episodes, seed, run.env_config))
             result["baselines"][name] = baseline
             rows.append(({"policy": name, "timesteps": "-"}, baseline))
+    supervisor = "on" if run.env_config.get("safety_supervisor") else "off"
+    heading = (f"{args.env}: {args.eval_episodes} episodes, seeds {seed}..{seed + args.eval_episodes - 1}, "
+               f"{result['protocol']}, safety supervisor {supervisor}; model {run.model_path}")
     table = markdown_table(rows)
-    print(f"{args.env}: {args.eval_episodes} episodes, seeds {seed}..{seed + args.eval_episodes - 1}, model {run.model_path}\n")
+    print(heading + "\n")
     print(table)
     output = Path(args.output) if args.output else run.log_path / "evaluation.json"
     output.parent.mkdir(parents=True, exist_ok=True)
     output.write_text(json.dumps(result, indent=2))
-    output.with_suffix(".md").write_text(table + "\n")
+    output.with_suffix(".md").write_text(heading + "\n\n" + table + "\n")
     print(f"\nwrote {output} and {output.with_suffix('.md')} ({time.perf_counter() - start:.1f} s)")
     return 0
 
@@ -294,7 +298,7 @@ def record_video_command(args: argparse.Namespace) -> int:
     run = _find_run(args)
     model = run.load_model(args.device)
     output = Path(args.output) if args.output else run.log_path / "videos" / f"{run.model_path.stem}.mp4"
-    info = record_video(model_policy(model, not args.stochastic), args.env, output, args.n_episodes,
+    info = record_video(model_policy(model, args.deterministic), args.env, output, args.n_episodes,
                         args.seed + EVAL_SEED_OFFSET, run.env_config)
     print(f"wrote {info['path']}: {info['episodes']} episode(s), {info['frames']} frames at {info['fps']} fps")
     return 0

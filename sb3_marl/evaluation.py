@@ -12,7 +12,9 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
+import torch as th
 
+from sb3_marl.algos.masking import uses_action_masks
 from sb3_marl.envs import av_counts
 from sb3_marl.envs.lane_change_env import LaneChangeEnv
 from sb3_marl.policies import unchecked_distributions
@@ -31,6 +33,8 @@ class EpisodeRecord:
     headways: list[float] = field(default_factory=list)  # [m]
     accelerations: list[float] = field(default_factory=list)  # [m/s²]
     lane_changes: int = 0
+    interventions: int = 0  # AV-steps whose action the safety supervisor replaced
+    av_steps: int = 0  # AV-steps on the road
 
     def add_step(self, reward: float, info: dict) -> None:
         """Accumulate one env step from the scalar (global) reward and the env's info."""
@@ -41,6 +45,8 @@ class EpisodeRecord:
         for samples, key in ((self.speeds, "speed"), (self.headways, "headway"), (self.accelerations, "acceleration")):
             samples.extend(np.asarray(info[key])[on_road].tolist())
         self.lane_changes += int(np.asarray(info["lane_change"]).sum())
+        self.interventions += int(np.asarray(info.get("intervened", False))[on_road].sum())
+        self.av_steps += int(on_road.sum())
 
 
 def summarize(records: list[EpisodeRecord]) -> dict[str, float]:
@@ -61,6 +67,7 @@ def summarize(records: list[EpisodeRecord]) -> dict[str, float]:
         "headway_mean": float(pooled("headways").mean()),
         "acceleration_std": float(pooled("accelerations").std()),
         "lane_changes_per_episode": float(np.mean([r.lane_changes for r in records])),
+        "intervention_rate": float(sum(r.interventions for r in records) / max(sum(r.av_steps for r in records), 1)),
     }
 
 
@@ -73,6 +80,7 @@ TABLE_COLUMNS: tuple[tuple[str, Callable[[dict[str, float]], str]], ...] = (
     ("mean headway [m]", lambda s: f"{s['headway_mean']:.1f}"),
     ("accel. std [m/s²]", lambda s: f"{s['acceleration_std']:.3f}"),
     ("lane changes/ep", lambda s: f"{s['lane_changes_per_episode']:.2f}"),
+    ("supervisor interventions", lambda s: f"{s.get('intervention_rate', 0.0):.3f}"),
     ("steps/ep", lambda s: f"{s['length_mean']:.1f}"),
 )
 
@@ -102,11 +110,31 @@ def run_episodes(env: LaneChangeEnv, policy: Policy, n_episodes: int, seed: int 
     return records
 
 
-def model_policy(model: Any, deterministic: bool = True) -> Policy:
-    """A policy that acts with an SB3 model: each AV's observation row is one batch entry."""
+#: The evaluation protocols: the authors' (actions sampled from the policy) and the argmax policy.
+PROTOCOLS = {
+    False: "sampled actions (the authors' protocol)",
+    True: "deterministic (argmax) actions",
+}
+
+
+def protocol_label(deterministic: bool, model: Any = None) -> str:
+    """How an evaluation acted: sampled or argmax, with action masks or not (for tables and cards)."""
+    masks = "" if model is None else (", action masks" if uses_action_masks(model) else ", no action masks")
+    return PROTOCOLS[bool(deterministic)] + masks
+
+
+def model_policy(model: Any, deterministic: bool = False) -> Policy:
+    """A policy that acts with an SB3 model: each AV's observation row is one batch entry.
+
+    :param deterministic: argmax actions; False (default) samples from the policy, the authors'
+        evaluation protocol. A maskable model with ``action_masking`` gets the env's action masks.
+    """
+    masked = uses_action_masks(model)
 
     def act(env: LaneChangeEnv, obs: np.ndarray) -> np.ndarray:
         with unchecked_distributions():
+            if masked:
+                return model.predict(obs, deterministic=deterministic, action_masks=env.action_masks())[0]
             return model.predict(obs, deterministic=deterministic)[0]
 
     return act
@@ -115,13 +143,18 @@ def model_policy(model: Any, deterministic: bool = True) -> Policy:
 def evaluation_records(
     policy: Policy, env_id: str, n_episodes: int, seed: int = 0, config: dict | None = None
 ) -> list[EpisodeRecord]:
-    """``n_episodes`` episodes with seeds ``seed, seed + 1, ...``, cycling through the density's AV counts."""
+    """``n_episodes`` episodes with seeds ``seed, seed + 1, ...``, cycling through the density's AV counts.
+
+    Episode ``k`` also seeds torch with ``seed + k`` (inside a fork of torch's random state, so a
+    training run's own random stream is untouched): sampled actions are reproducible too."""
     counts = av_counts(env_id, config)
     envs = {n: gym.make(env_id, config={**(config or {}), "n_avs": n}).unwrapped for n in counts}
     records = []
     for episode in range(n_episodes):
         env = envs[counts[episode % len(counts)]]
-        records += run_episodes(env, policy, 1, seed=seed + episode)
+        with th.random.fork_rng():
+            th.manual_seed(seed + episode)
+            records += run_episodes(env, policy, 1, seed=seed + episode)
     for env in envs.values():
         env.close()
     return records
@@ -134,4 +167,4 @@ def evaluate_on_density(
     return summarize(evaluation_records(policy, env_id, n_episodes, seed, config))
 
 
-__all__ = ["EpisodeRecord", "Policy", "evaluate_on_density", "evaluation_records", "markdown_table", "model_policy", "run_episodes", "summarize"]
+__all__ = ["PROTOCOLS", "EpisodeRecord", "Policy", "protocol_label", "evaluate_on_density", "evaluation_records", "markdown_table", "model_policy", "run_episodes", "summarize"]

@@ -39,6 +39,7 @@ from sb3_marl.hyperparams import (
     SCENARIO_KEYS,
     config_file,
     load_hyperparams,
+    merge_hyperparams,
     policy_kwargs_for,
     validate_hyperparams,
 )
@@ -101,7 +102,7 @@ class MARLExperimentManager(ExperimentManager):
 
     def read_hyperparameters(self) -> tuple[dict[str, Any], dict[str, Any]]:
         hyperparams = load_hyperparams(self.algo, self.env_name.gym_id, path=self.config)
-        hyperparams.update(self.custom_hyperparams or {})
+        hyperparams = merge_hyperparams(hyperparams, self.custom_hyperparams)
         hyperparams.update(self.cli_overrides)
         validate_hyperparams(self.algo, hyperparams, self.env_name.gym_id)
         saved_hyperparams = OrderedDict((key, hyperparams[key]) for key in sorted(hyperparams))

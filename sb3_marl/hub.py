@@ -100,7 +100,7 @@ sb3-marl (`{algo}`: {get_algo(algo).__name__} with one policy shared by all AVs)
 
 ## Evaluation
 
-{results['episodes']} seeded episodes (seeds {results['seeds'][0]}..{results['seeds'][1]}), deterministic policy:
+{results['episodes']} seeded episodes (seeds {results['seeds'][0]}..{results['seeds'][1]}), {results['protocol']}:
 
 | metric | value |
 |---|---|
@@ -111,6 +111,7 @@ sb3-marl (`{algo}`: {get_algo(algo).__name__} with one policy shared by all AVs)
 | mean headway [m] | {results['headway_mean']:.1f} |
 | acceleration std [m/s²] | {results['acceleration_std']:.3f} |
 | lane changes per episode | {results['lane_changes_per_episode']:.2f} |
+| safety-supervisor interventions (share of AV-steps) | {results['intervention_rate']:.3f} |
 
 ## Usage
 

@@ -48,6 +48,15 @@ def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> 
     return hyperparams
 
 
+def merge_hyperparams(base: dict[str, Any], overrides: dict[str, Any] | None) -> dict[str, Any]:
+    """``base`` updated with ``overrides``; ``env_config`` is merged key by key, so that overriding
+    one scenario key (``env_config: {comfort: false}``) keeps the entry's others (the supervisor)."""
+    merged = {**base, **(overrides or {})}
+    if isinstance(base.get("env_config"), dict) and isinstance((overrides or {}).get("env_config"), dict):
+        merged["env_config"] = {**base["env_config"], **overrides["env_config"]}
+    return merged
+
+
 def config_file(algo: str) -> Path:
     """The zoo config file of an algorithm: ``zoo_configs/<algo>.yml``."""
     return CONFIG_DIR / f"{CONFIG_FILES.get(algo, algo)}.yml"

@@ -17,7 +17,7 @@ from rl_zoo3.utils import EnvironmentName, get_latest_run_id, get_model_path
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 from sb3_marl.algos import get_algo
-from sb3_marl.evaluation import evaluation_records, model_policy, summarize
+from sb3_marl.evaluation import evaluation_records, model_policy, protocol_label, summarize
 
 
 @dataclass
@@ -38,13 +38,14 @@ class Run:
     def load_model(self, device: str = "auto") -> BaseAlgorithm:
         return get_algo(self.algo).load(self.model_path, device=device)
 
-    def evaluate(self, model: BaseAlgorithm, n_episodes: int, seed: int, deterministic: bool = True) -> dict[str, Any]:
+    def evaluate(self, model: BaseAlgorithm, n_episodes: int, seed: int, deterministic: bool = False) -> dict[str, Any]:
         """The paper's metrics of ``model`` on ``n_episodes`` seeded episodes of the run's scenario,
-        with what identifies the evaluation (algo, env, timesteps, seeds, env config) and each return."""
+        with what identifies the evaluation (algo, env, timesteps, seeds, env config, protocol:
+        sampled actions by default, the authors') and each return."""
         records = evaluation_records(model_policy(model, deterministic), self.env_id, n_episodes, seed, self.env_config)
         return {
             "algo": self.algo, "env_id": self.env_id, "num_timesteps": int(model.num_timesteps),
-            "deterministic": deterministic, "seeds": [seed, seed + n_episodes - 1], "env_config": self.env_config,
+            "deterministic": deterministic, "protocol": protocol_label(deterministic, model), "seeds": [seed, seed + n_episodes - 1], "env_config": self.env_config,
             **summarize(records), "returns": [r.episode_return for r in records],
         }
 

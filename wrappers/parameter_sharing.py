@@ -35,7 +35,10 @@ VEC_BACKENDS = ("dummy", "subproc")
 #: Copy methods whose result has one row per AV; ``env_method`` hands each slot its own row.
 PER_AGENT_METHODS = ("action_masks",)
 #: Per-AV arrays of the scenario's info that each slot's info carries as scalars.
-PER_AGENT_INFO = ("speed", "headway", "acceleration", "lane_change", "crashed", "exited", "action_mask")
+PER_AGENT_INFO = (
+    "speed", "headway", "acceleration", "lane_change", "crashed", "exited", "action_mask",
+    "proposed_action", "executed_action", "intervened",
+)
 
 EnvFactory = Callable[[int], gym.Env]
 
@@ -327,6 +330,8 @@ class ParameterSharingVecEnv(VecEnv):
         super().__init__(int(starts[-1]), single_obs_space, single_action_space)
 
         self._obs = np.zeros((self.num_envs, *single_obs_space.shape), dtype=single_obs_space.dtype)
+        #: action masks of the current observations, from the copies' infos (None: not reported)
+        self._masks: np.ndarray | None = None
         self._episode_returns = np.zeros(self.num_envs)
         self._episode_lengths = np.zeros(self.num_envs, dtype=np.int64)
         self._t_start = time.time()
@@ -406,6 +411,7 @@ class ParameterSharingVecEnv(VecEnv):
         for k, (obs, slot_infos) in self._run(calls).items():
             self._obs[self.slices[k]] = obs
             self.reset_infos[self.slices[k]] = slot_infos
+        self._update_masks(self.reset_infos)
         self._episode_returns[:] = 0.0
         self._episode_lengths[:] = 0
         self._reset_seeds()
@@ -449,7 +455,18 @@ class ParameterSharingVecEnv(VecEnv):
                 self._episode_returns[sl] = 0.0
                 self._episode_lengths[sl] = 0
                 self.reset_infos[sl] = reset_infos
+        self._update_masks([
+            mask_info for k in range(self.n_copies)
+            for mask_info in (self.reset_infos[self.slices[k]] if dones[self.slices[k].start] else infos[self.slices[k]])
+        ])
         return self._obs.copy(), rewards, dones, infos
+
+    def _update_masks(self, slot_infos: list[dict[str, Any]]) -> None:
+        """Keep the action masks of the current observations (the new episode's after a reset)."""
+        if all("action_mask" in info for info in slot_infos):
+            self._masks = np.array([info["action_mask"] for info in slot_infos], dtype=bool)
+        else:
+            self._masks = None
 
     # ---- VecEnv plumbing --------------------------------------------------------------------
 
@@ -470,8 +487,18 @@ class ParameterSharingVecEnv(VecEnv):
         """Set the attribute on the copies owning the slots."""
         self._per_copy(indices, "set_attr", attr_name, value)
 
+    def has_attr(self, attr_name: str) -> bool:
+        if attr_name == "action_masks":
+            return True  # the scenario's masks, through :meth:`action_masks`
+        return super().has_attr(attr_name)
+
     def env_method(self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs: Any) -> list[Any]:
-        """Call a method of each slot's copy once per copy; per-AV results (``action_masks``) are split by slot."""
+        """Call a method of each slot's copy once per copy; per-AV results (``action_masks``) are split by slot.
+
+        ``action_masks`` is answered from the masks the copies reported with the current
+        observations (no call to the copies: maskable learners ask for it on every step)."""
+        if method_name == "action_masks" and not method_args and not method_kwargs and self._masks is not None:
+            return list(self._masks[list(self._get_indices(indices))])
         results = self._per_copy(indices, "env_method", method_name, method_args, method_kwargs)
         if method_name in PER_AGENT_METHODS:
             return [results[self.slot_copy[i]][self.slot_agent[i]] for i in self._get_indices(indices)]

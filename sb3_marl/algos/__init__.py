@@ -2,23 +2,24 @@
 
 With :class:`~wrappers.ParameterSharingVecEnv` every AV is a slot of one VecEnv, so each SB3
 algorithm trains one policy shared by all AVs: A2C acts as MA2C, PPO as MAPPO, and so on; our
-own :class:`~sb3_marl.algos.acktr.ACKTR` (K-FAC) acts as MAACKTR.
+own :class:`~sb3_marl.algos.acktr.ACKTR` (K-FAC) acts as MAACKTR. MA2C and MAPPO mask
+unavailable meta-actions (:mod:`sb3_marl.algos.masking`), as the authors' MA2C does.
 """
 
 from __future__ import annotations
 
-from sb3_contrib import TRPO, MaskablePPO
-from stable_baselines3 import A2C, DQN, PPO
+from sb3_contrib import TRPO
+from stable_baselines3 import DQN
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 from sb3_marl.algos.acktr import ACKTR
+from sb3_marl.algos.masking import MaskableA2C, MaskedPPO
 
 ALGOS: dict[str, type[BaseAlgorithm]] = {
-    "ma2c": A2C,
-    "mappo": PPO,
+    "ma2c": MaskableA2C,
+    "mappo": MaskedPPO,
     "madqn": DQN,
     "matrpo": TRPO,
-    "mappo-mask": MaskablePPO,
     "maacktr": ACKTR,
     "acktr": ACKTR,
 }

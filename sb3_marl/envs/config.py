@@ -8,6 +8,7 @@ and what is allowed.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from numbers import Integral, Real
 from typing import Any
@@ -76,6 +77,10 @@ def default_config() -> dict[str, Any]:
         "headway_max_distance": 60.0,  # [m] headway used when no leader is nearer
         "reward_speed_range": [10.0, 30.0],  # [m/s] (v_min, v_max) of r_v
         "harsh_acceleration_threshold": 3.0,  # [m/s²] a_th: |a| >= a_th is harsh
+        # Safety supervisor of the authors' MA2C (sb3_marl/envs/supervisor.py); on in the zoo configs
+        "safety_supervisor": False,
+        "supervisor_horizon": 1.4,  # [s] prediction horizon (7 policy steps at 5 Hz)
+        "supervisor_min_gap": 0.0,  # [m] smallest predicted bumper-to-bumper gap accepted
         **RENDER_DEFAULTS,
     }
 
@@ -85,7 +90,7 @@ Check = Callable[[Any], bool]
 
 def _number(lo: float | None = None, hi: float | None = None, strict_lo: bool = False) -> tuple[Check, str]:
     def check(v: Any) -> bool:
-        if isinstance(v, bool) or not isinstance(v, Real):
+        if isinstance(v, bool) or not isinstance(v, Real) or not math.isfinite(v):
             return False
         if lo is not None and (v <= lo if strict_lo else v < lo):
             return False
@@ -93,7 +98,7 @@ def _number(lo: float | None = None, hi: float | None = None, strict_lo: bool = 
 
     bound = "" if lo is None else (f" > {lo}" if strict_lo else f" >= {lo}")
     bound += "" if hi is None else f" and <= {hi}"
-    return check, f"a number{bound}"
+    return check, f"a finite number{bound}"
 
 
 def _integer(lo: int, hi: int | None = None) -> tuple[Check, str]:
@@ -108,12 +113,12 @@ def _pair(lo: float, integer: bool = False) -> tuple[Check, str]:
         if not isinstance(v, (list, tuple)) or len(v) != 2:
             return False
         kind = Integral if integer else Real
-        if any(isinstance(x, bool) or not isinstance(x, kind) for x in v):
+        if any(isinstance(x, bool) or not isinstance(x, kind) or not math.isfinite(x) for x in v):
             return False
         return lo <= v[0] <= v[1]
 
     kind = "integers" if integer else "numbers"
-    return check, f"a pair [min, max] of {kind} with {lo} <= min <= max"
+    return check, f"a pair [min, max] of finite {kind} with {lo} <= min <= max"
 
 
 def _boolean() -> tuple[Check, str]:
@@ -124,7 +129,7 @@ def _speeds() -> tuple[Check, str]:
     def check(v: Any) -> bool:
         if not isinstance(v, (list, tuple)) or len(v) < 2:
             return False
-        if any(isinstance(x, bool) or not isinstance(x, Real) or x < 0 for x in v):
+        if any(isinstance(x, bool) or not isinstance(x, Real) or not math.isfinite(x) or x < 0 for x in v):
             return False
         steps = [b - a for a, b in zip(v[:-1], v[1:])]
         return all(s > 0 for s in steps) and max(steps) - min(steps) < 1e-6
@@ -171,6 +176,9 @@ _SCHEMA: dict[str, tuple[Check, str]] = {
     "headway_max_distance": _POSITIVE,
     "reward_speed_range": _pair(0),
     "harsh_acceleration_threshold": _POSITIVE,
+    "safety_supervisor": _boolean(),
+    "supervisor_horizon": _number(0, 60, strict_lo=True),
+    "supervisor_min_gap": _number(0, 100),
     "screen_width": _integer(1),
     "screen_height": _integer(1),
     "centering_position": _any(),

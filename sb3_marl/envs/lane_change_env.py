@@ -17,6 +17,7 @@ from sb3_marl.envs.observation import observation_space, observe
 from sb3_marl.envs.reward import neighbour_matrix, reward_terms, total_reward
 from sb3_marl.envs.road import make_road, spawn_vehicles
 from sb3_marl.envs.simulator import FAST, Simulator
+from sb3_marl.envs.supervisor import supervise
 from sb3_marl.envs.traffic import TrafficSnapshot
 
 #: Meta-action index -> label, highway-env's ``DiscreteMetaAction`` numbering.
@@ -35,6 +36,8 @@ class LaneChangeEnv(AbstractEnv):
       ``simulation_frequency / policy_frequency`` frames of 1 / simulation_frequency s and returns
       the observations, the mean AV reward (the global reward, a scalar for gymnasium),
       ``terminated``, ``truncated`` and an info dict of per-AV arrays (see :meth:`_info`).
+    - With ``safety_supervisor``, the proposed actions pass the priority-based safety supervisor
+      (:mod:`sb3_marl.envs.supervisor`) first, which replaces those predicted to collide.
     - The episode terminates for all AVs as soon as any AV crashes. It is truncated after
       ``duration * policy_frequency`` steps (100 by default).
 
@@ -108,8 +111,8 @@ class LaneChangeEnv(AbstractEnv):
         snapshot = self._snapshot()
         obs = observe(snapshot, self.config)
         n = self.n_avs
-        zeros = np.zeros(n)
-        info = self._info(snapshot, zeros, np.zeros(n, dtype=bool), np.zeros(n, dtype=bool))
+        zeros, none = np.zeros(n), np.full(n, -1, dtype=np.int64)
+        info = self._info(snapshot, zeros, np.zeros(n, dtype=bool), np.zeros(n, dtype=bool), none, none)
         if self.render_mode == "human":
             self.render()
         return obs, info
@@ -128,7 +131,10 @@ class LaneChangeEnv(AbstractEnv):
         """Apply one meta-action per AV for 1 / policy_frequency s of simulation."""
         if self.road is None:
             raise RuntimeError("Call reset() before step().")
-        actions = self._check_actions(action)
+        proposed = self._check_actions(action)
+        actions = proposed
+        if self.config["safety_supervisor"]:
+            actions, _ = supervise(self.road.vehicles, self.n_avs, proposed, self.action_masks(), self.config)
         speed_before = np.array([av.speed for av in self.avs])
         lanes_before = [av.target_lane_index for av in self.avs]
 
@@ -151,7 +157,7 @@ class LaneChangeEnv(AbstractEnv):
         acceleration = (snapshot.speed[: self.n_avs] - speed_before) * self.config["policy_frequency"]
         lane_change = np.array([av.target_lane_index != before for av, before in zip(self.avs, lanes_before)])
         crashed = np.array([av.crashed for av in self.avs])
-        info = self._info(snapshot, acceleration, lane_change, crashed)
+        info = self._info(snapshot, acceleration, lane_change, crashed, proposed, actions)
 
         terminated = bool(crashed.any())
         truncated = not terminated and (self.steps_done >= self.max_steps or bool(self._exited.all()))
@@ -227,13 +233,17 @@ class LaneChangeEnv(AbstractEnv):
         acceleration: np.ndarray,
         lane_change: np.ndarray,
         crashed: np.ndarray,
+        proposed: np.ndarray,
+        executed: np.ndarray,
     ) -> dict[str, Any]:
         """Per-AV arrays of shape (n_avs,) unless stated.
 
         ``rewards`` (the weighted total), ``reward_terms`` (dict of unweighted terms, see
         :mod:`sb3_marl.envs.reward`), ``neighbours`` ((n_avs, n_avs) bool, the local reward's
         sets), ``crashed``, ``speed`` [m/s], ``headway`` [m], ``acceleration`` [m/s²],
-        ``lane_change``, ``exited`` (past the road end), ``action_mask`` ((n_avs, 5) bool),
+        ``lane_change``, ``exited`` (past the road end), ``action_mask`` ((n_avs, 5) bool, for
+        the next step), ``proposed_action`` (the policy's), ``executed_action`` (after the safety
+        supervisor; both -1 after a reset), ``intervened`` (the supervisor replaced the action),
         and the scalars ``n_avs``, ``n_hdvs``, ``step``.
         """
         terms = reward_terms(snapshot, crashed, acceleration, lane_change, self.config)
@@ -249,6 +259,9 @@ class LaneChangeEnv(AbstractEnv):
             "lane_change": lane_change,
             "exited": self._exited.copy(),
             "action_mask": self.action_masks(),
+            "proposed_action": np.asarray(proposed, dtype=np.int64),
+            "executed_action": np.asarray(executed, dtype=np.int64),
+            "intervened": np.asarray(proposed) != np.asarray(executed),
             "n_avs": self.n_avs,
             "n_hdvs": self.n_hdvs,
             "step": self.steps_done,

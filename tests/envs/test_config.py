@@ -10,7 +10,7 @@ from sb3_marl.envs import ENV_IDS, default_config, validate_config
 BAD_CONFIGS = [
     ({"lane_count": 2}, "lane_count", "allowed keys"),
     ({"road_length": -520.0}, "road_length", "> 0"),
-    ({"road_length": "long"}, "road_length", "a number"),
+    ({"road_length": "long"}, "road_length", "a finite number"),
     ({"n_avs": 4}, "n_avs", "[1, 3]"),
     ({"n_avs": 0}, "n_avs", "integer"),
     ({"n_avs": 2.0}, "n_avs", "integer"),

@@ -1,0 +1,244 @@
+"""The priority-based safety supervisor of the authors' MA2C (Chen et al. 2021, arXiv 2105.05701).
+
+Every policy step, before the AVs act, the supervisor serves the AVs on the road one by one in
+priority order: the smallest headway margin first (gap to the leader in the AV's lane [m] minus
+speed [m/s] × ``headway_time`` [s]; equal margins: the lower AV index first, so runs stay
+reproducible without drawing random numbers). For the AV being served it predicts the next
+``supervisor_horizon`` s of the whole road, frame by frame at ``simulation_frequency`` Hz:
+
+- every vehicle with highway-env's own controllers and kinematic bicycle model (the equations of
+  :mod:`sb3_marl.envs.simulator`, on a light array copy of the vehicle states: no env copy);
+- HDVs follow their leader by IDM (highway-env's ``IDMVehicle`` parameters, the leader in their
+  lane and, while they change lanes, in the target lane); MOBIL decisions are not predicted;
+- AVs already served keep their (possibly replaced) action, the others their proposed action.
+
+The *room* of the AV is the smallest bumper-to-bumper gap [m] over the horizon to any vehicle
+whose body overlaps it laterally; bodies are the axis-aligned boxes around the (possibly tilted)
+vehicle rectangles, so a negative room is a predicted collision, with a little to spare.
+If the proposed action's room is below ``supervisor_min_gap`` m, it is replaced by the action
+available to the AV (the env's action mask) with the largest room, ties in the order IDLE,
+SLOWER, FASTER, LANE_LEFT, LANE_RIGHT. The prediction runs as one compiled (numba) function per
+step; compiled code is cached on disk, so a fresh process pays the compile time only once.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numba
+import numpy as np
+from highway_env.vehicle.behavior import IDMVehicle
+from highway_env.vehicle.controller import ControlledVehicle, MDPVehicle
+from highway_env.vehicle.kinematics import Vehicle
+
+# highway-env's vehicle parameters, read once (numba freezes module globals at compile time)
+LENGTH = float(Vehicle.LENGTH)  # [m]
+WIDTH = float(Vehicle.WIDTH)  # [m]
+MAX_SPEED = float(Vehicle.MAX_SPEED)  # [m/s]
+KP_A = float(ControlledVehicle.KP_A)  # [1/s]
+KP_HEADING = float(ControlledVehicle.KP_HEADING)  # [1/s]
+KP_LATERAL = float(ControlledVehicle.KP_LATERAL)  # [1/s]
+MAX_STEERING_ANGLE = float(ControlledVehicle.MAX_STEERING_ANGLE)  # [rad]
+ACC_MAX = float(IDMVehicle.ACC_MAX)  # [m/s²]
+COMFORT_ACC_MAX = float(IDMVehicle.COMFORT_ACC_MAX)  # [m/s²]
+COMFORT_ACC_MIN = float(IDMVehicle.COMFORT_ACC_MIN)  # [m/s²]
+DISTANCE_WANTED = float(IDMVehicle.DISTANCE_WANTED)  # [m]
+TIME_WANTED = float(IDMVehicle.TIME_WANTED)  # [s]
+ON_LANE_MARGIN = 1.0  # [m], highway-env's margin of "on the lane" in its neighbour search
+NO_LEADER_GAP = 1e6  # [m], headway of an AV without leader (priority only)
+#: Replacement candidates in tie order: IDLE, SLOWER, FASTER, LANE_LEFT, LANE_RIGHT
+#: (highway-env's meta-action indices).
+PREFERENCE = np.array([1, 4, 3, 0, 2], dtype=np.int64)
+
+
+@numba.njit(cache=True)
+def _not_zero(value: float) -> float:
+    if abs(value) > 1e-2:
+        return value
+    return 1e-2 if value >= 0 else -1e-2
+
+
+@numba.njit(cache=True)
+def _wrap_to_pi(angle: float) -> float:
+    return ((angle + np.pi) % (2 * np.pi)) - np.pi
+
+
+@numba.njit(cache=True)
+def _leader(k: int, lane_y: float, x: np.ndarray, y: np.ndarray, lane_width: float) -> int:
+    """Index of the nearest vehicle at or ahead of vehicle k on the lane at ``lane_y`` m, or -1."""
+    best, best_x = -1, 0.0
+    for j in range(x.size):
+        if j != k and abs(y[j] - lane_y) <= lane_width / 2 + ON_LANE_MARGIN and x[j] >= x[k]:
+            if best < 0 or x[j] < best_x:
+                best, best_x = j, x[j]
+    return best
+
+
+@numba.njit(cache=True)
+def _idm(k: int, front: int, x: np.ndarray, v: np.ndarray, desired_speed: float, delta: float) -> float:
+    """highway-env's IDM acceleration [m/s²] of vehicle k behind ``front`` (-1: free road)."""
+    ratio = max(v[k], 0.0) / abs(_not_zero(desired_speed))
+    acceleration = COMFORT_ACC_MAX * (1.0 - ratio**delta)
+    if front >= 0:
+        gap = DISTANCE_WANTED + v[k] * TIME_WANTED + v[k] * (v[k] - v[front]) / (
+            2.0 * np.sqrt(-COMFORT_ACC_MAX * COMFORT_ACC_MIN)
+        )
+        acceleration -= COMFORT_ACC_MAX * (gap / _not_zero(x[front] - x[k])) ** 2
+    return acceleration
+
+
+@numba.njit(cache=True)
+def _room(
+    ego: int, x0: np.ndarray, y0: np.ndarray, h0: np.ndarray, v0: np.ndarray, target_y: np.ndarray,
+    target_speed: np.ndarray, is_hdv: np.ndarray, delta: np.ndarray, crashed: np.ndarray,
+    collidable: np.ndarray, frames: int, dt: float, lane_width: float, n_lanes: int,
+) -> float:
+    """Smallest bumper-to-bumper gap [m] over ``frames`` frames of ``dt`` s between vehicle ``ego``
+    and any collidable vehicle overlapping it laterally (negative: a collision)."""
+    n = x0.size
+    x, y, h, v = x0.copy(), y0.copy(), h0.copy(), v0.copy()
+    acceleration, steering = np.zeros(n), np.zeros(n)
+    room = np.inf
+    for _ in range(frames):
+        for k in range(n):  # act: every vehicle decides on the same frozen positions
+            if crashed[k]:
+                acceleration[k], steering[k] = -v[k], 0.0
+                continue
+            lateral_speed = -KP_LATERAL * (y[k] - target_y[k])
+            heading_ref = min(max(np.arcsin(min(max(lateral_speed / _not_zero(v[k]), -1.0), 1.0)), -np.pi / 4), np.pi / 4)
+            heading_rate = KP_HEADING * _wrap_to_pi(heading_ref - h[k])
+            slip = np.arcsin(min(max(LENGTH / 2 / _not_zero(v[k]) * heading_rate, -1.0), 1.0))
+            steering[k] = min(max(np.arctan(2 * np.tan(slip)), -MAX_STEERING_ANGLE), MAX_STEERING_ANGLE)
+            if is_hdv[k]:
+                lane = min(max(int(np.floor(y[k] / lane_width + 0.5)), 0), n_lanes - 1)
+                a = _idm(k, _leader(k, lane * lane_width, x, y, lane_width), x, v, target_speed[k], delta[k])
+                if abs(target_y[k] - lane * lane_width) > 1e-9:
+                    a = min(a, _idm(k, _leader(k, target_y[k], x, y, lane_width), x, v, target_speed[k], delta[k]))
+                acceleration[k] = min(max(a, -ACC_MAX), ACC_MAX)
+            else:
+                acceleration[k] = KP_A * (target_speed[k] - v[k])
+            if v[k] > MAX_SPEED:
+                acceleration[k] = min(acceleration[k], MAX_SPEED - v[k])
+        for k in range(n):  # step: kinematic bicycle model
+            beta = np.arctan(0.5 * np.tan(steering[k]))
+            x[k] += v[k] * np.cos(h[k] + beta) * dt
+            y[k] += v[k] * np.sin(h[k] + beta) * dt
+            h[k] += v[k] * np.sin(beta) / (LENGTH / 2) * dt
+            v[k] += acceleration[k] * dt
+        ego_x, ego_y = _half_extents(h[ego])
+        for j in range(n):
+            if j != ego and collidable[j]:
+                other_x, other_y = _half_extents(h[j])
+                if abs(y[j] - y[ego]) < ego_y + other_y:
+                    room = min(room, abs(x[j] - x[ego]) - ego_x - other_x)
+    return room
+
+
+@numba.njit(cache=True)
+def _half_extents(heading: float) -> tuple[float, float]:
+    """Half length along x and half width along y [m] of the axis-aligned box around a vehicle
+    body rotated by ``heading`` rad (a lane change tilts it: the box covers the corners)."""
+    c, s = abs(np.cos(heading)), abs(np.sin(heading))
+    return LENGTH / 2 * c + WIDTH / 2 * s, LENGTH / 2 * s + WIDTH / 2 * c
+
+
+@numba.njit(cache=True)
+def supervise_arrays(
+    x: np.ndarray, y: np.ndarray, h: np.ndarray, v: np.ndarray, target_y: np.ndarray,
+    target_speed: np.ndarray, is_hdv: np.ndarray, delta: np.ndarray, crashed: np.ndarray,
+    collidable: np.ndarray, candidate_y: np.ndarray, candidate_speed: np.ndarray,
+    available: np.ndarray, proposed: np.ndarray, frames: int, dt: float, lane_width: float,
+    n_lanes: int, headway_time: float, min_gap: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The supervisor on arrays (AVs first). Returns the executed actions and each AV's room [m]
+    under them (NaN for AVs not served: those past the road end).
+
+    :param candidate_y: (n_avs, 5) target lane centre y [m] of each AV under each meta-action
+    :param candidate_speed: (n_avs, 5) target speed [m/s] under each meta-action
+    :param available: (n_avs, 5) the action mask
+    :param proposed: (n_avs,) the policy's meta-actions
+    """
+    n_avs = proposed.size
+    executed = proposed.copy()
+    rooms = np.full(n_avs, np.nan)
+    target_y, target_speed = target_y.copy(), target_speed.copy()
+    margin = np.empty(n_avs)
+    for i in range(n_avs):
+        target_y[i], target_speed[i] = candidate_y[i, proposed[i]], candidate_speed[i, proposed[i]]
+        lane = min(max(int(np.floor(y[i] / lane_width + 0.5)), 0), n_lanes - 1)
+        front = _leader(i, lane * lane_width, x, y, lane_width)
+        margin[i] = (x[front] - x[i] if front >= 0 else NO_LEADER_GAP) - v[i] * headway_time
+    for i in np.argsort(margin, kind="mergesort"):
+        if not collidable[i]:
+            continue
+        room = _room(i, x, y, h, v, target_y, target_speed, is_hdv, delta, crashed, collidable, frames, dt,
+                     lane_width, n_lanes)
+        if room < min_gap:
+            best, best_room = proposed[i], room
+            for a in PREFERENCE:
+                if available[i, a] and a != proposed[i]:
+                    target_y[i], target_speed[i] = candidate_y[i, a], candidate_speed[i, a]
+                    candidate_room = _room(i, x, y, h, v, target_y, target_speed, is_hdv, delta, crashed,
+                                           collidable, frames, dt, lane_width, n_lanes)
+                    if candidate_room > best_room:
+                        best, best_room = a, candidate_room
+            executed[i], room = best, best_room
+            target_y[i], target_speed[i] = candidate_y[i, best], candidate_speed[i, best]
+        rooms[i] = room
+    return executed, rooms
+
+
+def candidate_targets(av: MDPVehicle, n_lanes: int, lane_width: float) -> tuple[np.ndarray, np.ndarray]:
+    """(5,) target lane centre y [m] and (5,) target speed [m/s] of ``av`` under each meta-action,
+    as highway-env's ``MDPVehicle.act`` would set them (LANE_LEFT 0, IDLE 1, LANE_RIGHT 2, FASTER 3,
+    SLOWER 4; a lane change to an unreachable lane and a speed change past the range change nothing)."""
+    lane_id = av.target_lane_index[2]
+    lanes = [lane_id] * 5
+    for action, side in ((0, -1), (2, +1)):
+        other = min(max(lane_id + side, 0), n_lanes - 1)
+        if av.road.network.get_lane((*av.target_lane_index[:2], other)).is_reachable_from(av.position):
+            lanes[action] = other
+    speeds = [float(av.target_speed)] * 5
+    index = av.speed_to_index(av.speed)
+    top = av.target_speeds.size - 1
+    speeds[3] = float(av.index_to_speed(min(max(index + 1, 0), top)))
+    speeds[4] = float(av.index_to_speed(min(max(index - 1, 0), top)))
+    return np.array(lanes, dtype=np.float64) * lane_width, np.array(speeds)
+
+
+def supervise(
+    vehicles: list[Vehicle], n_avs: int, proposed: np.ndarray, available: np.ndarray, config: dict[str, Any]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Executed meta-actions (n_avs,) and each AV's predicted room [m] (see the module doc).
+
+    :param vehicles: the road's vehicles, the ``n_avs`` AVs first
+    :param proposed: (n_avs,) the policy's meta-actions
+    :param available: (n_avs, 5) bool action mask
+    :param config: the scenario config (lanes, frequencies, ``supervisor_horizon`` [s],
+        ``supervisor_min_gap`` [m], ``headway_time`` [s])
+    """
+    n_lanes, lane_width = config["lanes_count"], float(config["lane_width"])
+    speed_limit = float(config["speed_limit"])
+    state = np.array(
+        [
+            (
+                *v.position.tolist(), v.heading, v.speed, v.target_lane_index[2] * lane_width,
+                min(max(v.target_speed, 0.0), speed_limit) if isinstance(v, IDMVehicle) else v.target_speed,
+                isinstance(v, IDMVehicle), getattr(v, "DELTA", 4.0), v.crashed, v.collidable,
+            )
+            for v in vehicles
+        ],
+        dtype=np.float64,
+    ).reshape(-1, 10)
+    candidates = [candidate_targets(av, n_lanes, lane_width) for av in vehicles[:n_avs]]
+    frames = max(int(round(config["supervisor_horizon"] * config["simulation_frequency"])), 1)
+    return supervise_arrays(
+        *(np.ascontiguousarray(state[:, c]) for c in range(7)),
+        state[:, 7] > 0, state[:, 8] > 0, state[:, 9] > 0,
+        np.array([c[0] for c in candidates]).reshape(n_avs, 5),
+        np.array([c[1] for c in candidates]).reshape(n_avs, 5),
+        np.asarray(available, dtype=np.bool_),
+        np.asarray(proposed, dtype=np.int64),
+        frames, 1.0 / config["simulation_frequency"], lane_width, n_lanes,
+        float(config["headway_time"]), float(config["supervisor_min_gap"]),
+    )
