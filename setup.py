@@ -20,6 +20,7 @@ setup(
         "highway-env>=1.12,<1.13",
         "gymnasium>=1.0,<2",
         "numpy>=1.26",
+        "numba>=0.68,<0.69",  # the safety supervisor's compiled prediction
         "tensorboard>=2.15",
         "pyyaml>=6",
         "rl_zoo3>=2.9,<2.10",

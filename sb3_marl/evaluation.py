@@ -96,16 +96,35 @@ def markdown_table(rows: list[tuple[dict[str, Any], dict[str, float]]]) -> str:
     return "\n".join(lines)
 
 
-def run_episodes(env: LaneChangeEnv, policy: Policy, n_episodes: int, seed: int = 0) -> list[EpisodeRecord]:
-    """Play ``n_episodes`` episodes with seeds ``seed, seed + 1, ...``."""
+StepHook = Callable[[LaneChangeEnv, dict], None]
+
+
+def run_episodes(
+    env: LaneChangeEnv, policy: Policy, n_episodes: int, seed: int = 0, on_step: StepHook | None = None
+) -> list[EpisodeRecord]:
+    """Play ``n_episodes`` episodes with seeds ``seed, seed + 1, ...``: the one episode runner of
+    evaluation, videos and reports.
+
+    Episode ``k`` also seeds torch with ``seed + k`` inside a fork of torch's random state, so
+    sampled actions are reproducible and a training run's own random stream is untouched.
+
+    :param on_step: called as ``on_step(env, info)`` after the reset (``info["step"] == 0``) and
+        after every step of every episode
+    """
     records = []
     for episode in range(n_episodes):
-        obs, _ = env.reset(seed=seed + episode)
-        record, done = EpisodeRecord(), False
-        while not done:
-            obs, reward, terminated, truncated, info = env.step(policy(env, obs))
-            record.add_step(reward, info)
-            done = terminated or truncated
+        with th.random.fork_rng():
+            th.manual_seed(seed + episode)
+            obs, info = env.reset(seed=seed + episode)
+            if on_step is not None:
+                on_step(env, info)
+            record, done = EpisodeRecord(), False
+            while not done:
+                obs, reward, terminated, truncated, info = env.step(policy(env, obs))
+                record.add_step(reward, info)
+                if on_step is not None:
+                    on_step(env, info)
+                done = terminated or truncated
         records.append(record)
     return records
 
@@ -143,18 +162,13 @@ def model_policy(model: Any, deterministic: bool = False) -> Policy:
 def evaluation_records(
     policy: Policy, env_id: str, n_episodes: int, seed: int = 0, config: dict | None = None
 ) -> list[EpisodeRecord]:
-    """``n_episodes`` episodes with seeds ``seed, seed + 1, ...``, cycling through the density's AV counts.
-
-    Episode ``k`` also seeds torch with ``seed + k`` (inside a fork of torch's random state, so a
-    training run's own random stream is untouched): sampled actions are reproducible too."""
+    """``n_episodes`` episodes with seeds ``seed, seed + 1, ...``, cycling through the density's AV counts."""
     counts = av_counts(env_id, config)
     envs = {n: gym.make(env_id, config={**(config or {}), "n_avs": n}).unwrapped for n in counts}
     records = []
     for episode in range(n_episodes):
         env = envs[counts[episode % len(counts)]]
-        with th.random.fork_rng():
-            th.manual_seed(seed + episode)
-            records += run_episodes(env, policy, 1, seed=seed + episode)
+        records += run_episodes(env, policy, 1, seed=seed + episode)
     for env in envs.values():
         env.close()
     return records
@@ -167,4 +181,4 @@ def evaluate_on_density(
     return summarize(evaluation_records(policy, env_id, n_episodes, seed, config))
 
 
-__all__ = ["PROTOCOLS", "EpisodeRecord", "Policy", "protocol_label", "evaluate_on_density", "evaluation_records", "markdown_table", "model_policy", "run_episodes", "summarize"]
+__all__ = ["PROTOCOLS", "EpisodeRecord", "Policy", "protocol_label", "StepHook", "evaluate_on_density", "evaluation_records", "markdown_table", "model_policy", "run_episodes", "summarize"]

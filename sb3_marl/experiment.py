@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 from collections import OrderedDict
 from typing import Any
 
@@ -24,7 +25,7 @@ import rl_zoo3.utils as zoo_utils
 from rl_zoo3.exp_manager import ExperimentManager
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, ProgressBarCallback
-from stable_baselines3.common.logger import Logger, make_output_format
+from stable_baselines3.common.logger import HumanOutputFormat, Logger, make_output_format
 from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_marl.algos import ALGOS
@@ -158,7 +159,7 @@ class MARLExperimentManager(ExperimentManager):
         stops training cleanly so that the model can be saved."""
         remaining = self.n_timesteps - model.num_timesteps if self.continue_training else self.n_timesteps
         # TensorBoard run <ALGO>_<id> matches the log folder <env>_<id>, resumed runs included
-        outputs = [make_output_format("stdout", "")] if self.verbose >= 1 else []
+        outputs = [HumanOutputFormat(sys.stdout)] if self.verbose >= 1 else []
         tensorboard_folder = None
         if self.tensorboard_log:
             tensorboard_folder = os.path.join(self.tensorboard_log, f"{self.algo.upper()}_{self.run_id}")

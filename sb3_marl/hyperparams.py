@@ -9,6 +9,9 @@ an entry may set the scenario and the wrapper:
 - ``reward_scale``: factor applied to the training rewards (the MARL_CAVs code uses 0.05)
 - ``architecture``: ``shared`` or ``separate`` MA2C network (actor-critic algorithms), or
   ``default`` for SB3's own MLP
+
+and the maskable learners (``ma2c``, ``mappo``, ``maacktr``, ``madqn``) take ``action_masking``
+(true in every zoo config, the authors' choice; false for the unmasked ablation).
 """
 
 from __future__ import annotations
@@ -81,6 +84,9 @@ def validate_hyperparams(algo: str, hyperparams: dict[str, Any], env_id: str | N
     unknown = sorted(set(hyperparams) - set(valid))
     if unknown:
         raise ValueError(f"Unknown hyperparameter(s) {unknown} for {algo!r}: valid keys are {valid}.")
+    masking = hyperparams.get("action_masking", True)
+    if not isinstance(masking, bool):
+        raise ValueError(f"Invalid action_masking={masking!r} for {algo!r}: expected true or false.")
     architecture = hyperparams.get("architecture", "default")
     q_learning = is_q_learning(algo)
     allowed_architectures = ["default", "shared"] if q_learning else ["default", *ARCHITECTURES]

@@ -12,7 +12,7 @@ import numpy as np
 
 from sb3_marl.envs import copy_av_counts
 from sb3_marl.envs.lane_change_env import LaneChangeEnv
-from sb3_marl.evaluation import Policy
+from sb3_marl.evaluation import Policy, run_episodes
 from sb3_marl.files import replaced_atomically
 
 
@@ -36,13 +36,7 @@ def record_video(
     for episode, n_avs in enumerate(counts):
         env: LaneChangeEnv = gym.make(env_id, config={**(config or {}), "n_avs": n_avs}, render_mode="rgb_array").unwrapped
         fps = env.config["policy_frequency"]
-        obs, _ = env.reset(seed=seed + episode)
-        frames.append(env.render())
-        done = False
-        while not done:
-            obs, _, terminated, truncated, _ = env.step(policy(env, obs))
-            frames.append(env.render())
-            done = terminated or truncated
+        run_episodes(env, policy, 1, seed + episode, on_step=lambda env, info: frames.append(env.render()))
         env.close()
     # libx264 needs even frame sizes; macro_block_size=2 pads odd ones instead of rescaling
     with replaced_atomically(path) as temporary, imageio.get_writer(

@@ -2,26 +2,24 @@
 
 With :class:`~wrappers.ParameterSharingVecEnv` every AV is a slot of one VecEnv, so each SB3
 algorithm trains one policy shared by all AVs: A2C acts as MA2C, PPO as MAPPO, and so on; our
-own :class:`~sb3_marl.algos.acktr.ACKTR` (K-FAC) acts as MAACKTR. MA2C and MAPPO mask
+own :class:`~sb3_marl.algos.acktr.ACKTR` (K-FAC) acts as MAACKTR. MA2C, MAPPO, MAACKTR and MADQN mask
 unavailable meta-actions (:mod:`sb3_marl.algos.masking`), as the authors' MA2C does.
 """
 
 from __future__ import annotations
 
 from sb3_contrib import TRPO
-from stable_baselines3 import DQN
 from stable_baselines3.common.base_class import BaseAlgorithm
 
-from sb3_marl.algos.acktr import ACKTR
-from sb3_marl.algos.masking import MaskableA2C, MaskedPPO
+from sb3_marl.algos.masking import MaskableA2C, MaskableACKTR, MaskableDQN, MaskedPPO
 
 ALGOS: dict[str, type[BaseAlgorithm]] = {
     "ma2c": MaskableA2C,
     "mappo": MaskedPPO,
-    "madqn": DQN,
+    "madqn": MaskableDQN,
     "matrpo": TRPO,
-    "maacktr": ACKTR,
-    "acktr": ACKTR,
+    "maacktr": MaskableACKTR,
+    "acktr": MaskableACKTR,
 }
 
 

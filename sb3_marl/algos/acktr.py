@@ -317,6 +317,10 @@ class ACKTR(OnPolicyAlgorithm):
 
     def _setup_model(self) -> None:
         super()._setup_model()
+        self._setup_optimizer()
+
+    def _setup_optimizer(self) -> None:
+        """Replace the policy's optimiser with :class:`KFAC` (hooks on its layers)."""
         self.policy.optimizer = KFAC(
             self.policy,
             lr=self.lr_schedule(1),
@@ -339,7 +343,9 @@ class ACKTR(OnPolicyAlgorithm):
 
         record = self._n_updates % self.stats_update_freq == 0
         with optimizer.record_statistics() if record else nullcontext():
-            values, log_prob, entropy = self.policy.evaluate_actions(rollout.observations, actions)
+            masks = getattr(rollout, "action_masks", None)  # a maskable rollout buffer's (MaskableACKTR)
+            mask_kwargs = {} if masks is None else {"action_masks": masks}
+            values, log_prob, entropy = self.policy.evaluate_actions(rollout.observations, actions, **mask_kwargs)
             values = values.flatten()
             if record:  # Fisher loss: log-likelihood of model samples (see the module doc)
                 optimizer.zero_grad()

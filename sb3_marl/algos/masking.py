@@ -10,36 +10,48 @@ distribution and rollout buffer do the rest:
   PPO loss's gradient exactly A2C's (the probability ratio is 1 at the single gradient step, and
   the gradient of ``ratio * advantage`` is then ``advantage * ∇ log π``); RMSprop as SB3's A2C.
 - :class:`MaskedPPO` (``mappo``) is ``MaskablePPO`` itself.
+- :class:`MaskableACKTR` (``maacktr``) is our ACKTR on the same maskable machinery.
+- :class:`MaskableDQN` (``madqn``): sb3-contrib has no maskable DQN; SB3's DQN with masked greedy
+  actions, exploration and bootstrap targets (masks of next states kept in the replay buffer).
 
-Both take ``action_masking`` (default True): False trains and acts without masks (the unmasked
+All take ``action_masking`` (default True): False trains and acts without masks (the unmasked
 learner of the ablation) with the same network. The setting is saved with the model, and
 ``predict(obs, action_masks=...)`` takes masks exactly as sb3-contrib's maskable algorithms do.
 """
 
 from __future__ import annotations
 
+import inspect
 import math
-from typing import Any, TypeVar
+from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 import torch as th
+import torch.nn.functional as F
+from gymnasium import spaces
 from sb3_contrib import MaskablePPO
+from sb3_contrib.common.maskable.buffers import MaskableRolloutBuffer
+from sb3_contrib.common.maskable.utils import get_action_masks
+from stable_baselines3 import DQN
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.buffers import RolloutBuffer
+from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.buffers import ReplayBuffer, RolloutBuffer
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
 
-SelfMasking = TypeVar("SelfMasking", bound="ActionMaskingMixin")
-
+from sb3_marl.algos.acktr import ACKTR
 
 class ActionMaskingMixin:
-    """``action_masking`` switch of a maskable learner: masks in training (``learn``) and acting
-    (``predict``) only when it is True."""
+    """``action_masking`` switch of a maskable on-policy learner: sb3-contrib's masked rollouts
+    and ``predict(..., action_masks=...)``, with masks only when ``action_masking`` is True."""
 
     action_masking: bool = True
 
-    def learn(self: SelfMasking, *args: Any, use_masking: bool | None = None, **kwargs: Any) -> SelfMasking:
-        """sb3-contrib's ``learn``; ``use_masking`` defaults to the model's ``action_masking``."""
-        return super().learn(*args, use_masking=self.action_masking if use_masking is None else use_masking, **kwargs)
+    def collect_rollouts(self, env: Any, callback: Any, rollout_buffer: Any, n_rollout_steps: int,
+                         use_masking: bool = True) -> bool:
+        """sb3-contrib's masked rollout collection (``MaskablePPO.collect_rollouts``)."""
+        return MaskablePPO.collect_rollouts(
+            self, env, callback, rollout_buffer, n_rollout_steps, use_masking=use_masking and self.action_masking
+        )
 
     def predict(
         self,
@@ -52,7 +64,17 @@ class ActionMaskingMixin:
         """The policy's action; ``action_masks`` (batch, 5) bool restricts it to available actions
         (ignored when the model was trained with ``action_masking=False``)."""
         masks = action_masks if self.action_masking else None
-        return super().predict(observation, state, episode_start, deterministic, action_masks=masks)
+        return self.policy.predict(observation, state, episode_start, deterministic, action_masks=masks)
+
+
+def _with_action_masking(cls: type, base: type) -> None:
+    """Give ``cls.__init__`` the signature of ``base.__init__`` plus ``action_masking``, so that
+    the zoo configs' validation (which reads constructor signatures) sees every argument."""
+    signature = inspect.signature(base.__init__)
+    cls.__init__.__signature__ = signature.replace(parameters=[
+        *signature.parameters.values(),
+        inspect.Parameter("action_masking", inspect.Parameter.KEYWORD_ONLY, default=True, annotation=bool),
+    ])
 
 
 class MaskedPPO(ActionMaskingMixin, MaskablePPO):
@@ -61,6 +83,160 @@ class MaskedPPO(ActionMaskingMixin, MaskablePPO):
     def __init__(self, policy: Any, env: GymEnv | str | None, *args: Any, action_masking: bool = True, **kwargs: Any):
         self.action_masking = bool(action_masking)
         super().__init__(policy, env, *args, **kwargs)
+
+
+class MaskableACKTR(ActionMaskingMixin, ACKTR):
+    """Our :class:`~sb3_marl.algos.acktr.ACKTR` on sb3-contrib's maskable policy, rollout buffer and
+    masked rollouts (see the module doc); ACKTR's update evaluates the actions under their masks."""
+
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = MaskablePPO.policy_aliases
+
+    def __init__(self, policy: Any, env: GymEnv | str | None, *args: Any, action_masking: bool = True, **kwargs: Any):
+        self.action_masking = bool(action_masking)
+        super().__init__(policy, env, *args, **kwargs)
+
+    def _setup_model(self) -> None:
+        """As ``MaskablePPO._setup_model`` (maskable policy and rollout buffer), then K-FAC."""
+        self._setup_lr_schedule()
+        self.set_random_seed(self.seed)
+        self.policy = self.policy_class(
+            self.observation_space, self.action_space, self.lr_schedule, **self.policy_kwargs
+        ).to(self.device)
+        self.rollout_buffer = MaskableRolloutBuffer(
+            self.n_steps, self.observation_space, self.action_space, self.device,
+            gamma=self.gamma, gae_lambda=self.gae_lambda, n_envs=self.n_envs,
+        )
+        self._setup_optimizer()
+
+
+class MaskedReplayBufferSamples(NamedTuple):
+    """SB3's ``ReplayBufferSamples`` plus the action mask of each next observation."""
+
+    observations: th.Tensor
+    actions: th.Tensor
+    next_observations: th.Tensor
+    dones: th.Tensor
+    rewards: th.Tensor
+    next_action_masks: th.Tensor
+    discounts: th.Tensor | None = None
+
+
+class MaskedReplayBuffer(ReplayBuffer):
+    """SB3's ``ReplayBuffer`` that also keeps the action mask of every next observation, taken
+    from the step infos' ``action_mask`` (the scenario reports the mask of the observation it
+    returns; after an episode end, of the terminal observation). Without one: all available."""
+
+    def __init__(self, buffer_size: int, observation_space: spaces.Space, action_space: spaces.Discrete,
+                 device: th.device | str = "auto", n_envs: int = 1, optimize_memory_usage: bool = False,
+                 handle_timeout_termination: bool = True) -> None:
+        if optimize_memory_usage:
+            raise ValueError("MaskedReplayBuffer does not support optimize_memory_usage=True.")
+        super().__init__(buffer_size, observation_space, action_space, device, n_envs, False, handle_timeout_termination)
+        self.next_action_masks = np.ones((self.buffer_size, self.n_envs, int(action_space.n)), dtype=bool)
+
+    def add(self, obs: np.ndarray, next_obs: np.ndarray, action: np.ndarray, reward: np.ndarray,
+            done: np.ndarray, infos: list[dict[str, Any]]) -> None:
+        self.next_action_masks[self.pos] = [info.get("action_mask", True) for info in infos]
+        super().add(obs, next_obs, action, reward, done, infos)
+
+    def _get_samples(self, batch_inds: np.ndarray, env: Any = None) -> MaskedReplayBufferSamples:
+        """SB3's ``ReplayBuffer._get_samples`` (without the memory-optimised layout) plus the masks."""
+        env_indices = np.random.randint(0, high=self.n_envs, size=(len(batch_inds),))
+        data = (
+            self._normalize_obs(self.observations[batch_inds, env_indices, :], env),
+            self.actions[batch_inds, env_indices, :],
+            self._normalize_obs(self.next_observations[batch_inds, env_indices, :], env),
+            (self.dones[batch_inds, env_indices] * (1 - self.timeouts[batch_inds, env_indices])).reshape(-1, 1),
+            self._normalize_reward(self.rewards[batch_inds, env_indices].reshape(-1, 1), env),
+            self.next_action_masks[batch_inds, env_indices, :],
+        )
+        return MaskedReplayBufferSamples(*tuple(map(self.to_torch, data)))
+
+
+class MaskableDQN(DQN):
+    """SB3's DQN whose Q-values of unavailable meta-actions are excluded from the greedy action,
+    from ε-greedy exploration (random actions among the available ones, also during warm-up) and
+    from the bootstrap target ``max_a' Q_target(s', a')`` (over the actions available in s').
+
+    :param action_masking: use the env's action masks (True) or SB3's DQN unchanged (False)
+
+    Other parameters: as SB3's ``DQN`` (the replay buffer is :class:`MaskedReplayBuffer`).
+    """
+
+    def __init__(self, policy: Any, env: GymEnv | str | None, *args: Any, action_masking: bool = True, **kwargs: Any):
+        self.action_masking = bool(action_masking)
+        if self.action_masking and kwargs.get("replay_buffer_class") is None:
+            kwargs["replay_buffer_class"] = MaskedReplayBuffer
+        super().__init__(policy, env, *args, **kwargs)
+
+    def predict(
+        self,
+        observation: np.ndarray,
+        state: tuple[np.ndarray, ...] | None = None,
+        episode_start: np.ndarray | None = None,
+        deterministic: bool = False,
+        action_masks: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
+        """ε-greedy (or greedy with ``deterministic``) action among the available ones of each row
+        of ``action_masks`` (batch, n_actions); without masks, SB3's DQN ``predict``."""
+        if action_masks is None or not self.action_masking:
+            return super().predict(observation, state, episode_start, deterministic)
+        masks = np.asarray(action_masks, dtype=bool).reshape(-1, int(self.action_space.n))
+        if not deterministic and np.random.rand() < self.exploration_rate:
+            return _random_available(masks), state
+        obs_tensor, vectorized = self.policy.obs_to_tensor(observation)
+        with th.no_grad():
+            q_values = self.q_net(obs_tensor).cpu().numpy()
+        actions = np.where(masks, q_values, -np.inf).argmax(axis=1)
+        return (actions if vectorized else actions[0]), state
+
+    def _sample_action(self, learning_starts: int, action_noise: Any = None, n_envs: int = 1) -> tuple[np.ndarray, np.ndarray]:
+        if not self.action_masking:
+            return super()._sample_action(learning_starts, action_noise, n_envs)
+        masks = get_action_masks(self.env)
+        if self.num_timesteps < learning_starts:
+            actions = _random_available(masks)
+        else:
+            actions, _ = self.predict(self._last_obs, deterministic=False, action_masks=masks)
+        return actions, actions
+
+    def train(self, gradient_steps: int, batch_size: int = 100) -> None:
+        """SB3's ``DQN.train`` with the bootstrap target's max over the available next actions."""
+        if not self.action_masking:
+            return super().train(gradient_steps, batch_size)
+        self.policy.set_training_mode(True)
+        self._update_learning_rate(self.policy.optimizer)
+        losses = []
+        for _ in range(gradient_steps):
+            replay_data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)
+            discounts = replay_data.discounts if replay_data.discounts is not None else self.gamma
+            with th.no_grad():
+                next_q_values = self.q_net_target(replay_data.next_observations)
+                next_q_values = next_q_values.masked_fill(~replay_data.next_action_masks, -th.inf)  # the change
+                next_q_values = next_q_values.max(dim=1).values.reshape(-1, 1)
+                target_q_values = replay_data.rewards + (1 - replay_data.dones) * discounts * next_q_values
+            current_q_values = th.gather(self.q_net(replay_data.observations), dim=1, index=replay_data.actions.long())
+            loss = F.smooth_l1_loss(current_q_values, target_q_values)
+            losses.append(loss.item())
+            self.policy.optimizer.zero_grad()
+            loss.backward()
+            th.nn.utils.clip_grad_norm_(self.policy.parameters(), self.max_grad_norm)
+            self.policy.optimizer.step()
+        self._n_updates += gradient_steps
+        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+        self.logger.record("train/loss", np.mean(losses))
+
+
+def _random_available(masks: np.ndarray) -> np.ndarray:
+    """One uniformly random available action per row of ``masks`` (batch, n_actions) bool,
+    drawn with numpy's global generator as SB3's DQN exploration (seeded by ``set_random_seed``)."""
+    scores = np.random.random_sample(masks.shape)
+    return np.where(masks, scores, -1.0).argmax(axis=1)
+
+
+_with_action_masking(MaskedPPO, MaskablePPO)
+_with_action_masking(MaskableACKTR, ACKTR)
+_with_action_masking(MaskableDQN, DQN)
 
 
 class MaskableA2C(ActionMaskingMixin, MaskablePPO):

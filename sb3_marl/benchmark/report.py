@@ -209,19 +209,20 @@ def acceleration_traces(trial: TrialLog, log_folder: str | Path, seed: int) -> n
     import gymnasium as gym
 
     from sb3_marl.envs import av_counts
-    from sb3_marl.evaluation import model_policy
+    from sb3_marl.evaluation import model_policy, run_episodes
     from sb3_marl.runs import find_run
 
     run = find_run(Path(log_folder) / "trials" / trial.spec.trial_id, trial.spec.algo, trial.spec.env_id)
     policy = model_policy(run.load_model("cpu"))
     n_avs = max(av_counts(trial.spec.env_id, run.env_config))
     env = gym.make(trial.spec.env_id, config={**run.env_config, "n_avs": n_avs}).unwrapped
-    obs, _ = env.reset(seed=seed)
-    accelerations, done = [], False
-    while not done:
-        obs, _, terminated, truncated, info = env.step(policy(env, obs))
-        accelerations.append(np.asarray(info["acceleration"], dtype=float))
-        done = terminated or truncated
+    accelerations: list[np.ndarray] = []
+
+    def record(env: Any, info: dict) -> None:
+        if info["step"] > 0:
+            accelerations.append(np.asarray(info["acceleration"], dtype=float))
+
+    run_episodes(env, policy, 1, seed, on_step=record)
     env.close()
     return np.array(accelerations)
 

@@ -17,6 +17,8 @@ import yaml
 from stable_baselines3 import A2C
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
+from sb3_marl.algos.masking import MaskableA2C
+
 from sb3_marl.callbacks import atomic_save
 from sb3_marl.cli import main
 
@@ -54,7 +56,7 @@ def test_train_writes_rl_zoo_layout(logs):
     assert evaluations["timesteps"].tolist() == [600, 1200]
     assert evaluations["results"].shape == (2, 2) and evaluations["ep_lengths"].shape == (2, 2)
     assert ((0 <= evaluations["collision_rate"]) & (evaluations["collision_rate"] <= 1)).all()
-    assert A2C.load(run / f"{ENV_NAME}.zip").num_timesteps == 1200
+    assert MaskableA2C.load(run / f"{ENV_NAME}.zip").num_timesteps == 1200
 
 
 def test_same_seed_and_flags_give_same_results(logs, tmp_path):
@@ -141,7 +143,7 @@ def test_resume_continues_the_timestep_count(logs):
     final = run_dir(logs, 1) / f"{ENV_NAME}.zip"
     assert main(["train", "-f", str(logs), "-i", str(final), *TINY[:1], "1800", *TINY[2:]]) == 0
     resumed = run_dir(logs, 3)
-    assert A2C.load(resumed / f"{ENV_NAME}.zip").num_timesteps == 1800
+    assert MaskableA2C.load(resumed / f"{ENV_NAME}.zip").num_timesteps == 1800
     assert np.load(resumed / "evaluations.npz")["timesteps"].tolist() == [1800]
     assert sorted(p.name for p in resumed.glob("rl_model_*")) == ["rl_model_1800_steps.zip"]
 
@@ -157,7 +159,7 @@ def test_sigterm_saves_the_model_and_logs(tmp_path):
     assert process.poll() is None, "training ended before the signal"
     process.send_signal(signal.SIGTERM)
     assert process.wait(timeout=60) == 143
-    model = A2C.load(run / f"{ENV_NAME}.zip")
+    model = MaskableA2C.load(run / f"{ENV_NAME}.zip")
     assert model.num_timesteps >= 240
     assert (run / "monitor.csv").is_file() and list((tmp_path / "tensorboard" / ENV_NAME / "MA2C_1").iterdir())
     assert not list(run.glob(".*partial*"))

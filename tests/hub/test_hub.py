@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from huggingface_hub import ModelCard, metadata_load
 from huggingface_hub.utils._http import default_client_factory
-from stable_baselines3 import A2C
 
+from sb3_marl.algos.masking import MaskableA2C
 from sb3_marl.cli import main
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -58,7 +58,7 @@ def test_dry_run_builds_the_folder_with_a_model_card_matching_the_evaluation(log
     assert all(r.dataset_type == "sb3_marl/LaneChange-density1-v0" for r in card.data.eval_results)
     assert metadata_load(folder / "README.md")["model-index"][0]["name"] == "MA2C-sb3_marl/LaneChange-density1-v0"
     assert "@article{zhou2022multi" in card.text and "sb3-marl load-from-hub --repo-id me/ma2c-" in card.text
-    assert A2C.load(folder / MODEL).num_timesteps == 240
+    assert MaskableA2C.load(folder / MODEL).num_timesteps == 240
 
 
 def test_push_then_load_round_trip(logs, tmp_path, hub, capsys):

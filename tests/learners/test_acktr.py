@@ -11,6 +11,7 @@ from torch import nn
 
 from sb3_marl.algos import ALGOS, get_algo
 from sb3_marl.algos.acktr import ACKTR, KFAC
+from sb3_marl.algos.masking import MaskableACKTR
 
 
 def fisher_targets(logits: th.Tensor, seed: int) -> th.Tensor:
@@ -235,4 +236,5 @@ def test_box_actions_train_the_log_std():
 
 
 def test_registered_as_maacktr_and_acktr():
-    assert get_algo("maacktr") is ACKTR and ALGOS["acktr"] is ACKTR
+    assert get_algo("maacktr") is MaskableACKTR and ALGOS["acktr"] is MaskableACKTR
+    assert issubclass(MaskableACKTR, ACKTR)

@@ -1,0 +1,99 @@
+"""The priority-based safety supervisor: it replaces actions predicted to collide, and only those."""
+
+import numpy as np
+import pytest
+
+from sb3_marl.envs.lane_change_env import ACTION_INDEX
+from sb3_marl.envs.supervisor import supervise
+from tests.envs.helpers import make, place
+
+FASTER, IDLE, SLOWER = ACTION_INDEX["FASTER"], ACTION_INDEX["IDLE"], ACTION_INDEX["SLOWER"]
+
+
+def supervised_env(**config):
+    env = make(1, **{"n_avs": 1, "hdv_count_range": [1, 1], "safety_supervisor": True, **config})
+    env.reset(seed=0)
+    return env
+
+
+def test_faster_just_behind_a_slow_hdv_is_replaced():
+    env = supervised_env()
+    place(env, avs=[(100.0, 0, 25.0)], hdvs=[(115.0, 0, 15.0)])
+    proposed = np.array([FASTER])
+    executed, rooms = supervise(env.road.vehicles, 1, proposed, env.action_masks(), env.config)
+    assert executed[0] != FASTER and env.action_masks()[0, executed[0]]
+    unsafe_room = supervise(env.road.vehicles, 1, proposed, env.action_masks(), {**env.config, "supervisor_min_gap": -1e9})[1]
+    assert rooms[0] > unsafe_room[0] and unsafe_room[0] < 0  # FASTER was predicted to collide
+    _, _, terminated, _, info = env.step(proposed)
+    assert info["proposed_action"].tolist() == [FASTER] and info["executed_action"].tolist() == executed.tolist()
+    assert info["intervened"].tolist() == [True] and not terminated
+
+
+def test_the_same_situation_without_supervisor_crashes():
+    env = supervised_env(safety_supervisor=False)
+    place(env, avs=[(100.0, 0, 25.0)], hdvs=[(115.0, 0, 15.0)])
+    crashed = False
+    for _ in range(10):
+        _, _, crashed, _, info = env.step(np.array([FASTER]))
+        assert not info["intervened"].any()
+        if crashed:
+            break
+    assert crashed
+
+
+@pytest.mark.parametrize("action", ["FASTER", "IDLE", "SLOWER", "LANE_LEFT"])
+def test_safe_actions_are_left_alone(action):
+    env = supervised_env()
+    place(env, avs=[(100.0, 1, 25.0)], hdvs=[(40.0, 0, 25.0)])  # the HDV far behind, other lane
+    assert env.action_masks()[0, ACTION_INDEX[action]]
+    _, _, _, _, info = env.step(np.array([ACTION_INDEX[action]]))
+    assert info["executed_action"].tolist() == [ACTION_INDEX[action]] and not info["intervened"].any()
+
+
+def crash_rate(density: int, supervisor: bool, episodes: int = 30) -> float:
+    env = make(density, safety_supervisor=supervisor)
+    rng = np.random.default_rng(0)
+    crashes = 0
+    for episode in range(episodes):
+        env.reset(seed=episode)
+        done = False
+        while not done:
+            actions = np.array([rng.choice(np.flatnonzero(row)) for row in env.action_masks()])
+            _, _, terminated, truncated, _ = env.step(actions)
+            done = terminated or truncated
+        crashes += terminated
+    return crashes / episodes
+
+
+def test_supervised_random_policy_crashes_far_less():
+    """Measured on these 30 seeds: 0.87 without and 0.07 with the supervisor (density 1)."""
+    unsupervised, supervised = crash_rate(1, False), crash_rate(1, True)
+    print(f"crash rate of a random policy: {unsupervised:.2f} without, {supervised:.2f} with the supervisor")
+    assert supervised <= unsupervised - 0.5
+
+
+def test_supervised_episodes_are_reproducible():
+    def run() -> list:
+        env = make(3, safety_supervisor=True)
+        env.reset(seed=7)
+        rng = np.random.default_rng(1)
+        trace = []
+        for _ in range(30):
+            actions = np.array([rng.choice(np.flatnonzero(row)) for row in env.action_masks()])
+            obs, _, terminated, truncated, info = env.step(actions)
+            trace.append((obs.round(12).tolist(), info["executed_action"].tolist()))
+            if terminated or truncated:
+                break
+        return trace
+
+    assert run() == run()
+
+
+@pytest.mark.parametrize(
+    "key, value",
+    [("safety_supervisor", "yes"), ("supervisor_horizon", 0.0), ("supervisor_horizon", float("nan")),
+     ("supervisor_min_gap", -1.0), ("supervisor_min_gap", float("inf"))],
+)
+def test_bad_supervisor_keys_name_the_key(key, value):
+    with pytest.raises(ValueError, match=f"config\\['{key}'\\]"):
+        make(1, **{key: value})
