@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
 
@@ -42,6 +43,34 @@ class AtomicCheckpointCallback(CheckpointCallback):
             path = atomic_save(self.model, self._checkpoint_path(extension="zip"))
             if self.verbose >= 2:
                 print(f"Saving model checkpoint to {path}")
+        return True
+
+
+class StoreExecutedActions(BaseCallback):
+    """Make the learner store the action the safety supervisor executed, not the policy's proposal.
+
+    SB3 and sb3-contrib call the callback after each ``env.step`` and before the transition goes
+    into the rollout / replay buffer; this callback overwrites, in place, the step's ``actions``
+    with each slot's ``info["executed_action"]`` and, for on-policy learners, the stored
+    ``log_probs`` with the policy's log-probability of those actions (so the update stays A2C's:
+    the probability ratio of the single step is 1). Slots whose action was not replaced are
+    untouched. Used with ``stored_actions: executed`` in a zoo config.
+    """
+
+    def _on_step(self) -> bool:
+        actions = self.locals["actions"]
+        proposed = actions.reshape(-1)
+        executed = np.array([info.get("executed_action", a) for info, a in zip(self.locals["infos"], proposed)])
+        if np.array_equal(executed, proposed):
+            return True
+        proposed[:] = executed  # a view: the array the algorithm stores
+        log_probs = self.locals.get("log_probs")
+        if log_probs is not None:
+            with th.no_grad():
+                distribution = self.model.policy.get_distribution(
+                    self.locals["obs_tensor"], action_masks=self.locals.get("action_masks")
+                )
+                log_probs.copy_(distribution.log_prob(th.as_tensor(executed, device=log_probs.device)))
         return True
 
 

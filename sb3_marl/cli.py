@@ -25,6 +25,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from sb3_marl import __version__
 from sb3_marl.algos import ALGOS
 from sb3_marl.benchmark.grid import (
     GRIDS,
@@ -65,6 +66,48 @@ def _positive(kind: type = int) -> Any:
     return parse
 
 
+def _positive_or_default(text: str) -> int:
+    """An integer >= 1, or -1 for "the default" (rl-zoo's convention)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1 or -1 (the default), got {text!r}") from None
+    if value != -1 and value < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1 or -1 (the default), got {text!r}")
+    return value
+
+
+def _add_num_threads(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--num-threads", type=_positive_or_default, default=1,
+                        help="torch threads (default: 1, fastest for these small networks); -1: torch's default")
+
+
+def _set_num_threads(args: argparse.Namespace) -> None:
+    import torch
+
+    if args.num_threads > 0:
+        torch.set_num_threads(args.num_threads)
+
+
+def _check_device(device: str) -> None:
+    """``--device``: auto, or a torch device this machine has."""
+    import torch
+
+    if device == "auto":
+        return
+    try:
+        parsed = torch.device(device)
+    except (RuntimeError, ValueError):
+        raise UsageError(f"--device: invalid device {device!r}: expected auto, cpu, cuda or cuda:<index>.") from None
+    if parsed.type == "cuda" and not torch.cuda.is_available():
+        raise UsageError(f"--device: {device!r} asked for, but this machine has no CUDA GPU: use auto or cpu.")
+
+
+def _check_folder(flag: str, path: str | None) -> None:
+    if path and os.path.exists(path) and not os.path.isdir(path):
+        raise UsageError(f"{flag}: {path!r} is a file, expected a folder.")
+
+
 def _add_run_selection(parser: argparse.ArgumentParser) -> None:
     """rl-zoo ``enjoy``'s flags to pick a trained model."""
     parser.add_argument("--algo", default="ma2c", choices=sorted(ALGOS), help="learner (default: ma2c)")
@@ -79,16 +122,19 @@ def _add_run_selection(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--deterministic", action="store_true",
                         help="argmax actions (default: sampled from the policy, the authors' evaluation protocol)")
     parser.add_argument("--device", default="auto", help="torch device (default: auto)")
+    _add_num_threads(parser)
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="sb3-marl", description="Multi-agent RL for cooperative lane changing of CAVs")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     train = commands.add_parser("train", help="train a learner (rl-zoo's train.py flags)")
     train.add_argument("--algo", default="ma2c", choices=sorted(ALGOS), help="learner (default: ma2c)")
     train.add_argument("--env", default=DEFAULT_ENV, choices=list(ENV_IDS.values()), help="scenario id")
-    train.add_argument("-n", "--n-timesteps", type=int, default=-1, help="AV-steps to train; -1: the config's n_timesteps")
+    train.add_argument("-n", "--n-timesteps", type=_positive_or_default, default=-1,
+                       help="AV-steps to train (>= 1); -1: the config's n_timesteps")
     train.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
     train.add_argument("-f", "--log-folder", default="logs", help="log folder (default: logs)")
     train.add_argument("-tb", "--tensorboard-log", default=None,
@@ -106,8 +152,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help="overrides the config's reward_mode")
     train.add_argument("--progress", action="store_true", help="progress bar (tqdm + rich)")
     train.add_argument("--device", default="auto", help="torch device (default: auto)")
-    train.add_argument("--num-threads", type=int, default=-1, help="torch threads; -1: torch's default")
-    train.add_argument("--log-interval", type=int, default=-1, help="SB3 log_interval; -1: the algorithm's default")
+    _add_num_threads(train)
+    train.add_argument("--log-interval", type=_positive_or_default, default=-1,
+                       help="SB3 log_interval (>= 1); -1: the algorithm's default")
     train.add_argument("--verbose", type=int, default=1, choices=[0, 1, 2])
 
     for name in ("evaluate", "enjoy"):
@@ -209,15 +256,29 @@ class _StopTraining:
             signal.signal(sig, handler)
 
 
-def train(args: argparse.Namespace) -> int:
-    import torch
+def _check_train_args(args: argparse.Namespace) -> None:
+    """Everything about ``train``'s flags that can be checked before any work or folder."""
+    from sb3_marl.runs import check_model_file
 
+    _check_folder("-f/--log-folder", args.log_folder)
+    _check_folder("-tb/--tensorboard-log", args.tensorboard_log)
+    _check_device(args.device)
+    if args.conf_file and not os.path.isfile(args.conf_file):
+        raise UsageError(f"-c/--conf-file: {args.conf_file!r} is not an existing YAML file.")
+    if args.trained_agent:
+        if not (args.trained_agent.endswith(".zip") and os.path.isfile(args.trained_agent)):
+            raise UsageError(f"-i/--trained-agent: {args.trained_agent!r} is not an existing .zip model file.")
+        try:
+            check_model_file(args.trained_agent, args.algo)
+        except ValueError as error:
+            raise UsageError(f"-i/--trained-agent: {error}") from None
+
+
+def train(args: argparse.Namespace) -> int:
     from sb3_marl.experiment import MARLExperimentManager
 
-    if args.trained_agent and not (args.trained_agent.endswith(".zip") and os.path.isfile(args.trained_agent)):
-        raise UsageError(f"-i/--trained-agent: {args.trained_agent!r} is not an existing .zip model file.")
-    if args.num_threads > 0:
-        torch.set_num_threads(args.num_threads)
+    _check_train_args(args)
+    _set_num_threads(args)
     tensorboard_log = os.path.join(args.log_folder, "tensorboard") if args.tensorboard_log is None else args.tensorboard_log
     manager = MARLExperimentManager(
         args, args.algo, args.env, args.log_folder,
@@ -233,7 +294,17 @@ def train(args: argparse.Namespace) -> int:
         raise UsageError(str(error)) from None
     start = time.perf_counter()
     with _StopTraining() as stop:
-        manager.learn(model)
+        try:
+            manager.learn(model)
+        except Exception as error:  # a dead worker, a NaN, ...: keep what was learnt, then report
+            manager.save_trained_model(model)
+            cause = error.__cause__  # a worker's own traceback (see wrappers.parameter_sharing.WorkerCopies)
+            worker = f"\n{cause}" if isinstance(cause, RuntimeError) and str(cause).startswith("in the worker") else ""
+            raise CommandFailed(
+                f"training stopped by {type(error).__name__}: {error}{worker}\n"
+                f"The model at {model.num_timesteps} timesteps was saved; continue with "
+                f"-i {manager.save_path}/{manager.env_name}.zip"
+            ) from error
     manager.save_trained_model(model)
     print(f"Training wall time: {time.perf_counter() - start:.1f} s, {model.num_timesteps} timesteps (AV-steps)")
     if tensorboard_log:
@@ -258,12 +329,22 @@ def _find_run(args: argparse.Namespace) -> Any:
         raise UsageError(str(error)) from None
 
 
+def _load_model(run: Any, args: argparse.Namespace) -> Any:
+    """The run's model on ``--device`` with ``--num-threads``; a usage error naming a bad file."""
+    _check_device(args.device)
+    _set_num_threads(args)
+    try:
+        return run.load_model(args.device)
+    except ValueError as error:
+        raise UsageError(str(error)) from None
+
+
 def evaluate(args: argparse.Namespace) -> int:
     from sb3_marl.evaluation import evaluation_records, markdown_table, summarize
     from sb3_marl.experiment import EVAL_SEED_OFFSET
 
     run = _find_run(args)
-    model = run.load_model(args.device)
+    model = _load_model(run, args)
     seed = args.seed + EVAL_SEED_OFFSET
     start = time.perf_counter()
     result = {"model": str(run.model_path), **run.evaluate(model, args.eval_episodes, seed, args.deterministic)}
@@ -296,7 +377,7 @@ def record_video_command(args: argparse.Namespace) -> int:
     from sb3_marl.video import record_video
 
     run = _find_run(args)
-    model = run.load_model(args.device)
+    model = _load_model(run, args)
     output = Path(args.output) if args.output else run.log_path / "videos" / f"{run.model_path.stem}.mp4"
     info = record_video(model_policy(model, args.deterministic), args.env, output, args.n_episodes,
                         args.seed + EVAL_SEED_OFFSET, run.env_config)
@@ -310,8 +391,12 @@ def push_to_hub(args: argparse.Namespace) -> int:
     from sb3_marl.experiment import EVAL_SEED_OFFSET
     from sb3_marl.hub import HubError, build_model_folder, push_folder
 
-    run = _find_run(args)
     repo_id = f"{args.organization}/{args.repo_name or f'{args.algo}-{EnvironmentName(args.env)}'}"
+    _check_repo_id("-orga/--organization and --repo-name", repo_id)
+    if args.dry_run and os.path.exists(args.dry_run) and (not os.path.isdir(args.dry_run) or os.listdir(args.dry_run)):
+        raise UsageError(f"--dry-run: {args.dry_run!r} exists and is not an empty folder: give a new or empty folder.")
+    run = _find_run(args)
+    _load_model(run, args)  # a clear error for an unreadable model, before building anything
     folder = Path(args.dry_run) if args.dry_run else run.log_path / "hub"
     build_model_folder(run, folder, repo_id, args.eval_episodes, args.seed + EVAL_SEED_OFFSET, not args.no_video)
     print(f"built the model folder {folder} for {repo_id}")
@@ -325,8 +410,21 @@ def push_to_hub(args: argparse.Namespace) -> int:
     return 0
 
 
+def _check_repo_id(flag: str, repo_id: str) -> None:
+    from huggingface_hub.utils import HFValidationError, validate_repo_id
+
+    try:
+        validate_repo_id(repo_id)
+    except HFValidationError as error:
+        raise UsageError(f"{flag}: invalid Hub repo id {repo_id!r}: {error}") from None
+    if repo_id.count("/") != 1:
+        raise UsageError(f"{flag}: invalid Hub repo id {repo_id!r}: expected ORG/NAME.")
+
+
 def load_from_hub_command(args: argparse.Namespace) -> int:
     from sb3_marl.hub import HubError, load_from_hub
+
+    _check_repo_id("--repo-id", args.repo_id)
 
     try:
         run = load_from_hub(args.repo_id, args.folder)

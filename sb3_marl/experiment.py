@@ -33,6 +33,7 @@ from sb3_marl.callbacks import (
     AtomicCheckpointCallback,
     DrivingMetricsCallback,
     ScenarioEvalCallback,
+    StoreExecutedActions,
     atomic_save,
 )
 from sb3_marl.envs import copy_av_counts
@@ -134,6 +135,8 @@ class MARLExperimentManager(ExperimentManager):
         if self.show_progress:
             self.callbacks.append(ProgressBarCallback())
         self.callbacks.append(DrivingMetricsCallback())
+        if self.scenario.get("stored_actions") == "executed":
+            self.callbacks.append(StoreExecutedActions())
         if self.save_freq > 0:
             self.callbacks.append(
                 AtomicCheckpointCallback(max(self.save_freq // self.n_envs, 1), self.save_path, "rl_model", verbose=1)

@@ -10,6 +10,9 @@ an entry may set the scenario and the wrapper:
 - ``architecture``: ``shared`` or ``separate`` MA2C network (actor-critic algorithms), or
   ``default`` for SB3's own MLP
 
+- ``stored_actions``: ``proposed`` (default, the authors') or ``executed``: which action the
+  learner stores where the safety supervisor replaced the policy's
+
 and the maskable learners (``ma2c``, ``mappo``, ``maacktr``, ``madqn``) take ``action_masking``
 (true in every zoo config, the authors' choice; false for the unmasked ablation).
 """
@@ -17,6 +20,7 @@ and the maskable learners (``ma2c``, ``mappo``, ``maacktr``, ``madqn``) take ``a
 from __future__ import annotations
 
 import inspect
+import math
 from pathlib import Path
 from typing import Any
 
@@ -31,7 +35,10 @@ from wrappers.parameter_sharing import check_reward_scale, check_sharing_options
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "zoo_configs"
 #: Algorithms registered under two names share one file: ``acktr`` reads ``maacktr.yml``.
 CONFIG_FILES = {"acktr": "maacktr"}
-SCENARIO_KEYS = ("reward_mode", "n_copies", "env_config", "reward_scale", "architecture")
+SCENARIO_KEYS = ("reward_mode", "n_copies", "env_config", "reward_scale", "architecture", "stored_actions")
+#: What the learner stores when the safety supervisor replaced an action: the policy's proposal
+#: (the authors' choice) or the action executed.
+STORED_ACTIONS = ("proposed", "executed")
 ZOO_KEYS = ("n_timesteps", "policy")
 #: Constructor arguments the training code sets itself.
 RESERVED_KEYS = ("env", "seed", "device", "tensorboard_log", "verbose", "_init_setup_model")
@@ -43,7 +50,12 @@ def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> 
     path = Path(path) if path is not None else config_file(algo)
     if not path.is_file():
         raise ValueError(f"No hyperparameter file for algorithm {algo!r}: {path} does not exist.")
-    entries = yaml.safe_load(path.read_text()) or {}
+    try:
+        entries = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as error:
+        raise ValueError(f"{path} is not valid YAML: {error}") from None
+    if not isinstance(entries, dict):
+        raise ValueError(f"{path} must map env ids to hyperparameters, got a {type(entries).__name__}.")
     if env_id not in entries:
         raise ValueError(f"{path} has no entry for env {env_id!r}: it has {sorted(entries)}.")
     hyperparams = dict(entries[env_id])
@@ -76,6 +88,75 @@ def is_q_learning(algo: str) -> bool:
     return "exploration_fraction" in algorithm_arguments(algo)
 
 
+#: Keys that may be a linear schedule ``lin_<initial value>`` (rl_zoo3's schedule strings).
+SCHEDULE_KEYS = ("learning_rate", "clip_range", "clip_range_vf")
+#: Value checks of the algorithms' common arguments: key -> (kind, lowest, highest, also allowed).
+#: kind "int" accepts integers only, "float" any finite number; bounds are inclusive.
+VALUE_RANGES: dict[str, tuple[str, float | None, float | None, tuple]] = {
+    "n_steps": ("int", 1, None, ()),
+    "batch_size": ("int", 1, None, (None,)),
+    "n_epochs": ("int", 1, None, ()),
+    "buffer_size": ("int", 1, None, ()),
+    "learning_starts": ("int", 0, None, ()),
+    "train_freq": ("int", 1, None, ()),
+    "gradient_steps": ("int", 1, None, (-1,)),
+    "target_update_interval": ("int", 1, None, ()),
+    "stats_update_freq": ("int", 1, None, ()),
+    "inverse_update_freq": ("int", 1, None, ()),
+    "n_copies": ("int", 1, None, (None,)),
+    "learning_rate": ("float", 0, None, ()),
+    "gamma": ("float", 0, 1, ()),
+    "gae_lambda": ("float", 0, 1, ()),
+    "ent_coef": ("float", 0, None, ()),
+    "vf_coef": ("float", 0, None, ()),
+    "max_grad_norm": ("float", 0, None, ()),
+    "rms_prop_eps": ("float", 0, None, ()),
+    "clip_range": ("float", 0, None, ()),
+    "clip_range_vf": ("float", 0, None, (None,)),
+    "target_kl": ("float", 0, None, (None,)),
+    "tau": ("float", 0, 1, ()),
+    "exploration_fraction": ("float", 0, 1, ()),
+    "exploration_initial_eps": ("float", 0, 1, ()),
+    "exploration_final_eps": ("float", 0, 1, ()),
+    "momentum": ("float", 0, 1, ()),
+    "stat_decay": ("float", 0, 1, ()),
+    "damping": ("float", 0, None, ()),
+    "kl_clip": ("float", 0, None, ()),
+    "reward_scale": ("float", 0, None, ()),
+}
+
+
+def check_value(key: str, value: Any) -> None:
+    """One hyperparameter's type and range (see :data:`VALUE_RANGES`; ``lin_<x>`` schedules for
+    :data:`SCHEDULE_KEYS`): a ValueError naming the key, the value and what is expected."""
+    if key not in VALUE_RANGES:
+        return
+    kind, lo, hi, also = VALUE_RANGES[key]
+    if not isinstance(value, bool) and value in also:
+        return
+    if key in SCHEDULE_KEYS and isinstance(value, str) and value.startswith("lin_"):
+        value = _number_or_none(value[4:])
+    if kind == "int":
+        ok = isinstance(value, int) and not isinstance(value, bool)
+        expected = "an integer"
+    else:
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+        expected = "a finite number"
+    bounds = "" if lo is None else f" >= {lo}"
+    bounds += "" if hi is None else f" and <= {hi}"
+    extra = "".join(f" or {allowed}" for allowed in also)
+    extra += " (or a schedule lin_<initial value>)" if key in SCHEDULE_KEYS else ""
+    if not ok or (lo is not None and value < lo) or (hi is not None and value > hi):
+        raise ValueError(f"Invalid hyperparameter {key}={value!r}: expected {expected}{bounds}{extra}.")
+
+
+def _number_or_none(text: str) -> float | str:
+    try:
+        return float(text)
+    except ValueError:
+        return f"lin_{text}"
+
+
 def validate_hyperparams(algo: str, hyperparams: dict[str, Any], env_id: str | None = None) -> None:
     """Unknown keys, an architecture or policy the algorithm cannot use, or (with ``env_id``) bad
     scenario keys: a ValueError naming the bad item and the valid ones."""
@@ -84,6 +165,8 @@ def validate_hyperparams(algo: str, hyperparams: dict[str, Any], env_id: str | N
     unknown = sorted(set(hyperparams) - set(valid))
     if unknown:
         raise ValueError(f"Unknown hyperparameter(s) {unknown} for {algo!r}: valid keys are {valid}.")
+    for key, value in hyperparams.items():
+        check_value(key, value)
     masking = hyperparams.get("action_masking", True)
     if not isinstance(masking, bool):
         raise ValueError(f"Invalid action_masking={masking!r} for {algo!r}: expected true or false.")
@@ -107,6 +190,9 @@ def validate_scenario(hyperparams: dict[str, Any], env_id: str) -> None:
     """The scenario keys of an entry for ``env_id``: reward mode, copies, reward scale, env config."""
     check_sharing_options(hyperparams.get("reward_mode", "local"), hyperparams.get("n_copies"))
     check_reward_scale(hyperparams.get("reward_scale", 1.0), "reward_scale")
+    stored = hyperparams.get("stored_actions", "proposed")
+    if stored not in STORED_ACTIONS:
+        raise ValueError(f"Invalid stored_actions={stored!r}: expected one of {list(STORED_ACTIONS)}.")
     env_config = hyperparams.get("env_config") or {}
     if not isinstance(env_config, dict):
         raise ValueError(f"Invalid env_config={env_config!r}: expected a mapping of scenario config keys.")

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-from rl_zoo3.utils import EnvironmentName, get_latest_run_id, get_model_path
+from rl_zoo3.utils import EnvironmentName, get_model_path
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 from sb3_marl.algos import get_algo
@@ -36,6 +36,8 @@ class Run:
         return dict(self.hyperparams.get("env_config") or {})
 
     def load_model(self, device: str = "auto") -> BaseAlgorithm:
+        """The run's model; a ValueError naming the file if it is not a readable model of ``algo``."""
+        check_model_file(self.model_path, self.algo)
         return get_algo(self.algo).load(self.model_path, device=device)
 
     def evaluate(self, model: BaseAlgorithm, n_episodes: int, seed: int, deterministic: bool = False) -> dict[str, Any]:
@@ -66,23 +68,46 @@ def find_run(
     """
     env_name = EnvironmentName(env_id)
     algo_folder = os.path.join(folder, algo)
-    if exp_id == 0:
-        exp_id = get_latest_run_id(algo_folder, env_name)
-        if exp_id == 0:
+
+    def model_of(run: int) -> tuple[str, str]:
+        try:
+            _, model_path, log_path = get_model_path(
+                run, str(folder), algo, env_name, load_best,
+                None if load_checkpoint is None else str(load_checkpoint), load_last_checkpoint,
+            )
+        except (AssertionError, ValueError) as error:
+            raise FileNotFoundError(str(error)) from None
+        return model_path, log_path
+
+    if exp_id == 0:  # the latest run that has the model asked for (a run that crashed early may have none)
+        runs = [run_id(path) for path in run_folders(folder, algo, env_id)]
+        if not runs:
             raise FileNotFoundError(f"No run of {algo} on {env_id} in {algo_folder}/ (expected {env_name}_<id>/ folders).")
-    try:
-        _, model_path, log_path = get_model_path(
-            exp_id, str(folder), algo, env_name, load_best,
-            None if load_checkpoint is None else str(load_checkpoint), load_last_checkpoint,
-        )
-    except (AssertionError, ValueError) as error:
-        raise FileNotFoundError(str(error)) from None
+        for run in reversed(runs):
+            try:
+                model_path, log_path = model_of(run)
+                break
+            except FileNotFoundError as error:
+                missing = error
+        else:
+            raise FileNotFoundError(f"None of the runs {runs} of {algo} on {env_id} has the model asked for: {missing}")
+    else:
+        model_path, log_path = model_of(exp_id)
     config_path = Path(log_path) / str(env_name) / "config.yml"
     hyperparams: dict[str, Any] = {}
     if config_path.is_file():
         # rl_zoo3 writes config.yml with yaml.dump(OrderedDict), read back with the unsafe loader as rl_zoo3 does
         hyperparams = dict(yaml.load(config_path.read_text(), Loader=yaml.UnsafeLoader) or {})
     return Run(algo, env_id, Path(log_path), Path(model_path), hyperparams)
+
+
+def run_id(run_folder: str | Path) -> int:
+    """The id of a run folder ``<env name>_<id>`` (rl-zoo's layout)."""
+    name = Path(run_folder).name
+    prefix, _, number = name.rpartition("_")
+    if not prefix or not number.isdigit():
+        raise ValueError(f"{run_folder} is not a run folder <env name>_<id>.")
+    return int(number)
 
 
 def run_folders(folder: str | Path, algo: str, env_id: str) -> list[Path]:
@@ -92,7 +117,30 @@ def run_folders(folder: str | Path, algo: str, env_id: str) -> list[Path]:
     if not algo_folder.is_dir():
         return []
     runs = [p for p in algo_folder.iterdir() if p.is_dir() and p.name.startswith(prefix) and p.name[len(prefix):].isdigit()]
-    return sorted(runs, key=lambda p: int(p.name[len(prefix):]))
+    return sorted(runs, key=run_id)
 
 
-__all__ = ["Run", "find_run", "run_folders"]
+def check_model_file(path: str | Path, algo: str) -> None:
+    """``path`` must be a readable SB3 model zip saved by ``algo``'s class: a ValueError naming the
+    file otherwise (corrupt or truncated zip, another algorithm's model)."""
+    from stable_baselines3.common.save_util import load_from_zip_file
+
+    expected = get_algo(algo)
+    try:
+        data, _, _ = load_from_zip_file(path, device="cpu", load_data=True, print_system_info=False)
+    except Exception as error:  # zipfile, json, torch and pickle errors alike
+        raise ValueError(f"{path} is not a readable SB3 model file ({type(error).__name__}: {error}).") from None
+    if not data:
+        raise ValueError(f"{path} is not a readable SB3 model file (no data).")
+    saved = data.get("algorithm_class")
+    if saved is not None and saved != expected.__name__:
+        raise ValueError(f"{path} is a {saved} model, not a {algo} ({expected.__name__}) model.")
+    policy = data.get("policy_class")
+    if isinstance(policy, type) and policy not in expected.policy_aliases.values():
+        raise ValueError(
+            f"{path} holds a {policy.__name__} policy, which {algo} ({expected.__name__}) does not use: "
+            f"expected one of {sorted(p.__name__ for p in expected.policy_aliases.values())}."
+        )
+
+
+__all__ = ["Run", "check_model_file", "find_run", "run_folders", "run_id"]

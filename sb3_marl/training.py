@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 from typing import Any
 
+from rl_zoo3.exp_manager import ExperimentManager
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 
@@ -55,6 +56,7 @@ def make_model(
     arguments = {
         key: value for key, value in hyperparams.items() if key not in (*SCENARIO_KEYS, *ZOO_KEYS, "policy_kwargs")
     }
+    arguments = ExperimentManager._preprocess_schedules(arguments)  # "lin_5e-4" -> a schedule, as rl_zoo3 does
     arguments["policy_kwargs"] = policy_kwargs_for(algo, hyperparams)
     policy = hyperparams.get("policy", "MlpPolicy")
     return get_algo(algo)(policy, venv, seed=seed, device=device, **arguments, **kwargs)

@@ -204,9 +204,15 @@ def _worker(remote: Any, parent_remote: Any, runners: CloudpickleWrapper) -> Non
 
 
 class WorkerCopies:
-    """A group of copies in one worker process, stepped in parallel with the other groups."""
+    """A group of copies in one worker process, stepped in parallel with the other groups.
 
-    def __init__(self, runners: list[Callable[[], CopyRunner]], context: Any) -> None:
+    :param timeout: seconds to wait for the worker's answer before giving up with an error (a
+        stopped or hung worker must not block training forever)
+    """
+
+    def __init__(self, runners: list[Callable[[], CopyRunner]], context: Any, timeout: float = 120.0) -> None:
+        self.timeout = timeout
+        self.started = False
         self.remote, work_remote = context.Pipe()
         self.process = context.Process(
             target=_worker, args=(work_remote, self.remote, CloudpickleWrapper(runners)), daemon=True
@@ -218,7 +224,14 @@ class WorkerCopies:
         self.remote.send(calls)
 
     def collect(self) -> list[Any]:
+        # the first answer waits for the worker's start-up (imports, building the copies) too
+        if not self.remote.poll(self.timeout if self.started else None):
+            raise TimeoutError(
+                f"Worker process {self.process.pid} did not answer within {self.timeout} s "
+                f"({'alive but not responding: stopped or hung' if self.process.is_alive() else 'dead'})."
+            )
         status, payload = self.remote.recv()
+        self.started = True
         if status == "error":
             error, remote_traceback = payload
             raise error from RuntimeError(f"in the worker process:\n{remote_traceback}")
@@ -273,6 +286,8 @@ class ParameterSharingVecEnv(VecEnv):
     :param n_workers: worker processes of the ``subproc`` backend
     :param start_method: multiprocessing start method of the workers (default: ``forkserver``
         where available, as SB3's ``SubprocVecEnv``)
+    :param worker_timeout: seconds a ``subproc`` worker may take to answer one call before the
+        call fails with a ``TimeoutError`` naming its copies (a stopped worker never blocks)
     """
 
     def __init__(
@@ -286,6 +301,7 @@ class ParameterSharingVecEnv(VecEnv):
         render_mode: str | None = None,
         n_workers: int | None = None,
         start_method: str | None = None,
+        worker_timeout: float = 120.0,
     ) -> None:
         check_sharing_options(reward_mode, n_copies)
         if vec_backend not in VEC_BACKENDS:
@@ -315,7 +331,8 @@ class ParameterSharingVecEnv(VecEnv):
             if start_method is None:
                 start_method = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
             context = mp.get_context(start_method)
-            self.groups = [WorkerCopies([runners[k] for k in copies], context) for copies in self.group_copies]
+            self.groups = [WorkerCopies([runners[k] for k in copies], context, worker_timeout)
+                           for copies in self.group_copies]
         try:
             copy_spaces = self._run({k: ("spaces", ()) for k in range(n_copies)})
             single_obs_space, single_action_space, n_avs = self._check_spaces(copy_spaces)
@@ -395,6 +412,8 @@ class ParameterSharingVecEnv(VecEnv):
         """A dead worker process becomes an error naming its copies, never a hang."""
         try:
             return method(*args)
+        except TimeoutError as error:
+            raise TimeoutError(f"{error} It hosts scenario copies {self.group_copies[group]}.") from None
         except (EOFError, BrokenPipeError, ConnectionResetError) as error:
             worker = self.groups[group]
             code = worker.process.exitcode if isinstance(worker, WorkerCopies) else None

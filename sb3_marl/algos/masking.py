@@ -40,7 +40,16 @@ from stable_baselines3.common.type_aliases import GymEnv, Schedule
 
 from sb3_marl.algos.acktr import ACKTR
 
-class ActionMaskingMixin:
+class RecordsAlgorithmClass:
+    """A saved model records its class (``algorithm_class`` in the zip's data), so that loading it
+    as another algorithm is refused by name (:func:`sb3_marl.runs.check_model_file`)."""
+
+    def _excluded_save_params(self) -> list[str]:
+        self.algorithm_class = type(self).__name__
+        return super()._excluded_save_params()
+
+
+class ActionMaskingMixin(RecordsAlgorithmClass):
     """``action_masking`` switch of a maskable on-policy learner: sb3-contrib's masked rollouts
     and ``predict(..., action_masks=...)``, with masks only when ``action_masking`` is True."""
 
@@ -153,7 +162,7 @@ class MaskedReplayBuffer(ReplayBuffer):
         return MaskedReplayBufferSamples(*tuple(map(self.to_torch, data)))
 
 
-class MaskableDQN(DQN):
+class MaskableDQN(RecordsAlgorithmClass, DQN):
     """SB3's DQN whose Q-values of unavailable meta-actions are excluded from the greedy action,
     from ε-greedy exploration (random actions among the available ones, also during warm-up) and
     from the bootstrap target ``max_a' Q_target(s', a')`` (over the actions available in s').

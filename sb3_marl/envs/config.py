@@ -228,6 +228,15 @@ def validate_config(config: dict[str, Any]) -> None:
     lo, hi = config["reward_speed_range"]
     if lo == hi:
         raise _fail("reward_speed_range", config["reward_speed_range"], "a pair with min < max")
+    road_width = (config["lanes_count"] - 1) * config["lane_width"]
+    if road_width > config["obs_y_range"]:
+        most_lanes = int(config["obs_y_range"] // config["lane_width"]) + 1
+        raise _fail(
+            "lanes_count", config["lanes_count"],
+            f"at most {most_lanes} lanes: the observation normalises y by obs_y_range = {config['obs_y_range']} m "
+            f"and clips it, so lanes more than {config['obs_y_range']} m from lane 0 would look the same "
+            "(raise obs_y_range with lanes_count)",
+        )
     slots = config["lanes_count"] * config["spawn_slots_per_lane"]
     n_avs = resolved_n_avs(config)
     most_hdvs = resolved_hdv_range(config)[1]

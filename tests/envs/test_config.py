@@ -81,3 +81,24 @@ def test_bad_actions(actions, match):
     env.reset(seed=0)
     with pytest.raises(ValueError, match=match):
         env.step(actions)
+
+
+@pytest.mark.parametrize(
+    "key", ["safety_weight", "headway_time", "duration", "road_length", "speed_limit", "obs_x_range"]
+)
+@pytest.mark.parametrize("value", [float("nan"), float("inf"), -float("inf")])
+def test_non_finite_numbers_are_rejected_naming_the_key(key, value):
+    with pytest.raises(ValueError, match=f"config\\['{key}'\\] = {value!r}: expected a finite number"):
+        validate_config({**default_config(), key: value})
+
+
+def test_non_finite_pairs_are_rejected():
+    with pytest.raises(ValueError, match="spawn_speed_range"):
+        validate_config({**default_config(), "spawn_speed_range": [25.0, float("inf")]})
+
+
+def test_more_lanes_than_the_observation_distinguishes_are_rejected():
+    validate_config({**default_config(), "lanes_count": 4, "spawn_slots_per_lane": 6})  # 12 m: still distinct
+    with pytest.raises(ValueError, match=r"config\['lanes_count'\] = 5: expected at most 4 lanes"):
+        validate_config({**default_config(), "lanes_count": 5})
+    validate_config({**default_config(), "lanes_count": 5, "obs_y_range": 16.0})  # with a wider range: fine

@@ -5,7 +5,7 @@ import pytest
 
 from sb3_marl.envs.lane_change_env import ACTION_INDEX
 from sb3_marl.envs.supervisor import supervise
-from tests.envs.helpers import make, place
+from helpers import make, place
 
 FASTER, IDLE, SLOWER = ACTION_INDEX["FASTER"], ACTION_INDEX["IDLE"], ACTION_INDEX["SLOWER"]
 

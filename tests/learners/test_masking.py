@@ -111,3 +111,46 @@ def test_loaded_model_drives_by_hand_with_the_env_masks(tmp_path):
 def test_action_masking_must_be_a_boolean():
     with pytest.raises(ValueError, match="action_masking"):
         validate_hyperparams("ma2c", {"action_masking": "yes"})
+
+
+class ExecutedRecorder(BaseCallback):
+    def __init__(self) -> None:
+        super().__init__()
+        self.executed, self.intervened = [], []
+
+    def _on_step(self) -> bool:
+        self.executed.append([info["executed_action"] for info in self.locals["infos"]])
+        self.intervened.append([info["intervened"] for info in self.locals["infos"]])
+        return True
+
+
+@pytest.mark.parametrize("stored", ["proposed", "executed"])
+def test_the_learner_stores_the_configured_action(stored):
+    import copy
+
+    import torch as th
+
+    from sb3_marl.callbacks import StoreExecutedActions
+
+    model, venv = quick_model("ma2c", density=3)
+    before = copy.deepcopy(model.policy)
+    recorder = ExecutedRecorder()
+    callbacks = [StoreExecutedActions(), recorder] if stored == "executed" else [recorder]
+    model.learn(20 * venv.num_envs, callback=callbacks)  # one rollout of 20 steps
+    venv.close()
+    buffer = model.rollout_buffer  # flattened by the update: (slots * steps, ...), slot-major
+    executed = np.array(recorder.executed)  # (steps, slots)
+    assert np.array(recorder.intervened).any()  # the supervisor did replace actions
+    stored_actions = buffer.actions.reshape(venv.num_envs, -1).T
+    assert np.array_equal(stored_actions, executed) is (stored == "executed")
+    with th.no_grad():  # stored log-probabilities are those of the stored actions (ratio 1)
+        distribution = before.get_distribution(th.as_tensor(buffer.observations), action_masks=buffer.action_masks)
+        log_probs = distribution.log_prob(th.as_tensor(buffer.actions.reshape(-1)))
+    assert np.allclose(log_probs.numpy(), buffer.log_probs.reshape(-1), atol=1e-5)
+
+
+def test_stored_actions_must_be_known():
+    from sb3_marl.hyperparams import validate_scenario
+
+    with pytest.raises(ValueError, match="stored_actions"):
+        validate_scenario({"stored_actions": "both"}, ENV_IDS[1])

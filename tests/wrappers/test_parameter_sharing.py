@@ -1,7 +1,9 @@
 """ParameterSharingVecEnv: slot bookkeeping, reward modes, episode ends, backends and SB3 compatibility."""
 
 import os
+import signal
 import sys
+import time
 
 import gymnasium as gym
 import numpy as np
@@ -275,4 +277,32 @@ def test_dead_worker_raises_naming_the_copy():
     worker.join()
     with pytest.raises(RuntimeError, match=r"Worker process 1 of scenario copies \[1\] died"):
         vec.step(np.full(vec.num_envs, IDLE))
+    vec.close()
+
+
+def test_stopped_worker_times_out_naming_the_copy():
+    vec = ParameterSharingVecEnv(ENV_IDS[1], vec_backend="subproc", n_workers=2, seed=0, worker_timeout=2.0)
+    vec.reset()
+    worker = vec.groups[1].process
+    os.kill(worker.pid, signal.SIGSTOP)
+    try:
+        start = time.perf_counter()
+        with pytest.raises(TimeoutError, match=r"did not answer within 2.0 s \(alive but not responding.*copies \[1\]"):
+            vec.step(np.full(vec.num_envs, IDLE))
+        assert time.perf_counter() - start < 10
+    finally:
+        os.kill(worker.pid, signal.SIGCONT)
+        vec.close()
+
+
+def test_action_masks_come_from_the_current_observations():
+    """The VecEnv answers ``action_masks`` from the copies' infos: the same as asking each copy."""
+    vec = ParameterSharingVecEnv(ENV_IDS[3], seed=0)
+    vec.reset()
+    rng = np.random.default_rng(0)
+    for _ in range(150):  # through episode ends (auto-resets) too
+        cached = np.stack(vec.env_method("action_masks"))
+        asked = np.concatenate([vec.copy_env(k).action_masks() for k in range(vec.n_copies)])
+        assert np.array_equal(cached, asked)
+        vec.step(np.array([rng.choice(np.flatnonzero(row)) for row in cached]))
     vec.close()
