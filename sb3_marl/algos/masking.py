@@ -44,9 +44,9 @@ class RecordsAlgorithmClass:
     """A saved model records its class (``algorithm_class`` in the zip's data), so that loading it
     as another algorithm is refused by name (:func:`sb3_marl.runs.check_model_file`)."""
 
-    def _excluded_save_params(self) -> list[str]:
-        self.algorithm_class = type(self).__name__
-        return super()._excluded_save_params()
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        self.algorithm_class = type(self).__name__  # loading restores the saved one over it
+        super().__init__(*args, **kwargs)
 
 
 class ActionMaskingMixin(RecordsAlgorithmClass):
