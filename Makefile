@@ -19,7 +19,7 @@ install: $(STAMP)
 RUN_ENV ?= sb3_marl/LaneChange-density1-v0
 RUN_TIMESTEPS ?= 100000
 run: $(STAMP)
-	$(VENV)/bin/sb3-marl train --algo ma2c --env $(RUN_ENV) -n $(RUN_TIMESTEPS) --eval-freq 20000 --eval-episodes 6 --progress --verbose 0
+	$(VENV)/bin/sb3-marl train --algo ma2c --env $(RUN_ENV) -n $(RUN_TIMESTEPS) --eval-freq 20000 --eval-episodes 6 --progress
 	$(VENV)/bin/sb3-marl evaluate --algo ma2c --env $(RUN_ENV) --eval-episodes 30 --with-baselines
 	$(VENV)/bin/sb3-marl plot --algo ma2c --env $(RUN_ENV)
 	@echo "TensorBoard: $(VENV)/bin/tensorboard --logdir logs/tensorboard"

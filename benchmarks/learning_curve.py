@@ -3,7 +3,8 @@
     python benchmarks/learning_curve.py --algo ma2c --density 1 --timesteps 400000 [--eval-every 50000]
 
 Each evaluation plays ``--eval-episodes`` episodes (seeds 10000..., cycling through the density's
-AV counts) with the deterministic policy and prints the paper's metric (mean ± std episode return),
+AV counts) with actions sampled from the policy (the authors' protocol), the zoo config's scenario
+(safety supervisor on), and prints the paper's metric (mean ± std episode return),
 collision rate, mean speed and acceleration std; the last lines give the wall time.
 """
 
@@ -17,7 +18,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import torch
 
-from sb3_marl.envs import ENV_IDS
+from sb3_marl.envs import ENV_IDS, av_steps_per_env_step
 from sb3_marl.evaluation import evaluate_on_density, model_policy
 from sb3_marl.hyperparams import load_hyperparams
 from sb3_marl.training import make_model, make_venv
@@ -40,13 +41,13 @@ def main() -> None:
     hyperparams = load_hyperparams(args.algo, env_id, path=args.conf_file)
     venv = make_venv(env_id, hyperparams, seed=args.seed, vec_backend=args.vec_env)
     model = make_model(args.algo, venv, hyperparams, seed=args.seed)
-    slots = venv.num_envs
-    copies = len(venv.unwrapped.n_avs)
+    config = hyperparams.get("env_config")
+    av_steps = av_steps_per_env_step(env_id, config, hyperparams.get("n_copies"))
     start = time.perf_counter()
     while model.num_timesteps < args.timesteps:
         model.learn(args.eval_every, reset_num_timesteps=False)
-        summary = evaluate_on_density(model_policy(model), env_id, args.eval_episodes, seed=10_000)
-        env_steps = model.num_timesteps // slots * copies
+        summary = evaluate_on_density(model_policy(model), env_id, args.eval_episodes, seed=10_000, config=config)
+        env_steps = round(model.num_timesteps / av_steps)
         print(
             f"{args.algo}_{env_id}_step{model.num_timesteps}: env_steps={env_steps} "
             f"return={summary['return_mean']:.2f}±{summary['return_std']:.2f} "

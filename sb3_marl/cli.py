@@ -7,6 +7,7 @@
     sb3-marl push-to-hub --algo ma2c --env sb3_marl/LaneChange-density1-v0 -f logs -orga ORG [--dry-run PATH]
     sb3-marl load-from-hub --repo-id ORG/NAME -f logs
     sb3-marl baselines --density 1        (reference policies: random and IDM/MOBIL)
+    sb3-marl summary -f logs              (markdown table of the evaluated runs)
     sb3-marl benchmark --grid paper --budget 0.05   (the paper's experiments as Ray Tune trials)
     sb3-marl benchmark report -f logs/benchmark -o results
 
@@ -26,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from sb3_marl import __version__
-from sb3_marl.algos import ALGOS
+from sb3_marl.algos import ALGO_NAMES
 from sb3_marl.benchmark.grid import (
     GRIDS,
     PAPER_EVAL_EPISODES,
@@ -110,7 +111,7 @@ def _check_folder(flag: str, path: str | None) -> None:
 
 def _add_run_selection(parser: argparse.ArgumentParser) -> None:
     """rl-zoo ``enjoy``'s flags to pick a trained model."""
-    parser.add_argument("--algo", default="ma2c", choices=sorted(ALGOS), help="learner (default: ma2c)")
+    parser.add_argument("--algo", default="ma2c", choices=ALGO_NAMES, help="learner (default: ma2c)")
     parser.add_argument("--env", default=DEFAULT_ENV, choices=list(ENV_IDS.values()), help="scenario id")
     parser.add_argument("-f", "--folder", "--log-folder", dest="folder", default="logs", help="log folder (default: logs)")
     parser.add_argument("--exp-id", type=int, default=0, help="run id; 0 = latest (default)")
@@ -131,7 +132,7 @@ def build_parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     train = commands.add_parser("train", help="train a learner (rl-zoo's train.py flags)")
-    train.add_argument("--algo", default="ma2c", choices=sorted(ALGOS), help="learner (default: ma2c)")
+    train.add_argument("--algo", default="ma2c", choices=ALGO_NAMES, help="learner (default: ma2c)")
     train.add_argument("--env", default=DEFAULT_ENV, choices=list(ENV_IDS.values()), help="scenario id")
     train.add_argument("-n", "--n-timesteps", type=_positive_or_default, default=-1,
                        help="AV-steps to train (>= 1); -1: the config's n_timesteps")
@@ -167,7 +168,7 @@ def build_parser() -> argparse.ArgumentParser:
                               help="add the reference policies (random, IDM/MOBIL) on the same seeds to the table")
 
     plot = commands.add_parser("plot", help="learning-curve PNGs of one or several runs")
-    plot.add_argument("--algo", "--algos", dest="algos", nargs="+", default=["ma2c"], choices=sorted(ALGOS))
+    plot.add_argument("--algo", "--algos", dest="algos", nargs="+", default=["ma2c"], choices=ALGO_NAMES)
     plot.add_argument("--env", default=DEFAULT_ENV, choices=list(ENV_IDS.values()))
     plot.add_argument("-f", "--folder", "--log-folder", dest="folder", default="logs")
     plot.add_argument("--exp-ids", type=int, nargs="+", default=None, help="runs to plot (default: all)")
@@ -188,6 +189,10 @@ def build_parser() -> argparse.ArgumentParser:
     push.add_argument("--no-video", action="store_true", help="leave replay.mp4 out")
     push.add_argument("--private", action="store_true")
     push.add_argument("--dry-run", metavar="PATH", default=None, help="only build the folder at PATH")
+
+    summary = commands.add_parser("summary", help="markdown table of the evaluated runs of a log folder")
+    summary.add_argument("-f", "--folder", "--log-folder", dest="folder", default="logs")
+    summary.add_argument("-o", "--output", default=None, help="markdown file (default: <folder>/summary.md)")
 
     load = commands.add_parser("load-from-hub", help="download a model into the log layout (then evaluate/enjoy it)")
     load.add_argument("--repo-id", required=True, help="ORG/NAME")
@@ -357,9 +362,8 @@ def evaluate(args: argparse.Namespace) -> int:
             baseline = summarize(evaluation_records(policy_class(), args.env, args.eval_episodes, seed, run.env_config))
             result["baselines"][name] = baseline
             rows.append(({"policy": name, "timesteps": "-"}, baseline))
-    supervisor = "on" if run.env_config.get("safety_supervisor") else "off"
     heading = (f"{args.env}: {args.eval_episodes} episodes, seeds {seed}..{seed + args.eval_episodes - 1}, "
-               f"{result['protocol']}, safety supervisor {supervisor}; model {run.model_path}")
+               f"{result['protocol']}; model {run.model_path}")
     table = markdown_table(rows)
     print(heading + "\n")
     print(table)
@@ -436,19 +440,34 @@ def load_from_hub_command(args: argparse.Namespace) -> int:
 
 def plot(args: argparse.Namespace) -> int:
     from sb3_marl.plotting import plot_runs
-    from sb3_marl.runs import run_folders
+    from sb3_marl.runs import run_folders, run_id
 
     runs = {}
     for algo in args.algos:
         for folder in run_folders(args.folder, algo, args.env):
-            run_id = int(folder.name.rsplit("_", 1)[1])
-            if args.exp_ids is None or run_id in args.exp_ids:
+            if args.exp_ids is None or run_id(folder) in args.exp_ids:
                 runs[f"{algo} {folder.name}"] = folder
     if not runs:
         raise UsageError(f"No runs of {args.algos} on {args.env} under {args.folder}/ (exp ids: {args.exp_ids or 'all'}).")
     written = plot_runs(runs, args.output or os.path.join(args.folder, "plots"), args.episode_window)
     for path in written:
         print(f"wrote {path}")
+    return 0
+
+
+def summary(args: argparse.Namespace) -> int:
+    from sb3_marl.runs import summary_table
+
+    if not os.path.isdir(args.folder):
+        raise UsageError(f"-f/--folder: {args.folder!r} is not a folder.")
+    table = summary_table(args.folder)
+    if table.count("\n") < 2:
+        raise UsageError(f"No evaluated run under {args.folder}/ (run `sb3-marl evaluate` on a run first).")
+    output = Path(args.output) if args.output else Path(args.folder) / "summary.md"
+    output.parent.mkdir(parents=True, exist_ok=True)
+    output.write_text(table + "\n")
+    print(table)
+    print(f"\nwrote {output}")
     return 0
 
 
@@ -524,7 +543,7 @@ class CommandFailed(Exception):
 
 COMMANDS = {"train": train, "evaluate": evaluate, "enjoy": evaluate, "plot": plot,
             "record-video": record_video_command, "push-to-hub": push_to_hub, "load-from-hub": load_from_hub_command,
-            "baselines": baselines, "benchmark": benchmark}
+            "baselines": baselines, "benchmark": benchmark, "summary": summary}
 
 
 def main(argv: list[str] | None = None) -> int:

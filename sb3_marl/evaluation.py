@@ -136,10 +136,15 @@ PROTOCOLS = {
 }
 
 
-def protocol_label(deterministic: bool, model: Any = None) -> str:
-    """How an evaluation acted: sampled or argmax, with action masks or not (for tables and cards)."""
-    masks = "" if model is None else (", action masks" if uses_action_masks(model) else ", no action masks")
-    return PROTOCOLS[bool(deterministic)] + masks
+def protocol_label(deterministic: bool, model: Any = None, config: dict | None = None) -> str:
+    """How an evaluation acted: sampled or argmax, with action masks or not, safety supervisor on
+    or off (the scenario ``config``'s), for tables and model cards."""
+    label = PROTOCOLS[bool(deterministic)]
+    if model is not None:
+        label += ", action masks" if uses_action_masks(model) else ", no action masks"
+    if config is not None:
+        label += ", safety supervisor " + ("on" if config.get("safety_supervisor") else "off")
+    return label
 
 
 def model_policy(model: Any, deterministic: bool = False) -> Policy:

@@ -46,11 +46,8 @@ from sb3_marl.hyperparams import (
     validate_hyperparams,
 )
 from sb3_marl.policies import unchecked_distributions
+from sb3_marl.runs import run_id
 from sb3_marl.training import make_venv
-
-# rl_zoo3 builds and loads models through its ALGOS table; our learners join it under their own
-# names (no clash with rl_zoo3's a2c, ppo, ...), which also lets rl_zoo3's scripts load our runs.
-zoo_utils.ALGOS.update(ALGOS)
 
 #: Evaluation episodes use seeds from ``seed + EVAL_SEED_OFFSET`` on, apart from training seeds.
 EVAL_SEED_OFFSET = 10_000
@@ -85,6 +82,9 @@ class MARLExperimentManager(ExperimentManager):
         evaluate_at_end: bool = False,
         **kwargs: Any,
     ) -> None:
+        # rl_zoo3 builds and loads models through its ALGOS table: our learners join it under their
+        # own names (no clash with rl_zoo3's a2c, ppo, ...)
+        zoo_utils.ALGOS.update(ALGOS)
         config = conf_file or str(config_file(algo))
         super().__init__(args, algo, env_id, log_folder, config=config, vec_env_type="dummy", **kwargs)
         self.vec_backend = vec_env_type
@@ -189,7 +189,7 @@ class MARLExperimentManager(ExperimentManager):
     @property
     def run_id(self) -> int:
         """The run's id: ``<env>_<id>`` of its log folder."""
-        return int(self.save_path.rsplit("_", 1)[1])
+        return run_id(self.save_path)
 
     def save_trained_model(self, model: BaseAlgorithm) -> None:
         path = atomic_save(model, os.path.join(self.save_path, f"{self.env_name}.zip"))

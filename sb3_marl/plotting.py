@@ -9,12 +9,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")  # headless: files only
-
 import numpy as np
-from matplotlib import pyplot as plt
+from matplotlib.axes import Axes
+from matplotlib.figure import Figure  # no pyplot: no global backend, works headless and in notebooks
 from stable_baselines3.common.monitor import LoadMonitorResultsError, load_results
 from stable_baselines3.common.results_plotter import X_TIMESTEPS, ts2xy, window_func
 
@@ -33,7 +30,8 @@ def plot_runs(runs: dict[str, Path], out_dir: str | Path, window: int = 100) -> 
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
     for name, title in FIGURES.items():
-        fig, ax = plt.subplots(figsize=(7, 4.5))
+        fig = Figure(figsize=(7, 4.5))
+        ax = fig.subplots()
         plotted = 0
         for label, folder in runs.items():
             plotted += _plot_one(ax, name, label, Path(folder), window)
@@ -46,11 +44,10 @@ def plot_runs(runs: dict[str, Path], out_dir: str | Path, window: int = 100) -> 
             fig.tight_layout()
             fig.savefig(out_dir / name, dpi=100)
             written.append(out_dir / name)
-        plt.close(fig)
     return written
 
 
-def _plot_one(ax: plt.Axes, figure: str, label: str, folder: Path, window: int) -> int:
+def _plot_one(ax: Axes, figure: str, label: str, folder: Path, window: int) -> int:
     """Plot one run's curve of ``figure``; 1 if it had data, else 0."""
     if figure == "train_return.png":
         try:

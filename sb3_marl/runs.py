@@ -7,6 +7,7 @@ A run folder holds the final model ``<env name>.zip``, ``best_model.zip``, check
 
 from __future__ import annotations
 
+import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -47,7 +48,7 @@ class Run:
         records = evaluation_records(model_policy(model, deterministic), self.env_id, n_episodes, seed, self.env_config)
         return {
             "algo": self.algo, "env_id": self.env_id, "num_timesteps": int(model.num_timesteps),
-            "deterministic": deterministic, "protocol": protocol_label(deterministic, model), "seeds": [seed, seed + n_episodes - 1], "env_config": self.env_config,
+            "deterministic": deterministic, "protocol": protocol_label(deterministic, model, self.env_config), "seeds": [seed, seed + n_episodes - 1], "env_config": self.env_config,
             **summarize(records), "returns": [r.episode_return for r in records],
         }
 
@@ -120,6 +121,31 @@ def run_folders(folder: str | Path, algo: str, env_id: str) -> list[Path]:
     return sorted(runs, key=run_id)
 
 
+def summary_table(folder: str | Path) -> str:
+    """A markdown table of every evaluated run under ``folder`` (rl-zoo layout: each run folder's
+    ``evaluation.json``, written by ``sb3-marl evaluate``): algorithm, env, run, seed, the
+    ``-params`` overrides it was trained with, and the evaluation (protocol, metrics, and the
+    reference policies' rows where it was evaluated ``--with-baselines``)."""
+    from sb3_marl.evaluation import TABLE_COLUMNS
+
+    titles = ["algo", "env", "run", "seed", "overrides", "timesteps", "protocol", *(title for title, _ in TABLE_COLUMNS)]
+    lines = ["| " + " | ".join(titles) + " |", "|" + "---|" * len(titles)]
+    for evaluation_file in sorted(Path(folder).glob("*/*/evaluation.json"), key=lambda p: (p.parent.parent.name, p.parent.name.rpartition("_")[0], run_id(p.parent))):
+        result = json.loads(evaluation_file.read_text())
+        run_folder = evaluation_file.parent
+        args_file = run_folder / str(EnvironmentName(result["env_id"])) / "args.yml"
+        args = dict(yaml.load(args_file.read_text(), Loader=yaml.UnsafeLoader) or {}) if args_file.is_file() else {}
+        overrides = ", ".join(f"{key}={value}" for key, value in sorted((args.get("hyperparams") or {}).items())) or "-"
+        label = [result["algo"], result["env_id"], str(run_id(run_folder)), str(args.get("seed", "-")), overrides]
+        rows = [(label, result["num_timesteps"], result.get("protocol", "-"), result)]
+        for name, baseline in (result.get("baselines") or {}).items():
+            rows.append(([name, result["env_id"], "-", "-", "-"], "-", "reference policy", baseline))
+        for cells, timesteps, protocol, summary in rows:
+            values = [*cells, str(timesteps), protocol, *(fmt(summary) for _, fmt in TABLE_COLUMNS)]
+            lines.append("| " + " | ".join(values) + " |")
+    return "\n".join(lines)
+
+
 def check_model_file(path: str | Path, algo: str) -> None:
     """``path`` must be a readable SB3 model zip saved by ``algo``'s class: a ValueError naming the
     file otherwise (corrupt or truncated zip, another algorithm's model)."""
@@ -143,4 +169,4 @@ def check_model_file(path: str | Path, algo: str) -> None:
         )
 
 
-__all__ = ["Run", "check_model_file", "find_run", "run_folders", "run_id"]
+__all__ = ["Run", "check_model_file", "find_run", "run_folders", "run_id", "summary_table"]

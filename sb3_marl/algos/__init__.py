@@ -8,24 +8,31 @@ unavailable meta-actions (:mod:`sb3_marl.algos.masking`), as the authors' MA2C d
 
 from __future__ import annotations
 
-from sb3_contrib import TRPO
-from stable_baselines3.common.base_class import BaseAlgorithm
+from importlib import import_module
+from typing import Any
 
-from sb3_marl.algos.masking import MaskableA2C, MaskableACKTR, MaskableDQN, MaskedPPO
-
-ALGOS: dict[str, type[BaseAlgorithm]] = {
-    "ma2c": MaskableA2C,
-    "mappo": MaskedPPO,
-    "madqn": MaskableDQN,
-    "matrpo": TRPO,
-    "maacktr": MaskableACKTR,
-    "acktr": MaskableACKTR,
+#: Learner name -> "module:class" (imported on first use: torch is not loaded by the CLI's --help).
+ALGO_CLASSES: dict[str, str] = {
+    "ma2c": "sb3_marl.algos.masking:MaskableA2C",
+    "mappo": "sb3_marl.algos.masking:MaskedPPO",
+    "madqn": "sb3_marl.algos.masking:MaskableDQN",
+    "matrpo": "sb3_contrib:TRPO",
+    "maacktr": "sb3_marl.algos.masking:MaskableACKTR",
+    "acktr": "sb3_marl.algos.masking:MaskableACKTR",
 }
+ALGO_NAMES: tuple[str, ...] = tuple(sorted(ALGO_CLASSES))
 
 
-def get_algo(name: str) -> type[BaseAlgorithm]:
+def get_algo(name: str) -> type:
     """The class registered under ``name``; a ValueError listing the valid names otherwise."""
-    try:
-        return ALGOS[name]
-    except KeyError:
-        raise ValueError(f"Unknown algorithm {name!r}: expected one of {sorted(ALGOS)}.") from None
+    if name not in ALGO_CLASSES:
+        raise ValueError(f"Unknown algorithm {name!r}: expected one of {list(ALGO_NAMES)}.")
+    module, cls = ALGO_CLASSES[name].split(":")
+    return getattr(import_module(module), cls)
+
+
+def __getattr__(name: str) -> Any:
+    """``ALGOS``: name -> class, every class imported."""
+    if name == "ALGOS":
+        return {algo: get_algo(algo) for algo in ALGO_NAMES}
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -248,12 +248,28 @@ _with_action_masking(MaskableACKTR, ACKTR)
 _with_action_masking(MaskableDQN, DQN)
 
 
+class PerAgentRolloutBuffer(MaskableRolloutBuffer):
+    """sb3-contrib's maskable rollout buffer whose minibatches are the VecEnv slots: each yields
+    one AV slot's ``n_steps`` consecutive transitions, the slots in random order (the authors' MA2C
+    takes one optimiser step per AV on that AV's transitions)."""
+
+    def get(self, batch_size: int | None = None) -> Any:
+        if not self.generator_ready:
+            next(super().get(None))  # sb3-contrib flattens the arrays slot-major on first use
+        for slot in np.random.permutation(self.n_envs):
+            yield self._get_samples(np.arange(slot * self.buffer_size, (slot + 1) * self.buffer_size))
+
+
 class MaskableA2C(ActionMaskingMixin, MaskablePPO):
     """A2C (SB3's arguments and defaults) with invalid-action masking (see the module doc).
 
     :param action_masking: sample only available meta-actions (the authors' MA2C) or all of them
     :param rms_prop_eps: RMSprop epsilon (with ``use_rms_prop``; RMSprop alpha 0.99 as SB3's A2C)
     :param use_rms_prop: RMSprop (A2C's original optimiser) rather than Adam
+    :param per_agent_updates: one optimiser step per AV slot on that slot's ``n_steps`` transitions
+        (the authors' cadence: as many steps per rollout as slots; each later step's loss is the
+        unclipped importance-weighted policy gradient, its ratio stays close to 1) instead of
+        one step on the whole rollout (SB3's A2C)
 
     Other parameters: as SB3's ``A2C``.
     """
@@ -273,6 +289,7 @@ class MaskableA2C(ActionMaskingMixin, MaskablePPO):
         use_rms_prop: bool = True,
         normalize_advantage: bool = False,
         action_masking: bool = True,
+        per_agent_updates: bool = False,
         rollout_buffer_class: type[RolloutBuffer] | None = None,
         rollout_buffer_kwargs: dict[str, Any] | None = None,
         stats_window_size: int = 100,
@@ -288,6 +305,9 @@ class MaskableA2C(ActionMaskingMixin, MaskablePPO):
             policy_kwargs["optimizer_class"] = th.optim.RMSprop
             policy_kwargs["optimizer_kwargs"] = dict(alpha=0.99, eps=rms_prop_eps, weight_decay=0)
         self.action_masking = bool(action_masking)
+        self.per_agent_updates = bool(per_agent_updates)
+        if self.per_agent_updates and rollout_buffer_class is None:
+            rollout_buffer_class = PerAgentRolloutBuffer
         super().__init__(
             policy,
             env,

@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 from typing import Any
 
-from sb3_marl.envs import DENSITIES, ENV_IDS, copy_av_counts
+from sb3_marl.envs import DENSITIES, ENV_IDS, av_steps_per_env_step
 
 #: The paper's budget: 1M env steps (10,000 episodes of 100 steps) per trial.
 PAPER_ENV_STEPS = 1_000_000
@@ -75,8 +75,7 @@ class TrialSpec:
 
     def av_steps_per_env_step(self) -> float:
         """AV-steps (SB3 timesteps) per env step with the zoo config's copies: 2 / 3 / 5 at densities 1 / 2 / 3."""
-        counts = copy_av_counts(self.env_id, self.hyperparams.get("env_config"))
-        return sum(counts) / len(counts)
+        return av_steps_per_env_step(self.env_id, self.hyperparams.get("env_config"))
 
     def env_steps(self, timesteps: Any) -> Any:
         """Env steps of ``timesteps`` AV-steps (a number or an array)."""

@@ -18,16 +18,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import matplotlib
-
-matplotlib.use("Agg")  # headless: files only
-
 import numpy as np
-from matplotlib import pyplot as plt
+from matplotlib.figure import Figure  # no pyplot: no global backend, works headless and in notebooks
 
 from sb3_marl.benchmark.grid import EPISODE_STEPS, EXPERIMENTS, TrialSpec
 from sb3_marl.benchmark.runner import SETTINGS_FILE
 from sb3_marl.benchmark.trial import RESULT, TRIAL
+from sb3_marl.evaluation import PROTOCOLS
 
 #: Table 5 of the paper: mean evaluation episode reward ± std, per algorithm and density.
 PAPER_RETURNS: dict[tuple[str, int], tuple[float, float]] = {
@@ -108,6 +105,8 @@ def paper_table(trials: list[TrialLog], settings: dict[str, Any] | None = None) 
                   f"{settings['eval_episodes']} episodes every {settings['eval_every_episodes']:g} training episodes "
                   "(the paper: 3 every 200). Return: the seeds' final evaluation returns (mean ± std over seeds); "
                   "collision rate, speed and acceleration std: mean over seeds of the final evaluation.", ""]
+    lines += [f"Evaluation protocol: {PROTOCOLS[False]}; action masks for the learners that have them; the safety "
+              "supervisor as in each learner's zoo config (on in all of them).", ""]
     finished = sum(t.result is not None for t in trials)
     lines += [f"Trials: {finished} finished, {len(trials) - finished} unfinished (not in the table).", ""]
     for experiment, curves in EXPERIMENTS.items():
@@ -177,7 +176,8 @@ def plot_learning_curves(trials: list[TrialLog], out_dir: str | Path) -> list[Pa
                             if (t.spec.algo, t.spec.variant) in curves.values()})
         if not densities:
             continue
-        fig, axes = plt.subplots(1, len(densities), figsize=(5 * len(densities), 4), squeeze=False)
+        fig = Figure(figsize=(5 * len(densities), 4))
+        axes = fig.subplots(1, len(densities), squeeze=False)
         for ax, density in zip(axes[0], densities):
             for label, (algo, variant) in curves.items():
                 selected = _select(trials, algo, variant, density)
@@ -198,7 +198,6 @@ def plot_learning_curves(trials: list[TrialLog], out_dir: str | Path) -> list[Pa
         fig.tight_layout()
         path = out_dir / f"learning_curves_{experiment}.png"
         fig.savefig(path, dpi=100)
-        plt.close(fig)
         written.append(path)
     return written
 
@@ -236,7 +235,8 @@ def plot_comfort(trials: list[TrialLog], log_folder: str | Path, out_dir: str | 
     if not densities:
         return None
     density = densities[0]
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4))
+    fig = Figure(figsize=(15, 4))
+    axes = fig.subplots(1, 3)
     for ax, (label, by_density) in zip(axes[:2], curves.items()):
         selected = by_density[density]
         trace = acceleration_traces(selected[0], log_folder, seed)
@@ -263,7 +263,6 @@ def plot_comfort(trials: list[TrialLog], log_folder: str | Path, out_dir: str | 
     fig.tight_layout()
     path = Path(out_dir) / "comfort.png"
     fig.savefig(path, dpi=100)
-    plt.close(fig)
     return path
 
 

@@ -166,14 +166,18 @@ def test_a_worker_dying_mid_training_saves_the_model_and_says_why(tmp_path):
     command = [sys.executable, "-m", "sb3_marl", "train", "-f", str(tmp_path), "--vec-env", "subproc",
                "-n", "2000000", "--eval-freq", "-1", "--verbose", "0", "-params", "n_steps:20"]
     process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    monitor = tmp_path / "ma2c" / f"{ENV_NAME}_1" / "monitor.csv"
-    deadline = time.time() + 120
-    while time.time() < deadline and (not monitor.is_file() or monitor.stat().st_size < 2000):
-        time.sleep(0.5)
-    workers = _grandchildren(process.pid)
-    assert len(workers) == 2, "one worker per core"
-    os.kill(workers[-1], signal.SIGKILL)
-    out, err = process.communicate(timeout=120)
+    try:
+        monitor = tmp_path / "ma2c" / f"{ENV_NAME}_1" / "monitor.csv"
+        deadline = time.time() + 120
+        while time.time() < deadline and (not monitor.is_file() or monitor.stat().st_size < 2000):
+            time.sleep(0.5)
+        workers = _grandchildren(process.pid)
+        assert len(workers) == 2, "one worker per core"
+        os.kill(workers[-1], signal.SIGKILL)
+        out, err = process.communicate(timeout=120)
+    finally:
+        process.kill()  # never leave a 2M-step training behind
+        process.wait()
     assert process.returncode == 1, out + err
     assert "training stopped by" in err and "was saved; continue with -i" in err
     model = tmp_path / "ma2c" / f"{ENV_NAME}_1" / f"{ENV_NAME}.zip"

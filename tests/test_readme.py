@@ -1,0 +1,59 @@
+"""The README's commands work exactly as written: the Quick start's main job and every command of
+the Command line section, run verbatim (the section states the short budget appended to `train`)."""
+
+import re
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+README = (REPO / "README.md").read_text()
+#: appended to the Command line section's train commands, as the README says
+SHORT_BUDGET = {"first": ["-n", "1200", "--eval-freq", "600"], "resumed": ["-n", "2400"]}
+
+
+def section_commands(title: str) -> list[str]:
+    """The command lines of the first ```bash block of the README section ``title``."""
+    section = README.split(f"\n## {title}\n", 1)[1].split("\n## ", 1)[0]
+    block = re.search(r"```bash\n(.*?)```", section, re.S).group(1)
+    return [line.split("  #")[0].strip() for line in block.splitlines() if line.strip()]
+
+
+def test_the_command_line_section_runs_verbatim(tmp_path):
+    commands = section_commands("Command line")
+    assert commands[0].startswith("sb3-marl train") and len(commands) >= 8
+    executable = Path(sys.executable).parent / "sb3-marl"
+    trains = 0
+    for line in commands:
+        argv = shlex.split(line)
+        assert argv[0] == "sb3-marl", line
+        if argv[1] == "train":
+            argv += SHORT_BUDGET["resumed" if "-i" in argv else "first"]
+            trains += 1
+        completed = subprocess.run([str(executable), *argv[1:]], cwd=tmp_path, capture_output=True, text=True,
+                                   timeout=600)
+        assert completed.returncode == 0, f"{line}\n{completed.stdout[-2000:]}\n{completed.stderr[-2000:]}"
+    assert trains == 2
+    run = tmp_path / "logs" / "ma2c" / "sb3_marl-LaneChange-density1-v0_1"
+    assert (run / "best_model.zip").is_file() and (run / "evaluation.json").is_file()
+    assert (tmp_path / "logs" / "summary.md").is_file()
+    assert (tmp_path / "logs" / "plots" / "eval_return.png").is_file()
+
+
+def test_the_quick_start_main_job_runs_verbatim():
+    """`make run`, as written (the other Quick start command, `make test`, is this suite)."""
+    commands = section_commands("Quick start")
+    assert commands == ["make run", "make test"]
+    completed = subprocess.run(shlex.split(commands[0]), cwd=REPO, capture_output=True, text=True, timeout=1800)
+    assert completed.returncode == 0, completed.stdout[-3000:] + completed.stderr[-3000:]
+    out = completed.stdout
+    assert "| ma2c |" in out and "| idm-mobil |" in out and "sampled actions (the authors' protocol)" in out
+    assert "TensorBoard: " in out and "eval_return.png" in out
+
+
+@pytest.mark.parametrize("title", ["Quick start", "Command line"])
+def test_sections_have_commands(title):
+    assert section_commands(title)
