@@ -440,13 +440,14 @@ def load_from_hub_command(args: argparse.Namespace) -> int:
 
 def plot(args: argparse.Namespace) -> int:
     from sb3_marl.plotting import plot_runs
-    from sb3_marl.runs import run_folders, run_id
+    from sb3_marl.runs import run_folders, run_id, run_overrides
 
     runs = {}
     for algo in args.algos:
         for folder in run_folders(args.folder, algo, args.env):
             if args.exp_ids is None or run_id(folder) in args.exp_ids:
-                runs[f"{algo} {folder.name}"] = folder
+                overrides = run_overrides(folder, args.env)
+                runs[f"{algo} run {run_id(folder)}" + (f" ({overrides})" if overrides else "")] = folder
     if not runs:
         raise UsageError(f"No runs of {args.algos} on {args.env} under {args.folder}/ (exp ids: {args.exp_ids or 'all'}).")
     written = plot_runs(runs, args.output or os.path.join(args.folder, "plots"), args.episode_window)

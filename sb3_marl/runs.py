@@ -121,6 +121,18 @@ def run_folders(folder: str | Path, algo: str, env_id: str) -> list[Path]:
     return sorted(runs, key=run_id)
 
 
+def run_args(run_folder: str | Path, env_id: str) -> dict[str, Any]:
+    """The command-line arguments a run was trained with (its ``<env>/args.yml``; {} if absent)."""
+    path = Path(run_folder) / str(EnvironmentName(env_id)) / "args.yml"
+    return dict(yaml.load(path.read_text(), Loader=yaml.UnsafeLoader) or {}) if path.is_file() else {}
+
+
+def run_overrides(run_folder: str | Path, env_id: str) -> str:
+    """The ``-params`` overrides a run was trained with, as ``key=value, ...`` ("" if none)."""
+    overrides = run_args(run_folder, env_id).get("hyperparams") or {}
+    return ", ".join(f"{key}={value}" for key, value in sorted(overrides.items()))
+
+
 def summary_table(folder: str | Path) -> str:
     """A markdown table of every evaluated run under ``folder`` (rl-zoo layout: each run folder's
     ``evaluation.json``, written by ``sb3-marl evaluate``): algorithm, env, run, seed, the
@@ -133,10 +145,9 @@ def summary_table(folder: str | Path) -> str:
     for evaluation_file in sorted(Path(folder).glob("*/*/evaluation.json"), key=lambda p: (p.parent.parent.name, p.parent.name.rpartition("_")[0], run_id(p.parent))):
         result = json.loads(evaluation_file.read_text())
         run_folder = evaluation_file.parent
-        args_file = run_folder / str(EnvironmentName(result["env_id"])) / "args.yml"
-        args = dict(yaml.load(args_file.read_text(), Loader=yaml.UnsafeLoader) or {}) if args_file.is_file() else {}
-        overrides = ", ".join(f"{key}={value}" for key, value in sorted((args.get("hyperparams") or {}).items())) or "-"
-        label = [result["algo"], result["env_id"], str(run_id(run_folder)), str(args.get("seed", "-")), overrides]
+        args = run_args(run_folder, result["env_id"])
+        label = [result["algo"], result["env_id"], str(run_id(run_folder)), str(args.get("seed", "-")),
+                 run_overrides(run_folder, result["env_id"]) or "-"]
         rows = [(label, result["num_timesteps"], result.get("protocol", "-"), result)]
         for name, baseline in (result.get("baselines") or {}).items():
             rows.append(([name, result["env_id"], "-", "-", "-"], "-", "reference policy", baseline))
@@ -169,4 +180,4 @@ def check_model_file(path: str | Path, algo: str) -> None:
         )
 
 
-__all__ = ["Run", "check_model_file", "find_run", "run_folders", "run_id", "summary_table"]
+__all__ = ["Run", "check_model_file", "find_run", "run_args", "run_folders", "run_id", "run_overrides", "summary_table"]

@@ -334,6 +334,13 @@ class MaskableA2C(ActionMaskingMixin, MaskablePPO):
         )
 
 
+    def learn(self, total_timesteps: int, callback: Any = None, log_interval: int = 10, tb_log_name: str = "MA2C",
+              reset_num_timesteps: bool = True, use_masking: bool = True, progress_bar: bool = False) -> MaskableA2C:
+        """sb3-contrib's ``learn``; the logger is dumped every ``log_interval`` updates (10: A2C's
+        updates are many and small; MaskablePPO's default of 1 floods the console)."""
+        return super().learn(total_timesteps, callback, log_interval, tb_log_name, reset_num_timesteps, use_masking,
+                             progress_bar)
+
     def train(self) -> None:
         """One A2C update; also logs the advantages' mean and std (learning diagnostics)."""
         advantages = self.rollout_buffer.advantages

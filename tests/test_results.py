@@ -1,0 +1,49 @@
+"""The committed results regenerate from the committed slim logs (results/*/logs): the summary
+table byte for byte, the learning-curve PNGs byte for byte, and a committed model re-evaluated on
+the first seeds of its committed evaluation gives the same episode returns."""
+
+import json
+from pathlib import Path
+
+import pytest
+
+from sb3_marl.cli import main
+from sb3_marl.runs import find_run
+
+RESULTS = Path(__file__).resolve().parent.parent / "results"
+LOG_FOLDERS = sorted(RESULTS.glob("*/logs"))
+
+
+def test_there_are_committed_results():
+    assert LOG_FOLDERS, "results/<study>/logs holds the slim logs of the committed results"
+
+
+@pytest.mark.parametrize("logs", LOG_FOLDERS, ids=lambda p: p.parent.name)
+def test_the_summary_regenerates(logs, tmp_path):
+    assert main(["summary", "-f", str(logs), "-o", str(tmp_path / "summary.md")]) == 0
+    assert (tmp_path / "summary.md").read_text() == (logs.parent / "summary.md").read_text()
+
+
+@pytest.mark.parametrize("logs", LOG_FOLDERS, ids=lambda p: p.parent.name)
+def test_the_plots_regenerate(logs, tmp_path):
+    committed = sorted((logs.parent / "plots").glob("*/*.png"))
+    assert committed
+    for folder in sorted({png.parent for png in committed}):
+        env = f"sb3_marl/LaneChange-{folder.name}-v0"
+        out = tmp_path / folder.name
+        assert main(["plot", "--algo", "ma2c", "--env", env, "-f", str(logs), "-o", str(out)]) == 0
+        for png in folder.glob("*.png"):
+            assert (out / png.name).read_bytes() == png.read_bytes(), png
+
+
+@pytest.mark.parametrize("logs", LOG_FOLDERS, ids=lambda p: p.parent.name)
+def test_committed_models_reproduce_their_evaluation(logs):
+    """Each density's first run: its model, re-evaluated on the first 3 seeds of its committed
+    30-episode evaluation (same protocol), gives the same returns."""
+    for evaluation in sorted(logs.glob("ma2c/*_1/evaluation.json")):
+        committed = json.loads(evaluation.read_text())
+        run = find_run(logs, "ma2c", committed["env_id"], exp_id=1)
+        model = run.load_model("cpu")
+        again = run.evaluate(model, 3, committed["seeds"][0], committed["deterministic"])
+        assert again["returns"] == pytest.approx(committed["returns"][:3], rel=1e-9, abs=1e-9)
+        assert again["protocol"] == committed["protocol"]
