@@ -7,8 +7,12 @@ the evaluation episodes) and collision rate from ``evaluations.npz``.
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any, TypeVar
 
+import matplotlib.style
 import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure  # no pyplot: no global backend, works headless and in notebooks
@@ -23,6 +27,22 @@ FIGURES = {
 }
 
 
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def with_default_style(function: F) -> F:
+    """Draw with matplotlib's default style whatever style the caller (a notebook, seaborn) has
+    set, so the same logs always give the same files."""
+
+    @functools.wraps(function)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        with matplotlib.style.context("default"):
+            return function(*args, **kwargs)
+
+    return wrapper  # type: ignore[return-value]
+
+
+@with_default_style
 def plot_runs(runs: dict[str, Path], out_dir: str | Path, window: int = 100) -> list[Path]:
     """Write the :data:`FIGURES` for ``runs`` (label -> run folder) into ``out_dir``; returns the
     files written. Runs without the needed log file are left out of that figure."""
@@ -74,4 +94,4 @@ def _plot_one(ax: Axes, figure: str, label: str, folder: Path, window: int) -> i
     return 1
 
 
-__all__ = ["FIGURES", "plot_runs"]
+__all__ = ["FIGURES", "plot_runs", "with_default_style"]

@@ -25,6 +25,7 @@ from sb3_marl.benchmark.grid import EPISODE_STEPS, EXPERIMENTS, TrialSpec
 from sb3_marl.benchmark.runner import SETTINGS_FILE
 from sb3_marl.benchmark.trial import RESULT, TRIAL
 from sb3_marl.evaluation import PROTOCOLS
+from sb3_marl.plotting import with_default_style
 
 #: Table 5 of the paper: mean evaluation episode reward ± std, per algorithm and density.
 PAPER_RETURNS: dict[tuple[str, int], tuple[float, float]] = {
@@ -166,6 +167,7 @@ def _findings(experiment: str, trials: list[TrialLog]) -> list[str]:
     return lines
 
 
+@with_default_style
 def plot_learning_curves(trials: list[TrialLog], out_dir: str | Path) -> list[Path]:
     """One ``learning_curves_<experiment>.png`` per experiment with data (see module doc)."""
     out_dir = Path(out_dir)
@@ -226,6 +228,7 @@ def acceleration_traces(trial: TrialLog, log_folder: str | Path, seed: int) -> n
     return np.array(accelerations)
 
 
+@with_default_style
 def plot_comfort(trials: list[TrialLog], log_folder: str | Path, out_dir: str | Path, seed: int) -> Path | None:
     """``comfort.png`` (see module doc); None without finished comfort-on and comfort-off trials."""
     finished = [t for t in trials if t.result is not None]

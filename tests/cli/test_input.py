@@ -29,7 +29,8 @@ def trained(tmp_path_factory) -> Path:
 
 
 def test_default_verbosity_trains_and_prints_the_logger_table(tmp_path, capsys):
-    assert main(["train", "-f", str(tmp_path), *TINY]) == 0
+    """MA2C dumps its logger every 10 updates: 1200 AV-steps of 120-step rollouts."""
+    assert main(["train", "-f", str(tmp_path), *TINY, "-n", "1200"]) == 0
     out = capsys.readouterr().out
     assert "rollout/" in out and "supervisor_interventions" in out and "train/" in out
     assert main(["train", "-f", str(tmp_path), *TINY, "--verbose", "2"]) == 0
