@@ -104,12 +104,7 @@ class DrivingMetricsCallback(BaseCallback):
         for info, done in zip(self.locals["infos"], self.locals["dones"]):
             if "copy" not in info:
                 continue
-            episode = self._running[info["copy"]]
-            if info["agent"] == 0:
-                episode.episode_return += info["global_reward"]
-                episode.length += 1
-            episode.crashed = episode.crashed or bool(info["crashed"])
-            episode.lane_changes += int(info["lane_change"])
+            self._running[info["copy"]].add_slot_step(info)
             if not info["exited"]:
                 for key in DRIVING_SAMPLES:
                     self._samples[key].append(float(info[key]))

@@ -48,6 +48,19 @@ class EpisodeRecord:
         self.interventions += int(np.asarray(info.get("intervened", False))[on_road].sum())
         self.av_steps += int(on_road.sum())
 
+    def add_slot_step(self, slot_info: dict) -> None:
+        """Accumulate one AV's share of a parameter-sharing VecEnv step (a slot's info, see
+        :class:`~wrappers.ParameterSharingVecEnv`): the copy's first AV adds the step and the
+        global reward, every AV its crash flag, lane change and supervisor intervention."""
+        if slot_info["agent"] == 0:
+            self.episode_return += slot_info["global_reward"]
+            self.length += 1
+        self.crashed = self.crashed or bool(slot_info["crashed"])
+        self.lane_changes += int(slot_info["lane_change"])
+        if not slot_info["exited"]:
+            self.interventions += int(slot_info.get("intervened", False))
+            self.av_steps += 1
+
 
 def summarize(records: list[EpisodeRecord]) -> dict[str, float]:
     """Mean ± std return and the driving metrics over episodes."""

@@ -53,3 +53,29 @@ def test_load_history_keeps_the_evaluations_up_to_the_checkpoint(tmp_path):
     assert final["timesteps"] == 150 and final["return_mean"] == log["results"][0].mean()
     assert final["collision_rate"] == log["collision_rate"][0]
     assert resumed.best_mean_reward == log["results"][0].mean()
+
+
+def test_episode_records_from_slot_infos_equal_those_from_the_copy():
+    """The driving-metrics callback builds episodes from slot infos (add_slot_step), evaluation
+    from the copy's info (add_step): on a real supervised episode both give the same record."""
+    import numpy as np
+
+    from sb3_marl.envs import LaneChangeEnv
+    from sb3_marl.evaluation import EpisodeRecord
+    from wrappers.parameter_sharing import split_info
+
+    env = LaneChangeEnv(config={"density": 3, "safety_supervisor": True})
+    env.reset(seed=3)
+    rng = np.random.default_rng(0)
+    from_copy, from_slots, done = EpisodeRecord(), EpisodeRecord(), False
+    while not done:
+        actions = np.array([rng.choice(np.flatnonzero(row)) for row in env.action_masks()])
+        _, reward, terminated, truncated, info = env.step(actions)
+        from_copy.add_step(reward, info)
+        for slot_info in split_info(info, copy=0):
+            from_slots.add_slot_step(slot_info)
+        done = terminated or truncated
+    assert from_copy.length > 1 and from_copy.lane_changes > 0 and from_copy.interventions > 0
+    for field in ("length", "crashed", "lane_changes", "interventions", "av_steps"):
+        assert getattr(from_slots, field) == getattr(from_copy, field), field
+    assert from_slots.episode_return == from_copy.episode_return
