@@ -79,7 +79,7 @@ def config_file(algo: str) -> Path:
 
 def algorithm_arguments(algo: str) -> list[str]:
     """Constructor arguments of the algorithm that a config may set."""
-    parameters = inspect.signature(get_algo(algo).__init__).parameters
+    parameters = inspect.signature(get_algo(algo)).parameters
     return sorted(name for name in parameters if name not in ("self", *RESERVED_KEYS))
 
 

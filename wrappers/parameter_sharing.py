@@ -457,12 +457,13 @@ class ParameterSharingVecEnv(VecEnv):
         rewards = np.zeros(self.num_envs, dtype=np.float32)
         dones = np.zeros(self.num_envs, dtype=bool)
         infos: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
+        current_infos = list(infos)  # infos of the observations returned: the new episode's after a reset
         for k, (obs, slot_rewards, done, slot_infos, reset_infos) in self._collect(self._pending).items():
             sl = self.slices[k]
             self._obs[sl] = obs
             rewards[sl] = slot_rewards
             dones[sl] = done
-            infos[sl] = slot_infos
+            infos[sl] = current_infos[sl] = slot_infos
             self._episode_returns[sl] += slot_rewards
             self._episode_lengths[sl] += 1
             if done:
@@ -473,15 +474,12 @@ class ParameterSharingVecEnv(VecEnv):
                     }
                 self._episode_returns[sl] = 0.0
                 self._episode_lengths[sl] = 0
-                self.reset_infos[sl] = reset_infos
-        self._update_masks([
-            mask_info for k in range(self.n_copies)
-            for mask_info in (self.reset_infos[self.slices[k]] if dones[self.slices[k].start] else infos[self.slices[k]])
-        ])
+                self.reset_infos[sl] = current_infos[sl] = reset_infos
+        self._update_masks(current_infos)
         return self._obs.copy(), rewards, dones, infos
 
     def _update_masks(self, slot_infos: list[dict[str, Any]]) -> None:
-        """Keep the action masks of the current observations (the new episode's after a reset)."""
+        """Keep the action masks of the current observations, from their slot infos."""
         if all("action_mask" in info for info in slot_infos):
             self._masks = np.array([info["action_mask"] for info in slot_infos], dtype=bool)
         else:

@@ -34,22 +34,26 @@ from sb3_contrib.common.maskable.buffers import MaskableRolloutBuffer
 from sb3_contrib.common.maskable.utils import get_action_masks
 from stable_baselines3 import DQN
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.buffers import ReplayBuffer, RolloutBuffer
+from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
 
 from sb3_marl.algos.acktr import ACKTR
 
-class RecordsAlgorithmClass:
-    """A saved model records its class (``algorithm_class`` in the zip's data), so that loading it
-    as another algorithm is refused by name (:func:`sb3_marl.runs.check_model_file`)."""
 
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
-        self.algorithm_class = type(self).__name__  # loading restores the saved one over it
+class MaskingLearner:
+    """What every learner of this module takes and saves: the ``action_masking`` switch, and its
+    class name (``algorithm_class`` in the zip's data, so that loading a model as another
+    algorithm is refused by name: :func:`sb3_marl.runs.check_model_file`). Loading a model
+    restores the saved values over these."""
+
+    def __init__(self, *args: Any, action_masking: bool = True, **kwargs: Any) -> None:
+        self.algorithm_class = type(self).__name__
+        self.action_masking = bool(action_masking)
         super().__init__(*args, **kwargs)
 
 
-class ActionMaskingMixin(RecordsAlgorithmClass):
+class ActionMaskingMixin(MaskingLearner):
     """``action_masking`` switch of a maskable on-policy learner: sb3-contrib's masked rollouts
     and ``predict(..., action_masks=...)``, with masks only when ``action_masking`` is True."""
 
@@ -77,10 +81,10 @@ class ActionMaskingMixin(RecordsAlgorithmClass):
 
 
 def _with_action_masking(cls: type, base: type) -> None:
-    """Give ``cls.__init__`` the signature of ``base.__init__`` plus ``action_masking``, so that
-    the zoo configs' validation (which reads constructor signatures) sees every argument."""
-    signature = inspect.signature(base.__init__)
-    cls.__init__.__signature__ = signature.replace(parameters=[
+    """Give ``cls`` the constructor signature of ``base`` plus ``action_masking``, so that the zoo
+    configs' validation (which reads constructor signatures) sees every argument."""
+    signature = inspect.signature(base)
+    cls.__signature__ = signature.replace(parameters=[
         *signature.parameters.values(),
         inspect.Parameter("action_masking", inspect.Parameter.KEYWORD_ONLY, default=True, annotation=bool),
     ])
@@ -89,20 +93,12 @@ def _with_action_masking(cls: type, base: type) -> None:
 class MaskedPPO(ActionMaskingMixin, MaskablePPO):
     """sb3-contrib's ``MaskablePPO`` with the ``action_masking`` switch (see the module doc)."""
 
-    def __init__(self, policy: Any, env: GymEnv | str | None, *args: Any, action_masking: bool = True, **kwargs: Any):
-        self.action_masking = bool(action_masking)
-        super().__init__(policy, env, *args, **kwargs)
-
 
 class MaskableACKTR(ActionMaskingMixin, ACKTR):
     """Our :class:`~sb3_marl.algos.acktr.ACKTR` on sb3-contrib's maskable policy, rollout buffer and
     masked rollouts (see the module doc); ACKTR's update evaluates the actions under their masks."""
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = MaskablePPO.policy_aliases
-
-    def __init__(self, policy: Any, env: GymEnv | str | None, *args: Any, action_masking: bool = True, **kwargs: Any):
-        self.action_masking = bool(action_masking)
-        super().__init__(policy, env, *args, **kwargs)
 
     def _setup_model(self) -> None:
         """As ``MaskablePPO._setup_model`` (maskable policy and rollout buffer), then K-FAC."""
@@ -162,7 +158,7 @@ class MaskedReplayBuffer(ReplayBuffer):
         return MaskedReplayBufferSamples(*tuple(map(self.to_torch, data)))
 
 
-class MaskableDQN(RecordsAlgorithmClass, DQN):
+class MaskableDQN(MaskingLearner, DQN):
     """SB3's DQN whose Q-values of unavailable meta-actions are excluded from the greedy action,
     from ε-greedy exploration (random actions among the available ones, also during warm-up) and
     from the bootstrap target ``max_a' Q_target(s', a')`` (over the actions available in s').
@@ -173,10 +169,9 @@ class MaskableDQN(RecordsAlgorithmClass, DQN):
     """
 
     def __init__(self, policy: Any, env: GymEnv | str | None, *args: Any, action_masking: bool = True, **kwargs: Any):
-        self.action_masking = bool(action_masking)
-        if self.action_masking and kwargs.get("replay_buffer_class") is None:
+        if action_masking and kwargs.get("replay_buffer_class") is None:
             kwargs["replay_buffer_class"] = MaskedReplayBuffer
-        super().__init__(policy, env, *args, **kwargs)
+        super().__init__(policy, env, *args, action_masking=action_masking, **kwargs)
 
     def predict(
         self,
@@ -304,7 +299,6 @@ class MaskableA2C(ActionMaskingMixin, MaskablePPO):
         if use_rms_prop and "optimizer_class" not in policy_kwargs:
             policy_kwargs["optimizer_class"] = th.optim.RMSprop
             policy_kwargs["optimizer_kwargs"] = dict(alpha=0.99, eps=rms_prop_eps, weight_decay=0)
-        self.action_masking = bool(action_masking)
         self.per_agent_updates = bool(per_agent_updates)
         if self.per_agent_updates and rollout_buffer_class is None:
             rollout_buffer_class = PerAgentRolloutBuffer
@@ -331,8 +325,8 @@ class MaskableA2C(ActionMaskingMixin, MaskablePPO):
             seed=seed,
             device=device,
             _init_setup_model=_init_setup_model,
+            action_masking=action_masking,
         )
-
 
     def learn(self, total_timesteps: int, callback: Any = None, log_interval: int = 10, tb_log_name: str = "MA2C",
               reset_num_timesteps: bool = True, use_masking: bool = True, progress_bar: bool = False) -> MaskableA2C:
