@@ -80,7 +80,8 @@ def default_config() -> dict[str, Any]:
         # Safety supervisor of the authors' MA2C (sb3_marl/envs/supervisor.py); on in the zoo configs
         "safety_supervisor": False,
         "supervisor_horizon": 1.4,  # [s] prediction horizon (7 policy steps at 5 Hz)
-        "supervisor_min_gap": 0.0,  # [m] smallest predicted bumper-to-bumper gap accepted
+        "supervisor_min_gap": 2.0,  # [m] smallest predicted bumper-to-bumper gap accepted
+        "supervisor_repeat_actions": True,  # AVs repeat their action at each step of the horizon
         **RENDER_DEFAULTS,
     }
 
@@ -179,6 +180,7 @@ _SCHEMA: dict[str, tuple[Check, str]] = {
     "safety_supervisor": _boolean(),
     "supervisor_horizon": _number(0, 60, strict_lo=True),
     "supervisor_min_gap": _number(0, 100),
+    "supervisor_repeat_actions": _boolean(),
     "screen_width": _integer(1),
     "screen_height": _integer(1),
     "centering_position": _any(),

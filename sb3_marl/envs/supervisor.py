@@ -49,6 +49,9 @@ NO_LEADER_GAP = 1e6  # [m], headway of an AV without leader (priority only)
 #: Replacement candidates in tie order: IDLE, SLOWER, FASTER, LANE_LEFT, LANE_RIGHT
 #: (highway-env's meta-action indices).
 PREFERENCE = np.array([1, 4, 3, 0, 2], dtype=np.int64)
+#: Speed-index change of each meta-action (FASTER +1, SLOWER -1) when actions repeat over the horizon.
+PASSES = 2
+SPEED_STEP = np.array([0, 0, 0, 1, -1], dtype=np.int64)
 
 
 @numba.njit(cache=True)
@@ -92,14 +95,26 @@ def _room(
     ego: int, x0: np.ndarray, y0: np.ndarray, h0: np.ndarray, v0: np.ndarray, target_y: np.ndarray,
     target_speed: np.ndarray, is_hdv: np.ndarray, delta: np.ndarray, crashed: np.ndarray,
     collidable: np.ndarray, frames: int, dt: float, lane_width: float, n_lanes: int,
+    speed_step: np.ndarray, ladder: np.ndarray, frames_per_step: int,
 ) -> float:
     """Smallest bumper-to-bumper gap [m] over ``frames`` frames of ``dt`` s between vehicle ``ego``
-    and any collidable vehicle overlapping it laterally (negative: a collision)."""
+    and any collidable vehicle overlapping it laterally (negative: a collision).
+
+    ``speed_step`` (+1 FASTER, -1 SLOWER, 0 otherwise, per vehicle) repeats a speed change at every
+    policy step (``frames_per_step`` frames) of the horizon, as ``MDPVehicle.act`` would on the
+    speed ``ladder`` [m/s]: the AV keeps its action over the horizon."""
     n = x0.size
     x, y, h, v = x0.copy(), y0.copy(), h0.copy(), v0.copy()
+    target_speed = target_speed.copy()
     acceleration, steering = np.zeros(n), np.zeros(n)
     room = np.inf
-    for _ in range(frames):
+    top = ladder.size - 1
+    for frame in range(frames):
+        if frame > 0 and frame % frames_per_step == 0:
+            for k in range(n):
+                if speed_step[k] != 0:
+                    index = min(max(np.round((v[k] - ladder[0]) / (ladder[top] - ladder[0]) * top), 0), top)
+                    target_speed[k] = ladder[int(min(max(index + speed_step[k], 0), top))]
         for k in range(n):  # act: every vehicle decides on the same frozen positions
             if crashed[k]:
                 acceleration[k], steering[k] = -v[k], 0.0
@@ -129,8 +144,13 @@ def _room(
         for j in range(n):
             if j != ego and collidable[j]:
                 other_x, other_y = _half_extents(h[j])
-                if abs(y[j] - y[ego]) < ego_y + other_y:
-                    room = min(room, abs(x[j] - x[ego]) - ego_x - other_x)
+                # highway-env flags a collision when the bodies would meet within the next frame
+                # (each moved by its velocity × dt): the gaps shrink by the closing speed × dt
+                dx, dy = x[j] - x[ego], y[j] - y[ego]
+                closing_x = (v[ego] * np.cos(h[ego]) - v[j] * np.cos(h[j])) * np.sign(dx)
+                closing_y = (v[ego] * np.sin(h[ego]) - v[j] * np.sin(h[j])) * np.sign(dy)
+                if abs(dy) - max(closing_y, 0.0) * dt < ego_y + other_y:
+                    room = min(room, abs(dx) - ego_x - other_x - max(closing_x, 0.0) * dt)
     return room
 
 
@@ -148,7 +168,8 @@ def supervise_arrays(
     target_speed: np.ndarray, is_hdv: np.ndarray, delta: np.ndarray, crashed: np.ndarray,
     collidable: np.ndarray, candidate_y: np.ndarray, candidate_speed: np.ndarray,
     available: np.ndarray, proposed: np.ndarray, frames: int, dt: float, lane_width: float,
-    n_lanes: int, headway_time: float, min_gap: float,
+    n_lanes: int, headway_time: float, min_gap: float, ladder: np.ndarray, frames_per_step: int,
+    repeat_actions: bool,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The supervisor on arrays (AVs first). Returns the executed actions and each AV's room [m]
     under them (NaN for AVs not served: those past the road end).
@@ -162,29 +183,38 @@ def supervise_arrays(
     executed = proposed.copy()
     rooms = np.full(n_avs, np.nan)
     target_y, target_speed = target_y.copy(), target_speed.copy()
+    speed_step = np.zeros(x.size, dtype=np.int64)
     margin = np.empty(n_avs)
     for i in range(n_avs):
         target_y[i], target_speed[i] = candidate_y[i, proposed[i]], candidate_speed[i, proposed[i]]
+        if repeat_actions:
+            speed_step[i] = SPEED_STEP[proposed[i]]
         lane = min(max(int(np.floor(y[i] / lane_width + 0.5)), 0), n_lanes - 1)
         front = _leader(i, lane * lane_width, x, y, lane_width)
         margin[i] = (x[front] - x[i] if front >= 0 else NO_LEADER_GAP) - v[i] * headway_time
-    for i in np.argsort(margin, kind="mergesort"):
-        if not collidable[i]:
-            continue
-        room = _room(i, x, y, h, v, target_y, target_speed, is_hdv, delta, crashed, collidable, frames, dt,
-                     lane_width, n_lanes)
-        if room < min_gap:
-            best, best_room = proposed[i], room
-            for a in PREFERENCE:
-                if available[i, a] and a != proposed[i]:
-                    target_y[i], target_speed[i] = candidate_y[i, a], candidate_speed[i, a]
-                    candidate_room = _room(i, x, y, h, v, target_y, target_speed, is_hdv, delta, crashed,
-                                           collidable, frames, dt, lane_width, n_lanes)
-                    if candidate_room > best_room:
-                        best, best_room = a, candidate_room
-            executed[i], room = best, best_room
-            target_y[i], target_speed[i] = candidate_y[i, best], candidate_speed[i, best]
-        rooms[i] = room
+    order = np.argsort(margin, kind="mergesort")
+    for sweep in range(PASSES):
+        for i in order:
+            if not collidable[i]:
+                continue
+            current = executed[i]
+            room = _room(i, x, y, h, v, target_y, target_speed, is_hdv, delta, crashed, collidable, frames, dt,
+                         lane_width, n_lanes, speed_step, ladder, frames_per_step)
+            if room < min_gap:
+                best, best_room = current, room
+                for a in PREFERENCE:
+                    if available[i, a] and a != current:
+                        target_y[i], target_speed[i] = candidate_y[i, a], candidate_speed[i, a]
+                        speed_step[i] = SPEED_STEP[a] if repeat_actions else 0
+                        candidate_room = _room(i, x, y, h, v, target_y, target_speed, is_hdv, delta, crashed,
+                                               collidable, frames, dt, lane_width, n_lanes, speed_step, ladder,
+                                               frames_per_step)
+                        if candidate_room > best_room:
+                            best, best_room = a, candidate_room
+                executed[i], room = best, best_room
+                target_y[i], target_speed[i] = candidate_y[i, best], candidate_speed[i, best]
+                speed_step[i] = SPEED_STEP[best] if repeat_actions else 0
+            rooms[i] = room
     return executed, rooms
 
 
@@ -241,4 +271,7 @@ def supervise(
         np.asarray(proposed, dtype=np.int64),
         frames, 1.0 / config["simulation_frequency"], lane_width, n_lanes,
         float(config["headway_time"]), float(config["supervisor_min_gap"]),
+        np.asarray(config["target_speeds"], dtype=np.float64),
+        max(config["simulation_frequency"] // config["policy_frequency"], 1),
+        bool(config.get("supervisor_repeat_actions", True)),
     )
