@@ -10,14 +10,23 @@ reproducible without drawing random numbers). For the AV being served it predict
   :mod:`sb3_marl.envs.simulator`, on a light array copy of the vehicle states: no env copy);
 - HDVs follow their leader by IDM (highway-env's ``IDMVehicle`` parameters, the leader in their
   lane and, while they change lanes, in the target lane); MOBIL decisions are not predicted;
-- AVs already served keep their (possibly replaced) action, the others their proposed action.
+- AVs already served keep their (possibly replaced) action, the others their proposed action;
+  with ``supervisor_repeat_actions`` (default) every AV repeats its action at each policy step of
+  the horizon, as it would if the policy (or the supervisor) chose it again: SLOWER keeps braking
+  down the speed ladder, FASTER keeps speeding up. Held once, SLOWER only lowers the target speed
+  by one step, which cannot stop an AV closing on a slow leader; repeated, it can, and the
+  supervisor will keep choosing it while the danger lasts.
 
 The *room* of the AV is the smallest bumper-to-bumper gap [m] over the horizon to any vehicle
 whose body overlaps it laterally; bodies are the axis-aligned boxes around the (possibly tilted)
-vehicle rectangles, so a negative room is a predicted collision, with a little to spare.
-If the proposed action's room is below ``supervisor_min_gap`` m, it is replaced by the action
-available to the AV (the env's action mask) with the largest room, ties in the order IDLE,
-SLOWER, FASTER, LANE_LEFT, LANE_RIGHT. The prediction runs as one compiled (numba) function per
+vehicle rectangles, and, as highway-env's own collision test, each gap is shortened by the
+distance the two vehicles close within the next frame, so a negative room is a predicted
+collision, with a little to spare. If the action's room is below ``supervisor_min_gap`` m
+(default 2 m), it is replaced by the action available to the AV (the env's action mask) with the
+largest room, ties in the order IDLE, SLOWER, FASTER, LANE_LEFT, LANE_RIGHT. The AVs are served
+in two passes (:data:`PASSES`): the second re-checks each AV against the actions the others ended
+with in the first (an AV served early was checked against proposals that may have been replaced
+since). The prediction runs as one compiled (numba) function per
 step; compiled code is cached on disk, so a fresh process pays the compile time only once.
 """
 
@@ -50,6 +59,7 @@ NO_LEADER_GAP = 1e6  # [m], headway of an AV without leader (priority only)
 #: (highway-env's meta-action indices).
 PREFERENCE = np.array([1, 4, 3, 0, 2], dtype=np.int64)
 #: Speed-index change of each meta-action (FASTER +1, SLOWER -1) when actions repeat over the horizon.
+#: Passes over the AVs in priority order (the second checks against the first pass's final actions).
 PASSES = 2
 SPEED_STEP = np.array([0, 0, 0, 1, -1], dtype=np.int64)
 
@@ -273,5 +283,5 @@ def supervise(
         float(config["headway_time"]), float(config["supervisor_min_gap"]),
         np.asarray(config["target_speeds"], dtype=np.float64),
         max(config["simulation_frequency"] // config["policy_frequency"], 1),
-        bool(config.get("supervisor_repeat_actions", True)),
+        bool(config["supervisor_repeat_actions"]),
     )
