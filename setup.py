@@ -33,8 +33,10 @@ setup(
     extras_require={
         # Ray Tune runs the paper-reproduction benchmark (`sb3-marl benchmark`)
         "ray": ["ray[tune]>=2.60,<2.61"],
+        # the scenario as a PettingZoo ParallelEnv (sb3_marl.envs.parallel_env), SuperSuit to feed it to SB3
+        "pettingzoo": ["pettingzoo>=1.27,<1.28", "supersuit>=3.10,<3.11"],
         # seaborn and scipy: rl_zoo3's own plotting scripts, run by the tests on our logs
-        "dev": ["pytest>=8", "seaborn", "scipy", "ray[tune]>=2.60,<2.61"],
+        "dev": ["pytest>=8", "seaborn", "scipy", "ray[tune]>=2.60,<2.61", "pettingzoo>=1.27,<1.28", "supersuit>=3.10,<3.11"],
     },
     entry_points={"console_scripts": ["sb3-marl=sb3_marl.cli:main"]},
     classifiers=[

@@ -25,6 +25,16 @@ def __getattr__(name: str) -> Any:
         from sb3_marl.envs import lane_change_env
 
         return getattr(lane_change_env, name)
+    if name in ("parallel_env", "LaneChangeParallelEnv"):
+        try:
+            from sb3_marl.envs import parallel
+        except ModuleNotFoundError as error:
+            if error.name != "pettingzoo":
+                raise
+            raise ModuleNotFoundError(
+                "sb3_marl.envs.parallel_env needs PettingZoo: pip install 'sb3-marl[pettingzoo]'", name="pettingzoo"
+            ) from None
+        return getattr(parallel, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
@@ -65,4 +75,4 @@ def av_steps_per_env_step(env_id: str, config: dict[str, Any] | None = None, n_c
     return sum(counts) / len(counts)
 
 
-__all__ = ["ACTIONS", "av_steps_per_env_step", "DENSITIES", "ENV_IDS", "LaneChangeEnv", "av_counts", "copy_av_counts", "default_config", "validate_config"]
+__all__ = ["ACTIONS", "LaneChangeParallelEnv", "parallel_env", "av_steps_per_env_step", "DENSITIES", "ENV_IDS", "LaneChangeEnv", "av_counts", "copy_av_counts", "default_config", "validate_config"]

@@ -1,0 +1,144 @@
+"""The lane-change scenario as a PettingZoo ``ParallelEnv`` (the ``pettingzoo`` extra).
+
+RLlib, BenchMARL, TorchRL, EPyMARL and SuperSuit accept PettingZoo's parallel API; this module
+puts the same :class:`~sb3_marl.envs.lane_change_env.LaneChangeEnv` behind it:
+
+- agents ``"av_0" ... "av_{n-1}"``, one per AV (``n_avs``, default: the density's maximum); all
+  of them stay in ``agents`` until the episode ends, which happens for every AV at once (any AV
+  crashes: ``terminations`` all True; time limit or every AV past the road end: ``truncations``
+  all True); after that ``agents`` is empty, as PettingZoo requires;
+- per-agent spaces (cached: ``observation_space(a) is observation_space(a)``): a Box of shape
+  (``obs_vehicles_count``, 5), the AV's own kinematic observation, and ``Discrete(5)``, the
+  meta-actions (0 LANE_LEFT, 1 IDLE, 2 LANE_RIGHT, 3 FASTER, 4 SLOWER);
+- per-agent rewards in ``reward_mode``: ``"local"`` (the paper's neighbourhood average, default),
+  ``"global"`` (mean over all AVs) or ``"individual"`` (the AV's own);
+- ``infos[agent]["action_mask"]``: the AV's available meta-actions (int8, 1 = available), where
+  PettingZoo's masked environments without dict observations put it, with the AV's speed [m/s],
+  headway [m], crash flag and, with the safety supervisor on, its proposed and executed action;
+- ``state()``: the global view, all AVs' observations stacked (``state_space``, shape
+  (n_avs * obs_vehicles_count * 5,)), for centralised critics;
+- ``render()``: highway-env's renderer (``render_mode="rgb_array"`` works headless).
+
+Unlike :class:`~wrappers.parameter_sharing.ParameterSharingVecEnv`, which feeds AV counts that
+vary between copies to one SB3 learner with no padding, a ParallelEnv has a fixed set of possible
+agents: one instance per AV count (``n_avs``), as here.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from pettingzoo import ParallelEnv
+
+from sb3_marl.envs import ENV_IDS
+from sb3_marl.envs.lane_change_env import ACTIONS, LaneChangeEnv
+from wrappers.parameter_sharing import REWARD_MODES, apply_reward_mode
+
+#: Per-AV step info copied into each agent's ``infos`` entry.
+AGENT_INFO = ("speed", "headway", "crashed", "exited", "lane_change", "proposed_action", "executed_action", "intervened")
+
+
+class LaneChangeParallelEnv(ParallelEnv):
+    """PettingZoo parallel API over one :class:`LaneChangeEnv` (see the module doc)."""
+
+    metadata = {"name": "sb3_marl_lane_change_v0", "render_modes": ["human", "rgb_array"], "is_parallelizable": True}
+
+    def __init__(
+        self, density: int = 1, reward_mode: str = "local", render_mode: str | None = None, **config: Any
+    ) -> None:
+        """
+        :param density: traffic density, 1, 2 or 3
+        :param reward_mode: ``"local"``, ``"global"`` or ``"individual"``
+        :param render_mode: None, ``"rgb_array"`` or ``"human"``
+        :param config: scenario config overrides (``n_avs``, ``safety_supervisor``, ...; see
+            :mod:`sb3_marl.envs.config`)
+        """
+        if density not in ENV_IDS:
+            raise ValueError(f"Invalid density={density!r}: expected one of {sorted(ENV_IDS)}.")
+        if reward_mode not in REWARD_MODES:
+            raise ValueError(f"Invalid reward_mode={reward_mode!r}: expected one of {list(REWARD_MODES)}.")
+        self.env: LaneChangeEnv = gym.make(ENV_IDS[density], config=config, render_mode=render_mode).unwrapped
+        self.reward_mode = reward_mode
+        self.render_mode = render_mode
+        self.possible_agents = [f"av_{i}" for i in range(self.env.n_avs)]
+        self.agents: list[str] = []
+        per_agent = self.env.observation_space
+        self._observation_space = spaces.Box(
+            low=per_agent.low[0], high=per_agent.high[0], shape=per_agent.shape[1:], dtype=per_agent.dtype
+        )
+        self.state_space = spaces.Box(low=-1.0, high=1.0, shape=(int(np.prod(per_agent.shape)),), dtype=per_agent.dtype)
+        self._last_obs: np.ndarray | None = None
+
+    @functools.lru_cache(maxsize=None)
+    def observation_space(self, agent: str) -> spaces.Box:
+        """The AV's kinematic observation: (obs_vehicles_count, 5) in [-1, 1]."""
+        return spaces.Box(
+            low=self._observation_space.low, high=self._observation_space.high, dtype=self._observation_space.dtype
+        )
+
+    @functools.lru_cache(maxsize=None)
+    def action_space(self, agent: str) -> spaces.Discrete:
+        """The 5 meta-actions (:data:`~sb3_marl.envs.lane_change_env.ACTIONS`)."""
+        return spaces.Discrete(len(ACTIONS))
+
+    def reset(self, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
+        obs, info = self.env.reset(seed=seed, options=options)
+        self.agents = list(self.possible_agents)
+        self._last_obs = obs
+        return self._per_agent(obs), self._infos(info)
+
+    def step(self, actions: dict[str, int]) -> tuple[dict, dict, dict, dict, dict]:
+        if not self.agents:
+            raise RuntimeError("The episode is over: call reset() before step().")
+        missing = [agent for agent in self.agents if agent not in actions]
+        if missing:
+            raise ValueError(f"Invalid actions: no action for agent(s) {missing}; expected one per agent in {self.agents}.")
+        obs, _, terminated, truncated, info = self.env.step(
+            np.array([int(actions[agent]) for agent in self.possible_agents], dtype=np.int64)
+        )
+        self._last_obs = obs
+        rewards = apply_reward_mode(info, self.reward_mode)
+        result = (
+            self._per_agent(obs),
+            {agent: float(rewards[i]) for i, agent in enumerate(self.possible_agents)},
+            {agent: bool(terminated) for agent in self.possible_agents},
+            {agent: bool(truncated) for agent in self.possible_agents},
+            self._infos(info),
+        )
+        if terminated or truncated:
+            self.agents = []
+        return result
+
+    def state(self) -> np.ndarray:
+        """All AVs' observations, flattened: (n_avs * obs_vehicles_count * 5,)."""
+        if self._last_obs is None:
+            raise RuntimeError("Call reset() before state().")
+        return self._last_obs.reshape(-1).copy()
+
+    def render(self) -> np.ndarray | None:
+        return self.env.render()
+
+    def close(self) -> None:
+        self.env.close()
+
+    def _per_agent(self, obs: np.ndarray) -> dict[str, np.ndarray]:
+        return {agent: obs[i] for i, agent in enumerate(self.possible_agents)}
+
+    def _infos(self, info: dict[str, Any]) -> dict[str, dict[str, Any]]:
+        masks = info["action_mask"].astype(np.int8)
+        return {
+            agent: {"action_mask": masks[i], **{key: info[key][i] for key in AGENT_INFO}}
+            for i, agent in enumerate(self.possible_agents)
+        }
+
+
+def parallel_env(density: int = 1, reward_mode: str = "local", render_mode: str | None = None, **config: Any) -> LaneChangeParallelEnv:
+    """The lane-change scenario as a PettingZoo ``ParallelEnv`` (PettingZoo's constructor name)."""
+    return LaneChangeParallelEnv(density=density, reward_mode=reward_mode, render_mode=render_mode, **config)
+
+
+__all__ = ["LaneChangeParallelEnv", "parallel_env"]
