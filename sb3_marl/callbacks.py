@@ -153,7 +153,7 @@ class ScenarioEvalCallback(BaseCallback):
     ``ep_lengths``) plus one array per driving metric, to the logger under ``eval/``, and the best
     model so far to ``<best_model_save_path>/best_model.zip``. ``callback_after_eval`` is called
     after each evaluation (as in SB3's ``EvalCallback``; it sees this callback as ``parent``, with
-    the latest summary in ``last_summary``). With ``evaluate_at_end``, training that ends normally
+    the latest summary in ``last_summary``; returning False stops training). With ``evaluate_at_end``, training that ends normally
     ends with an evaluation of the final model (unless one was just made at that step).
     """
 
@@ -187,6 +187,7 @@ class ScenarioEvalCallback(BaseCallback):
         self.deterministic = deterministic
         self.best_mean_reward = -np.inf
         self.evaluations: dict[str, list] = defaultdict(list)
+        self.continue_training = True
 
     def _init_callback(self) -> None:
         if self.callback_after_eval is not None:
@@ -195,7 +196,7 @@ class ScenarioEvalCallback(BaseCallback):
     def _on_step(self) -> bool:
         if self.eval_freq > 0 and self.n_calls % self.eval_freq == 0:
             self.evaluate()
-        return True
+        return self.continue_training
 
     def _on_training_end(self) -> None:
         timesteps = self.evaluations["timesteps"]
@@ -256,7 +257,7 @@ class ScenarioEvalCallback(BaseCallback):
         self.logger.dump(self.num_timesteps)
         self.last_summary = summary
         if self.callback_after_eval is not None:
-            self.callback_after_eval.on_step()
+            self.continue_training = self.callback_after_eval.on_step()
         return summary
 
 

@@ -157,6 +157,21 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--log-interval", type=_positive_or_default, default=-1,
                        help="SB3 log_interval (>= 1); -1: the algorithm's default")
     train.add_argument("--verbose", type=int, default=1, choices=[0, 1, 2])
+    search = train.add_argument_group("hyperparameter search (rl-zoo's -optimize, Optuna)")
+    search.add_argument("-optimize", "--optimize-hyperparameters", action="store_true",
+                        help="search hyperparameters instead of training one model")
+    search.add_argument("--n-trials", type=_positive(), default=500, help="trials to run (default: 500)")
+    search.add_argument("--n-jobs", type=_positive(), default=1, help="trials in parallel (threads; default: 1)")
+    search.add_argument("--sampler", default="tpe", choices=["tpe", "random"], help="Optuna sampler (default: tpe)")
+    search.add_argument("--pruner", default="median", choices=["median", "halving", "none"],
+                        help="Optuna pruner (default: median)")
+    search.add_argument("--n-startup-trials", type=int, default=10,
+                        help="trials before the TPE sampler and the median pruner act (default: 10)")
+    search.add_argument("--n-evaluations", type=_positive(), default=None,
+                        help="evaluations per trial, for pruning (default: one per 100k AV-steps)")
+    search.add_argument("--storage", default=None,
+                        help="database URL (sqlite:///study.db) or .log journal file; a study is resumed from it")
+    search.add_argument("--study-name", default=None, help="study name in --storage (required with it)")
 
     for name in ("evaluate", "enjoy"):
         evaluate = commands.add_parser(name, help="evaluate a trained model on seeded episodes" if name == "evaluate"
@@ -270,6 +285,15 @@ def _check_train_args(args: argparse.Namespace) -> None:
     _check_device(args.device)
     if args.conf_file and not os.path.isfile(args.conf_file):
         raise UsageError(f"-c/--conf-file: {args.conf_file!r} is not an existing YAML file.")
+    if args.optimize_hyperparameters:
+        if args.trained_agent:
+            raise UsageError("-optimize searches from scratch: it cannot continue -i/--trained-agent.")
+        if args.n_startup_trials < 0:
+            raise UsageError(f"--n-startup-trials: expected an integer >= 0, got {args.n_startup_trials}.")
+        if args.storage is not None and not args.study_name:
+            raise UsageError("--storage needs --study-name, so that a later invocation resumes the same study.")
+        if args.storage is not None and not (args.storage.endswith(".log") or "://" in args.storage):
+            raise UsageError(f"--storage: {args.storage!r} is neither a database URL (sqlite:///study.db) nor a .log file.")
     if args.trained_agent:
         if not (args.trained_agent.endswith(".zip") and os.path.isfile(args.trained_agent)):
             raise UsageError(f"-i/--trained-agent: {args.trained_agent!r} is not an existing .zip model file.")
@@ -292,11 +316,20 @@ def train(args: argparse.Namespace) -> int:
         n_eval_episodes=args.eval_episodes, save_freq=args.save_freq, hyperparams=args.hyperparams,
         trained_agent=args.trained_agent, seed=args.seed, log_interval=args.log_interval, verbose=args.verbose,
         device=args.device, show_progress=args.progress,
+        optimize_hyperparameters=args.optimize_hyperparameters, n_trials=args.n_trials, n_jobs=args.n_jobs,
+        sampler=args.sampler, pruner=args.pruner, n_startup_trials=args.n_startup_trials,
+        n_evaluations=args.n_evaluations, storage=args.storage, study_name=args.study_name,
     )
     try:
-        model, _ = manager.setup_experiment()
+        experiment = manager.setup_experiment()
     except (ValueError, FileNotFoundError) as error:  # bad hyperparameters: nothing has been trained
         raise UsageError(str(error)) from None
+    if args.optimize_hyperparameters:
+        start = time.perf_counter()
+        manager.hyperparameters_optimization()
+        print(f"Search wall time: {time.perf_counter() - start:.1f} s")
+        return EXIT_INTERRUPTED[signal.SIGINT] if manager.interrupted else 0
+    model, _ = experiment
     start = time.perf_counter()
     with _StopTraining() as stop:
         try:

@@ -21,6 +21,7 @@ import sys
 from collections import OrderedDict
 from typing import Any
 
+import optuna
 import rl_zoo3.utils as zoo_utils
 from rl_zoo3.exp_manager import ExperimentManager
 from stable_baselines3.common.base_class import BaseAlgorithm
@@ -48,6 +49,7 @@ from sb3_marl.hyperparams import (
 from sb3_marl.policies import unchecked_distributions
 from sb3_marl.runs import run_id
 from sb3_marl.training import make_venv
+from sb3_marl.tuning import SAMPLERS, TrialPruningCallback, best_hyperparams_yaml, merge_sampled
 
 #: Evaluation episodes use seeds from ``seed + EVAL_SEED_OFFSET`` on, apart from training seeds.
 EVAL_SEED_OFFSET = 10_000
@@ -107,6 +109,7 @@ class MARLExperimentManager(ExperimentManager):
         hyperparams = merge_hyperparams(hyperparams, self.custom_hyperparams)
         hyperparams.update(self.cli_overrides)
         validate_hyperparams(self.algo, hyperparams, self.env_name.gym_id)
+        self.config_hyperparams = dict(hyperparams)
         saved_hyperparams = OrderedDict((key, hyperparams[key]) for key in sorted(hyperparams))
         if self.verbose > 0:
             print(f"Hyperparameters for {self.algo} on {self.env_name.gym_id} (from {self.config}):")
@@ -126,8 +129,12 @@ class MARLExperimentManager(ExperimentManager):
 
     # ---- env, callbacks, model ----------------------------------------------------------------
 
+    def create_log_folder(self) -> None:
+        if not self.optimize_hyperparameters:  # a search writes its report, not a run folder
+            super().create_log_folder()
+
     def create_envs(self, n_envs: int, eval_env: bool = False, no_log: bool = False) -> VecEnv:
-        monitor_dir = None if eval_env or no_log else self.save_path
+        monitor_dir = None if eval_env or no_log or self.optimize_hyperparameters else self.save_path
         return make_venv(self.env_name.gym_id, self.scenario, self.seed, self.vec_backend, monitor_dir=monitor_dir,
                          monitor_file=self.monitor_file)
 
@@ -185,6 +192,80 @@ class MARLExperimentManager(ExperimentManager):
             model.logger.close()  # flushes the TensorBoard events
             assert model.env is not None
             model.env.close()
+
+    # ---- hyperparameter search (-optimize) ----------------------------------------------------
+
+    def objective(self, trial: optuna.Trial) -> float:
+        """One Optuna trial: train with sampled hyperparameters on the scenario and score the mean
+        return of the last evaluation (the paper's metric), reporting each one for pruning."""
+        sampled = SAMPLERS[self.algo][0](trial, self.n_actions, self.n_envs, {"using_her_replay_buffer": False, "her_kwargs": {}})
+        kwargs = merge_sampled(self._hyperparams, sampled)
+        env = self.create_envs(self.n_envs, no_log=True)
+        # every trial starts from the same seed, so that trials differ only in their hyperparameters
+        model = ALGOS[self.algo](env=env, seed=self.seed, verbose=0, device=self.device, **kwargs)
+        pruning = TrialPruningCallback(trial)
+        evaluation = ScenarioEvalCallback(
+            self.env_name.gym_id,
+            eval_freq=max(self.n_timesteps // self.n_evaluations // self.n_envs, 1),
+            n_eval_episodes=self.n_eval_episodes,
+            seed=self.seed + EVAL_SEED_OFFSET,
+            config=self.scenario.get("env_config"),
+            callback_after_eval=pruning,
+            evaluate_at_end=True,
+            verbose=0,
+        )
+        callbacks = [evaluation, *([StoreExecutedActions()] if self.scenario.get("stored_actions") == "executed" else [])]
+        try:
+            with unchecked_distributions():
+                model.learn(self.n_timesteps, callback=callbacks)
+        except (AssertionError, ValueError) as error:  # NaNs from extreme hyperparameters: rl-zoo prunes
+            print(f"Trial {trial.number} failed ({error}); pruned. Sampled: {sampled}")
+            raise optuna.exceptions.TrialPruned() from error
+        finally:
+            env.close()
+        if pruning.is_pruned:
+            raise optuna.exceptions.TrialPruned()
+        return evaluation.last_summary["return_mean"]
+
+    def hyperparameters_optimization(self) -> None:
+        """Optuna search with rl_zoo3's sampler and pruner (``--sampler``, ``--pruner``), in
+        ``--storage`` (a database URL or a ``.log`` journal file; a study of the same
+        ``--study-name`` there is continued) or in memory. Writes the trials to
+        ``<log_folder>/<algo>/report_<env>_<study>.csv`` and the best one as a zoo-config entry to
+        ``best_<env>_<study>.yml`` beside it."""
+        storage: Any = self.storage
+        if storage is not None and storage.endswith(".log"):
+            storage = optuna.storages.JournalStorage(optuna.storages.journal.JournalFileBackend(storage))
+        study = optuna.create_study(
+            sampler=self._create_sampler(self.sampler), pruner=self._create_pruner(self.pruner), storage=storage,
+            study_name=self.study_name, load_if_exists=True, direction="maximize",
+        )
+        done = len(study.trials)
+        print(f"Study {study.study_name!r}: {done} earlier trial(s); running {self.n_trials} more "
+              f"(sampler {self.sampler}, pruner {self.pruner}, {self.n_evaluations} evaluation(s) per trial)")
+        try:
+            study.optimize(self.objective, n_trials=self.n_trials, n_jobs=self.n_jobs, gc_after_trial=True)
+        except KeyboardInterrupt:
+            self.interrupted = True
+        folder = os.path.join(self.log_folder, self.algo)
+        os.makedirs(folder, exist_ok=True)
+        stem = os.path.join(folder, f"{{}}_{self.env_name}_{study.study_name}")
+        study.trials_dataframe().to_csv(stem.format("report") + ".csv")
+        complete = study.get_trials(deepcopy=False, states=[optuna.trial.TrialState.COMPLETE])
+        pruned = study.get_trials(deepcopy=False, states=[optuna.trial.TrialState.PRUNED])
+        print(f"Trials: {len(study.trials)} ({len(complete)} complete, {len(pruned)} pruned); report: {stem.format('report')}.csv")
+        self.best_config_path = None
+        if not complete:
+            print("No trial completed: no best hyperparameters to write.")
+            return
+        best = study.best_trial
+        self.best_config_path = stem.format("best") + ".yml"
+        with open(self.best_config_path, "w") as file:
+            file.write(best_hyperparams_yaml(self.algo, self.env_name.gym_id, self.config_hyperparams, best.params, best.value))
+        print(f"Best trial {best.number}: mean evaluation return {best.value:.2f}")
+        for key, value in best.params.items():
+            print(f"    {key}: {value}")
+        print(f"Its hyperparameters as a zoo-config entry: {self.best_config_path}")
 
     @property
     def run_id(self) -> int:
