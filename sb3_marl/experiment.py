@@ -49,7 +49,7 @@ from sb3_marl.hyperparams import (
 from sb3_marl.policies import unchecked_distributions
 from sb3_marl.runs import run_id
 from sb3_marl.training import make_venv
-from sb3_marl.tuning import SAMPLERS, TrialPruningCallback, best_hyperparams_yaml, merge_sampled
+from sb3_marl.tuning import SAMPLERS, TrialPruningCallback, best_hyperparams_yaml, config_trial, merge_sampled
 
 #: Evaluation episodes use seeds from ``seed + EVAL_SEED_OFFSET`` on, apart from training seeds.
 EVAL_SEED_OFFSET = 10_000
@@ -235,12 +235,17 @@ class MARLExperimentManager(ExperimentManager):
         ``best_<env>_<study>.yml`` beside it."""
         storage: Any = self.storage
         if storage is not None and storage.endswith(".log"):
+            os.makedirs(os.path.dirname(os.path.abspath(storage)), exist_ok=True)
             storage = optuna.storages.JournalStorage(optuna.storages.journal.JournalFileBackend(storage))
         study = optuna.create_study(
             sampler=self._create_sampler(self.sampler), pruner=self._create_pruner(self.pruner), storage=storage,
             study_name=self.study_name, load_if_exists=True, direction="maximize",
         )
         done = len(study.trials)
+        shipped = config_trial(self.algo, self.config_hyperparams)
+        if done == 0 and shipped is not None:
+            study.enqueue_trial(shipped, user_attrs={"shipped_config": True})
+            print(f"Trial 0 is the configuration as shipped: {shipped}")
         print(f"Study {study.study_name!r}: {done} earlier trial(s); running {self.n_trials} more "
               f"(sampler {self.sampler}, pruner {self.pruner}, {self.n_evaluations} evaluation(s) per trial)")
         try:
@@ -263,6 +268,9 @@ class MARLExperimentManager(ExperimentManager):
         with open(self.best_config_path, "w") as file:
             file.write(best_hyperparams_yaml(self.algo, self.env_name.gym_id, self.config_hyperparams, best.params, best.value))
         print(f"Best trial {best.number}: mean evaluation return {best.value:.2f}")
+        first = study.trials[0]
+        if first.user_attrs.get("shipped_config") and first.state == optuna.trial.TrialState.COMPLETE:
+            print(f"The configuration as shipped (trial 0): {first.value:.2f}")
         for key, value in best.params.items():
             print(f"    {key}: {value}")
         print(f"Its hyperparameters as a zoo-config entry: {self.best_config_path}")

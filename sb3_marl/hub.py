@@ -81,9 +81,10 @@ def model_card(results: dict[str, Any], repo_id: str) -> ModelCard:
     """A model card whose model-index carries the evaluation of ``results`` (a results.json)."""
     algo, env_id = results["algo"], results["env_id"]
     evaluation = {"task_type": "reinforcement-learning", "dataset_type": env_id, "dataset_name": env_id}
-    eval_results = [EvalResult(**evaluation, metric_type="mean_reward",
+    # huggingface_sb3's conventions: metric type and name "mean_reward", value "mean +/- std"
+    eval_results = [EvalResult(**evaluation, metric_type="mean_reward", metric_name="mean_reward",
                                metric_value=f"{results['return_mean']:.2f} +/- {results['return_std']:.2f}")]
-    eval_results += [EvalResult(**evaluation, metric_type=name, metric_value=round(results[key], 4))
+    eval_results += [EvalResult(**evaluation, metric_type=name, metric_name=name, metric_value=round(results[key], 4))
                      for key, name in CARD_METRICS.items()]
     data = ModelCardData(
         library_name="stable-baselines3", model_name=f"{algo.upper()}-{env_id}", eval_results=eval_results,
@@ -115,10 +116,28 @@ sb3-marl (`{algo}`: {get_algo(algo).__name__} with one policy shared by all AVs)
 
 ## Usage
 
+`pip install sb3-marl`, then with the command line (rl-zoo's layout):
+
 ```bash
 sb3-marl load-from-hub --repo-id {repo_id} -f logs
 sb3-marl evaluate --algo {algo} --env {env_id} -f logs
 sb3-marl record-video --algo {algo} --env {env_id} -f logs
+```
+
+or in Python (the evaluation protocol above: actions sampled from the policy, the scenario
+configured as in training):
+
+```python
+import gymnasium as gym
+from huggingface_hub import hf_hub_download
+
+from sb3_marl.algos import get_algo
+from sb3_marl.evaluation import model_policy, run_episodes
+
+model = get_algo("{algo}").load(hf_hub_download(repo_id="{repo_id}", filename="{model_file_name(algo, env_id)}"))
+env = gym.make("{env_id}", config={dict(results.get('env_config') or {})!r}).unwrapped
+records = run_episodes(env, model_policy(model), n_episodes=3, seed=10_000)
+print("episode returns:", [round(record.episode_return, 2) for record in records])
 ```
 
 Hyperparameters: `config.yml`. Evaluation: `results.json`. Replay: `replay.mp4`.

@@ -71,6 +71,11 @@ SAMPLERS: dict[str, tuple[Sampler, Callable[[dict], dict]]] = {
     "madqn": (HYPERPARAMS_SAMPLER["dqn"], HYPERPARAMS_CONVERTER["dqn"]),
     "matrpo": (HYPERPARAMS_SAMPLER["trpo"], HYPERPARAMS_CONVERTER["trpo"]),
 }
+#: Learner -> the sampled keys that are the config's own: a new study's first trial is the
+#: configuration as shipped (when its values lie in the sampled ranges), so the search says whether it beats it.
+CONFIG_TRIAL_KEYS: dict[str, tuple[str, ...]] = {
+    "ma2c": ("learning_rate", "ent_coef", "vf_coef", "gamma", "gae_lambda", "max_grad_norm", "per_agent_updates"),
+}
 SAMPLER_NAMES = ("tpe", "random")
 PRUNER_NAMES = ("median", "halving", "none")
 
@@ -124,4 +129,13 @@ def best_hyperparams_yaml(algo: str, env_id: str, base: dict[str, Any], params: 
     return header + yaml.safe_dump({env_id: entry}, sort_keys=False)
 
 
-__all__ = ["PRUNER_NAMES", "SAMPLERS", "SAMPLER_NAMES", "TrialPruningCallback", "best_hyperparams_yaml", "merge_sampled"]
+def config_trial(algo: str, hyperparams: dict[str, Any]) -> dict[str, Any] | None:
+    """The trial params of the shipped configuration ``hyperparams``, or None if the learner has
+    no such mapping or the config lacks a key."""
+    keys = CONFIG_TRIAL_KEYS.get(algo, ())
+    if not keys or any(key not in hyperparams for key in keys):
+        return None
+    return {key: hyperparams[key] for key in keys}
+
+
+__all__ = ["CONFIG_TRIAL_KEYS", "PRUNER_NAMES", "config_trial", "SAMPLERS", "SAMPLER_NAMES", "TrialPruningCallback", "best_hyperparams_yaml", "merge_sampled"]

@@ -54,6 +54,23 @@ def test_the_quick_start_main_job_runs_verbatim():
     assert "TensorBoard: " in out and "eval_return.png" in out
 
 
-@pytest.mark.parametrize("title", ["Quick start", "Command line"])
+def test_the_hyperparameter_search_section_runs_verbatim(tmp_path):
+    """Two invocations share one study (5 trials), then the best entry trains, all as written."""
+    import optuna
+
+    commands = section_commands("Hyperparameter search (`-optimize`)")
+    assert len(commands) == 3
+    executable = Path(sys.executable).parent / "sb3-marl"
+    for line in commands:
+        argv = shlex.split(line)
+        completed = subprocess.run([str(executable), *argv[1:]], cwd=tmp_path, capture_output=True, text=True, timeout=600)
+        assert completed.returncode == 0, f"{line}\n{completed.stdout[-2000:]}\n{completed.stderr[-2000:]}"
+    storage = optuna.storages.JournalStorage(optuna.storages.journal.JournalFileBackend(str(tmp_path / "logs/ma2c-search.log")))
+    study = optuna.load_study(study_name="ma2c-density1", storage=storage)
+    assert len(study.trials) == 5 and study.trials[0].user_attrs["shipped_config"]
+    assert (tmp_path / "logs/ma2c/sb3_marl-LaneChange-density1-v0_1/sb3_marl-LaneChange-density1-v0.zip").is_file()
+
+
+@pytest.mark.parametrize("title", ["Quick start", "Command line", "Hyperparameter search (`-optimize`)"])
 def test_sections_have_commands(title):
     assert section_commands(title)

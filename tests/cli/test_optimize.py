@@ -31,6 +31,10 @@ def test_a_tiny_in_memory_study_writes_the_report_and_a_usable_zoo_config(tmp_pa
     assert report["value"].dropna().nunique() > 1, report["value"].tolist()
     best_file = tmp_path / "ma2c" / f"best_{ENV_NAME}_tiny.yml"
     assert f"its hyperparameters as a zoo-config entry: {best_file}".lower() in out.lower()
+    # trial 0 is the configuration as shipped (zoo_configs/ma2c.yml)
+    shipped = load_hyperparams("ma2c", ENV)
+    assert report.loc[0, "params_learning_rate"] == shipped["learning_rate"]
+    assert report.loc[0, "params_per_agent_updates"] == shipped["per_agent_updates"]
     best = report.loc[report["value"].idxmax()]
     entry = yaml.safe_load(best_file.read_text())[ENV]
     assert entry["learning_rate"] == pytest.approx(best["params_learning_rate"])

@@ -56,6 +56,8 @@ def test_dry_run_builds_the_folder_with_a_model_card_matching_the_evaluation(log
     assert metrics["mean_speed_m_per_s"] == pytest.approx(results["speed_mean"], abs=1e-4)
     assert metrics["acceleration_std_m_per_s2"] == pytest.approx(results["acceleration_std"], abs=1e-4)
     assert all(r.dataset_type == "sb3_marl/LaneChange-density1-v0" for r in card.data.eval_results)
+    assert all(r.metric_name == r.metric_type for r in card.data.eval_results)  # huggingface_sb3's naming
+    assert "sampled actions (the authors' protocol)" in card.text  # the protocol behind the numbers
     assert metadata_load(folder / "README.md")["model-index"][0]["name"] == "MA2C-sb3_marl/LaneChange-density1-v0"
     assert "@article{zhou2022multi" in card.text and "sb3-marl load-from-hub --repo-id me/ma2c-" in card.text
     assert MaskableA2C.load(folder / MODEL).num_timesteps == 240
@@ -80,6 +82,12 @@ def test_push_then_load_round_trip(logs, tmp_path, hub, capsys):
         assert main(["enjoy", "-f", str(folder), "--exp-id", "1", "--eval-episodes", "2", "-o", str(tmp_path / out)]) == 0
     a, b = (json.loads((tmp_path / out).read_text()) for out in ("a.json", "b.json"))
     np.testing.assert_array_equal(a["returns"], b["returns"])
+
+    # the card's Python usage snippet runs as written, downloading from the (fake) Hub
+    card = hub.repos["me/lane"]["README.md"].decode()
+    snippet = card.split("```python\n", 1)[1].split("```", 1)[0]
+    exec(compile(snippet, "README.md", "exec"), {})
+    assert "episode returns: [" in capsys.readouterr().out
 
 
 def test_missing_token_keeps_the_built_folder(logs, tmp_path, monkeypatch, capsys):
