@@ -230,7 +230,9 @@ class MARLExperimentManager(ExperimentManager):
     def hyperparameters_optimization(self) -> None:
         """Optuna search with rl_zoo3's sampler and pruner (``--sampler``, ``--pruner``), in
         ``--storage`` (a database URL or a ``.log`` journal file; a study of the same
-        ``--study-name`` there is continued) or in memory. Writes the trials to
+        ``--study-name`` there is continued) or in memory. The sampler is seeded with ``--seed``
+        plus the number of trials already in the study, so that a resumed study or a second worker
+        on the same storage (started after the first has begun a trial) does not repeat its draws. Writes the trials to
         ``<log_folder>/<algo>/report_<env>_<study>.csv`` and the best one as a zoo-config entry to
         ``best_<env>_<study>.yml`` beside it."""
         storage: Any = self.storage
@@ -242,6 +244,10 @@ class MARLExperimentManager(ExperimentManager):
             study_name=self.study_name, load_if_exists=True, direction="maximize",
         )
         done = len(study.trials)
+        if done:  # a resumed study, or a second worker on the same storage: not the same draws again
+            seed, self.seed = self.seed, self.seed + done
+            study.sampler = self._create_sampler(self.sampler)
+            self.seed = seed
         shipped = config_trial(self.algo, self.config_hyperparams)
         if done == 0 and shipped is not None:
             study.enqueue_trial(shipped, user_attrs={"shipped_config": True})

@@ -54,6 +54,8 @@ def test_a_sqlite_study_is_resumed_by_a_second_invocation(tmp_path):
     study = optuna.load_study(study_name="resumed", storage=storage)
     assert len(study.trials) == 3
     assert all(t.state == optuna.trial.TrialState.COMPLETE for t in study.trials)
+    # the second invocation does not repeat the first one's draws (its sampler seed moves on)
+    assert len({t.params["learning_rate"] for t in study.trials}) == 3
     entry = yaml.safe_load((tmp_path / "mappo" / f"best_{ENV_NAME}_resumed.yml").read_text())[ENV]
     assert entry["policy_kwargs"].startswith("dict(net_arch=")  # rl-zoo's sampler's layers, rl-zoo's string form
 
