@@ -32,7 +32,9 @@ def logs(tmp_path_factory) -> Path:
 
 
 @pytest.fixture
-def hub(monkeypatch) -> FakeHub:
+def hub(monkeypatch, tmp_path) -> FakeHub:
+    # a cache of our own: the fake Hub's fixed commit hash must never meet files cached by another test run
+    monkeypatch.setattr(huggingface_hub.constants, "HF_HUB_CACHE", str(tmp_path / "hf_cache"))
     fake = FakeHub()
     huggingface_hub.set_client_factory(fake.client)
     monkeypatch.setenv("HF_TOKEN", "hf_test_token")
