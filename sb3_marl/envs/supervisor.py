@@ -26,7 +26,9 @@ collision, with a little to spare. If the action's room is below ``supervisor_mi
 largest room, ties in the order IDLE, SLOWER, FASTER, LANE_LEFT, LANE_RIGHT. The AVs are served
 in two passes (:data:`PASSES`): the second re-checks each AV against the actions the others ended
 with in the first (an AV served early was checked against proposals that may have been replaced
-since). The prediction runs as one compiled (numba) function per
+since). Served one at a time, two AVs whose lane changes conflict can still each find every option
+unsafe and cross each other; a joint fallback then makes the AVs left short of room after a lane
+change keep their lanes together (IDLE), when that leaves every AV more room. The prediction runs as one compiled (numba) function per
 step; compiled code is cached on disk, so a fresh process pays the compile time only once.
 """
 
@@ -225,6 +227,30 @@ def supervise_arrays(
                 target_y[i], target_speed[i] = candidate_y[i, best], candidate_speed[i, best]
                 speed_step[i] = SPEED_STEP[best] if repeat_actions else 0
             rooms[i] = room
+    # Joint fallback: the passes serve one AV at a time against the others' current actions, so two
+    # AVs whose lane changes conflict can each find every option unsafe and end up crossing each
+    # other. The AVs still short of room after a lane change keep their lanes (IDLE) together,
+    # if that leaves every served AV more room than before.
+    stuck = np.zeros(n_avs, dtype=np.bool_)
+    for i in order:
+        stuck[i] = collidable[i] and rooms[i] < min_gap and (executed[i] == 0 or executed[i] == 2)
+    if stuck.any():
+        trial_y, trial_speed, trial_step = target_y.copy(), target_speed.copy(), speed_step.copy()
+        for i in range(n_avs):
+            if stuck[i]:
+                trial_y[i], trial_speed[i], trial_step[i] = candidate_y[i, 1], candidate_speed[i, 1], 0
+        trial_rooms = rooms.copy()
+        before, after = np.inf, np.inf
+        for i in order:
+            if collidable[i]:
+                trial_rooms[i] = _room(i, x, y, h, v, trial_y, trial_speed, is_hdv, delta, crashed, collidable,
+                                       frames, dt, lane_width, n_lanes, trial_step, ladder, frames_per_step)
+                before, after = min(before, rooms[i]), min(after, trial_rooms[i])
+        if after > before:
+            for i in range(n_avs):
+                if stuck[i]:
+                    executed[i] = 1
+            rooms = trial_rooms
     return executed, rooms
 
 
