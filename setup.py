@@ -2,6 +2,9 @@
 
 from setuptools import find_packages, setup
 
+RAY = ["ray[tune]>=2.60,<2.61"]
+PETTINGZOO = ["pettingzoo>=1.27,<1.28", "supersuit>=3.10,<3.11"]
+
 setup(
     name="sb3-marl",
     version="0.1.0",
@@ -32,11 +35,11 @@ setup(
     ],
     extras_require={
         # Ray Tune runs the paper-reproduction benchmark (`sb3-marl benchmark`)
-        "ray": ["ray[tune]>=2.60,<2.61"],
+        "ray": RAY,
         # the scenario as a PettingZoo ParallelEnv (sb3_marl.envs.parallel_env), SuperSuit to feed it to SB3
-        "pettingzoo": ["pettingzoo>=1.27,<1.28", "supersuit>=3.10,<3.11"],
+        "pettingzoo": PETTINGZOO,
         # seaborn and scipy: rl_zoo3's own plotting scripts, run by the tests on our logs
-        "dev": ["pytest>=8", "seaborn", "scipy", "ray[tune]>=2.60,<2.61", "pettingzoo>=1.27,<1.28", "supersuit>=3.10,<3.11"],
+        "dev": ["pytest>=8", "seaborn", "scipy", *RAY, *PETTINGZOO],
     },
     entry_points={"console_scripts": ["sb3-marl=sb3_marl.cli:main"]},
     classifiers=[

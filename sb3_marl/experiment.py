@@ -101,6 +101,7 @@ class MARLExperimentManager(ExperimentManager):
         self.evaluate_at_end = evaluate_at_end
         self.scenario: dict[str, Any] = {}
         self.interrupted = False
+        self.best_config_path: str | None = None  # written by hyperparameters_optimization
 
     # ---- hyperparameters ----------------------------------------------------------------------
 
@@ -142,8 +143,7 @@ class MARLExperimentManager(ExperimentManager):
         if self.show_progress:
             self.callbacks.append(ProgressBarCallback())
         self.callbacks.append(DrivingMetricsCallback())
-        if self.scenario.get("stored_actions") == "executed":
-            self.callbacks.append(StoreExecutedActions())
+        self.callbacks += self._stored_action_callbacks()
         if self.save_freq > 0:
             self.callbacks.append(
                 AtomicCheckpointCallback(max(self.save_freq // self.n_envs, 1), self.save_path, "rl_model", verbose=1)
@@ -193,6 +193,10 @@ class MARLExperimentManager(ExperimentManager):
             assert model.env is not None
             model.env.close()
 
+    def _stored_action_callbacks(self) -> list[BaseCallback]:
+        """``stored_actions: executed`` stores the supervisor's action in the rollout (a callback)."""
+        return [StoreExecutedActions()] if self.scenario.get("stored_actions") == "executed" else []
+
     # ---- hyperparameter search (-optimize) ----------------------------------------------------
 
     def objective(self, trial: optuna.Trial) -> float:
@@ -214,10 +218,9 @@ class MARLExperimentManager(ExperimentManager):
             evaluate_at_end=True,
             verbose=0,
         )
-        callbacks = [evaluation, *([StoreExecutedActions()] if self.scenario.get("stored_actions") == "executed" else [])]
         try:
             with unchecked_distributions():
-                model.learn(self.n_timesteps, callback=callbacks)
+                model.learn(self.n_timesteps, callback=[evaluation, *self._stored_action_callbacks()])
         except (AssertionError, ValueError) as error:  # NaNs from extreme hyperparameters: rl-zoo prunes
             print(f"Trial {trial.number} failed ({error}); pruned. Sampled: {sampled}")
             raise optuna.exceptions.TrialPruned() from error
@@ -232,9 +235,9 @@ class MARLExperimentManager(ExperimentManager):
         ``--storage`` (a database URL or a ``.log`` journal file; a study of the same
         ``--study-name`` there is continued) or in memory. The sampler is seeded with ``--seed``
         plus the number of trials already in the study, so that a resumed study or a second worker
-        on the same storage (started after the first has begun a trial) does not repeat its draws. Writes the trials to
-        ``<log_folder>/<algo>/report_<env>_<study>.csv`` and the best one as a zoo-config entry to
-        ``best_<env>_<study>.yml`` beside it."""
+        on the same storage (started after the first has begun a trial) does not repeat its draws.
+        Writes the trials to ``<log_folder>/<algo>/report_<env>_<study>.csv`` and the best one as a
+        zoo-config entry to ``best_<env>_<study>.yml`` beside it."""
         storage: Any = self.storage
         if storage is not None and storage.endswith(".log"):
             os.makedirs(os.path.dirname(os.path.abspath(storage)), exist_ok=True)
@@ -274,11 +277,11 @@ class MARLExperimentManager(ExperimentManager):
         with open(self.best_config_path, "w") as file:
             file.write(best_hyperparams_yaml(self.algo, self.env_name.gym_id, self.config_hyperparams, best.params, best.value))
         print(f"Best trial {best.number}: mean evaluation return {best.value:.2f}")
+        for key, value in best.params.items():
+            print(f"    {key}: {value}")
         first = study.trials[0]
         if first.user_attrs.get("shipped_config") and first.state == optuna.trial.TrialState.COMPLETE:
             print(f"The configuration as shipped (trial 0): {first.value:.2f}")
-        for key, value in best.params.items():
-            print(f"    {key}: {value}")
         print(f"Its hyperparameters as a zoo-config entry: {self.best_config_path}")
 
     @property

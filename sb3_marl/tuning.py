@@ -76,8 +76,6 @@ SAMPLERS: dict[str, tuple[Sampler, Callable[[dict], dict]]] = {
 CONFIG_TRIAL_KEYS: dict[str, tuple[str, ...]] = {
     "ma2c": ("learning_rate", "ent_coef", "vf_coef", "gamma", "gae_lambda", "max_grad_norm", "per_agent_updates"),
 }
-SAMPLER_NAMES = ("tpe", "random")
-PRUNER_NAMES = ("median", "halving", "none")
 
 
 class TrialPruningCallback(BaseCallback):
@@ -138,4 +136,4 @@ def config_trial(algo: str, hyperparams: dict[str, Any]) -> dict[str, Any] | Non
     return {key: hyperparams[key] for key in keys}
 
 
-__all__ = ["CONFIG_TRIAL_KEYS", "PRUNER_NAMES", "config_trial", "SAMPLERS", "SAMPLER_NAMES", "TrialPruningCallback", "best_hyperparams_yaml", "merge_sampled"]
+__all__ = ["CONFIG_TRIAL_KEYS", "config_trial", "SAMPLERS", "TrialPruningCallback", "best_hyperparams_yaml", "merge_sampled"]

@@ -28,8 +28,9 @@ in two passes (:data:`PASSES`): the second re-checks each AV against the actions
 with in the first (an AV served early was checked against proposals that may have been replaced
 since). Served one at a time, two AVs whose lane changes conflict can still each find every option
 unsafe and cross each other; a joint fallback then makes the AVs left short of room after a lane
-change keep their lanes together (IDLE), when that leaves every AV more room. The prediction runs as one compiled (numba) function per
-step; compiled code is cached on disk, so a fresh process pays the compile time only once.
+change keep their lanes together (IDLE), when that leaves every AV more room. The prediction runs
+as one compiled (numba) function per step; compiled code is cached on disk, so a fresh process
+pays the compile time only once.
 """
 
 from __future__ import annotations
@@ -61,9 +62,10 @@ NO_LEADER_GAP = 1e6  # [m], headway of an AV without leader (priority only)
 #: (highway-env's meta-action indices).
 PREFERENCE = np.array([1, 4, 3, 0, 2], dtype=np.int64)
 #: Speed-index change of each meta-action (FASTER +1, SLOWER -1) when actions repeat over the horizon.
+SPEED_STEP = np.array([0, 0, 0, 1, -1], dtype=np.int64)
+LANE_LEFT, IDLE, LANE_RIGHT = 0, 1, 2
 #: Passes over the AVs in priority order (the second checks against the first pass's final actions).
 PASSES = 2
-SPEED_STEP = np.array([0, 0, 0, 1, -1], dtype=np.int64)
 
 
 @numba.njit(cache=True)
@@ -175,6 +177,17 @@ def _half_extents(heading: float) -> tuple[float, float]:
 
 
 @numba.njit(cache=True)
+def _set_action(
+    i: int, action: int, target_y: np.ndarray, target_speed: np.ndarray, speed_step: np.ndarray,
+    candidate_y: np.ndarray, candidate_speed: np.ndarray, repeat_actions: bool,
+) -> None:
+    """Predict AV ``i`` under meta-action ``action``: its target lane centre [m], target speed [m/s]
+    and, with ``repeat_actions``, the speed change repeated at each policy step of the horizon."""
+    target_y[i], target_speed[i] = candidate_y[i, action], candidate_speed[i, action]
+    speed_step[i] = SPEED_STEP[action] if repeat_actions else 0
+
+
+@numba.njit(cache=True)
 def supervise_arrays(
     x: np.ndarray, y: np.ndarray, h: np.ndarray, v: np.ndarray, target_y: np.ndarray,
     target_speed: np.ndarray, is_hdv: np.ndarray, delta: np.ndarray, crashed: np.ndarray,
@@ -198,14 +211,12 @@ def supervise_arrays(
     speed_step = np.zeros(x.size, dtype=np.int64)
     margin = np.empty(n_avs)
     for i in range(n_avs):
-        target_y[i], target_speed[i] = candidate_y[i, proposed[i]], candidate_speed[i, proposed[i]]
-        if repeat_actions:
-            speed_step[i] = SPEED_STEP[proposed[i]]
+        _set_action(i, proposed[i], target_y, target_speed, speed_step, candidate_y, candidate_speed, repeat_actions)
         lane = min(max(int(np.floor(y[i] / lane_width + 0.5)), 0), n_lanes - 1)
         front = _leader(i, lane * lane_width, x, y, lane_width)
         margin[i] = (x[front] - x[i] if front >= 0 else NO_LEADER_GAP) - v[i] * headway_time
     order = np.argsort(margin, kind="mergesort")
-    for sweep in range(PASSES):
+    for _ in range(PASSES):
         for i in order:
             if not collidable[i]:
                 continue
@@ -216,16 +227,14 @@ def supervise_arrays(
                 best, best_room = current, room
                 for a in PREFERENCE:
                     if available[i, a] and a != current:
-                        target_y[i], target_speed[i] = candidate_y[i, a], candidate_speed[i, a]
-                        speed_step[i] = SPEED_STEP[a] if repeat_actions else 0
+                        _set_action(i, a, target_y, target_speed, speed_step, candidate_y, candidate_speed, repeat_actions)
                         candidate_room = _room(i, x, y, h, v, target_y, target_speed, is_hdv, delta, crashed,
                                                collidable, frames, dt, lane_width, n_lanes, speed_step, ladder,
                                                frames_per_step)
                         if candidate_room > best_room:
                             best, best_room = a, candidate_room
                 executed[i], room = best, best_room
-                target_y[i], target_speed[i] = candidate_y[i, best], candidate_speed[i, best]
-                speed_step[i] = SPEED_STEP[best] if repeat_actions else 0
+                _set_action(i, best, target_y, target_speed, speed_step, candidate_y, candidate_speed, repeat_actions)
             rooms[i] = room
     # Joint fallback: the passes serve one AV at a time against the others' current actions, so two
     # AVs whose lane changes conflict can each find every option unsafe and end up crossing each
@@ -233,12 +242,12 @@ def supervise_arrays(
     # if that leaves every served AV more room than before.
     stuck = np.zeros(n_avs, dtype=np.bool_)
     for i in order:
-        stuck[i] = collidable[i] and rooms[i] < min_gap and (executed[i] == 0 or executed[i] == 2)
+        stuck[i] = collidable[i] and rooms[i] < min_gap and (executed[i] == LANE_LEFT or executed[i] == LANE_RIGHT)
     if stuck.any():
         trial_y, trial_speed, trial_step = target_y.copy(), target_speed.copy(), speed_step.copy()
         for i in range(n_avs):
             if stuck[i]:
-                trial_y[i], trial_speed[i], trial_step[i] = candidate_y[i, 1], candidate_speed[i, 1], 0
+                _set_action(i, IDLE, trial_y, trial_speed, trial_step, candidate_y, candidate_speed, repeat_actions)
         trial_rooms = rooms.copy()
         before, after = np.inf, np.inf
         for i in order:
@@ -249,7 +258,7 @@ def supervise_arrays(
         if after > before:
             for i in range(n_avs):
                 if stuck[i]:
-                    executed[i] = 1
+                    executed[i] = IDLE
             rooms = trial_rooms
     return executed, rooms
 
