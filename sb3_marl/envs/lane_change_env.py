@@ -16,7 +16,7 @@ from sb3_marl.envs import config as cfg
 from sb3_marl.envs.observation import observation_space, observe
 from sb3_marl.envs.reward import neighbour_matrix, reward_terms, total_reward
 from sb3_marl.envs.road import make_road, spawn_vehicles
-from sb3_marl.envs.simulator import FAST, Simulator
+from sb3_marl.envs.simulator import FAST, CompiledRoad, Simulator
 from sb3_marl.envs.supervisor import supervise
 from sb3_marl.envs.traffic import TrafficSnapshot
 
@@ -138,19 +138,7 @@ class LaneChangeEnv(AbstractEnv):
         speed_before = np.array([av.speed for av in self.avs])
         lanes_before = [av.target_lane_index for av in self.avs]
 
-        frames = self.config["simulation_frequency"] // self.config["policy_frequency"]
-        dt = 1.0 / self.config["simulation_frequency"]
-        for frame in range(frames):
-            if frame == 0:
-                for av, a in zip(self.avs, actions):
-                    av.act(ACTIONS[int(a)])
-            self.road.act()
-            self.road.step(dt)
-            self.steps += 1
-            self._remove_exited()
-            if frame < frames - 1:
-                self._automatic_rendering()
-        self.enable_auto_render = False
+        self._simulate(actions)
         self.time += 1.0 / self.config["policy_frequency"]
 
         snapshot = self._snapshot()
@@ -164,6 +152,35 @@ class LaneChangeEnv(AbstractEnv):
         if self.render_mode == "human":
             self.render()
         return observe(snapshot, self.config), float(info["rewards"].mean()), terminated, truncated, info
+
+    def _simulate(self, actions: np.ndarray) -> None:
+        """Apply the executed meta-actions and simulate the frames of one policy step.
+
+        With a :class:`~sb3_marl.envs.simulator.CompiledRoad` and nothing to draw between frames
+        (no viewer, no trajectory history) the frames run in compiled code; otherwise frame by
+        frame with highway-env's ``Road.act`` / ``Road.step``, rendering the frames in between.
+        """
+        frames = self.config["simulation_frequency"] // self.config["policy_frequency"]
+        dt = 1.0 / self.config["simulation_frequency"]
+        road = self.road
+        if isinstance(road, CompiledRoad) and self.viewer is None and not road.record_history and road.compiled_geometry():
+            for av, a in zip(self.avs, actions):
+                av.decide(ACTIONS[int(a)])
+            road.simulate(frames, dt, exit_x=self.config["road_length"])
+            self.steps += frames
+            self._remove_exited()
+            return
+        for frame in range(frames):
+            if frame == 0:
+                for av, a in zip(self.avs, actions):
+                    av.act(ACTIONS[int(a)])
+            road.act()
+            road.step(dt)
+            self.steps += 1
+            self._remove_exited()
+            if frame < frames - 1:
+                self._automatic_rendering()
+        self.enable_auto_render = False
 
     def render(self) -> np.ndarray | None:
         """Render with highway-env's viewer; ``rgb_array`` frames are drawn offscreen, headless.

@@ -31,6 +31,8 @@ from highway_env.vehicle.controller import ControlledVehicle, MDPVehicle
 from highway_env.vehicle.kinematics import Vehicle
 from highway_env.vehicle.objects import Landmark
 
+from sb3_marl.envs import kernel
+
 _HIGH_LEVEL_ACTIONS = frozenset(("FASTER", "SLOWER", "LANE_LEFT", "LANE_RIGHT"))
 
 
@@ -305,6 +307,21 @@ class FastControlledVehicle(ControlledVehicle):
 class FastMDPVehicle(MDPVehicle, FastControlledVehicle):
     """highway-env's ``MDPVehicle`` (the AVs) on :class:`FastControlledVehicle`."""
 
+    def decide(self, action: str) -> None:
+        """The target speed [m/s] and target lane that ``act(action)`` sets for a meta-action,
+        without its low-level control (``Road.act`` recomputes that in the same frame)."""
+        if action in ("FASTER", "SLOWER"):
+            index = self.speed_to_index(self.speed) + (1 if action == "FASTER" else -1)
+            self.speed_index = int(np.clip(index, 0, self.target_speeds.size - 1))
+            self.target_speed = self.index_to_speed(self.speed_index)
+        elif action in ("LANE_LEFT", "LANE_RIGHT"):
+            self.follow_road()
+            _from, _to, _id = self.target_lane_index
+            side = 1 if action == "LANE_RIGHT" else -1
+            target = (_from, _to, np.clip(_id + side, 0, len(self.road.network.graph[_from][_to]) - 1))
+            if self.road.network.get_lane(target).is_reachable_from(self.position):
+                self.target_lane_index = target
+
 
 class FastIDMVehicle(IDMVehicle, FastControlledVehicle):
     """highway-env's ``IDMVehicle`` (IDM + MOBIL, the HDVs) with float IDM routines."""
@@ -362,6 +379,76 @@ class FastIDMVehicle(IDMVehicle, FastControlledVehicle):
         )
 
 
+class CompiledRoad(FastRoad):
+    """``FastRoad`` that runs whole policy steps in compiled code (:mod:`sb3_marl.envs.kernel`).
+
+    :meth:`simulate` copies the vehicles' state into an array, runs the frames, and writes the
+    state back into the same vehicle objects, so everything else (observations, rendering,
+    highway-env's own methods) reads them as usual. It needs the scenario's road: straight lanes
+    along +x from x = 0, lane k centred at y = k × lane width, all of one length, width and speed
+    limit, on one segment; :meth:`compiled_geometry` says whether this road is one.
+    """
+
+    _geometry: tuple[int, float, float, float] | None | bool = False  # False: not checked yet
+
+    def compiled_geometry(self) -> tuple[int, float, float, float] | None:
+        """(lanes, lane width [m], length [m], speed limit [m/s]) of the road, or None if the
+        kernel cannot simulate it."""
+        if self._geometry is False:
+            self._geometry = None
+            lanes = self.network.lanes_list()
+            segments = [to for to_dict in self.network.graph.values() for to in to_dict]
+            if len(segments) == 1 and all(isinstance(lane, FastStraightLane) for lane in lanes):
+                width, length, limit = lanes[0].width, lanes[0]._length, lanes[0].speed_limit
+                if limit is not None and all(
+                    lane._start == [0.0, k * width] and lane._direction == [1.0, 0.0] and lane.width == width
+                    and lane._length == length and lane.speed_limit == limit and not lane.forbidden
+                    for k, lane in enumerate(lanes)
+                ):
+                    self._geometry = (len(lanes), float(width), float(length), float(limit))
+        return self._geometry
+
+    def simulate(self, frames: int, dt: float, exit_x: float) -> None:
+        """``frames`` × (``act``, ``step(dt)``) in compiled code; vehicles whose centre passes
+        ``exit_x`` m leave after the frame (HDVs are removed, AVs stop colliding)."""
+        n_lanes, lane_width, length, speed_limit = self.compiled_geometry()
+        vehicles = self.vehicles
+        state = np.array([_kernel_row(v) for v in vehicles], dtype=np.float64).reshape(-1, kernel.COLUMNS)
+        kernel.simulate(state, frames, dt, n_lanes, lane_width, length, speed_limit, exit_x)
+        lanes = self.network.lanes_list()
+        kept = []
+        for v, row in zip(vehicles, state.tolist()):
+            v.position[0], v.position[1] = row[kernel.X], row[kernel.Y]
+            v.heading, v.speed = row[kernel.HEADING], row[kernel.SPEED]
+            lane = int(row[kernel.LANE])
+            if lane != v.lane_index[2]:
+                v.lane_index, v.lane = (*v.lane_index[:2], lane), lanes[lane]
+            if row[kernel.IS_HDV]:
+                v.timer = row[kernel.TIMER]
+                target = int(row[kernel.TARGET_LANE])
+                if target != v.target_lane_index[2]:
+                    v.target_lane_index = (*v.target_lane_index[:2], target)
+            v.crashed, v.collidable = bool(row[kernel.CRASHED]), bool(row[kernel.COLLIDABLE])
+            v.impact = np.array([row[kernel.IMPACT_X], row[kernel.IMPACT_Y]]) if row[kernel.HAS_IMPACT] else None
+            v.action["steering"], v.action["acceleration"] = row[kernel.STEERING], row[kernel.ACCELERATION]
+            if row[kernel.PRESENT]:
+                kept.append(v)
+        self.vehicles = kept
+
+
+def _kernel_row(v: Vehicle) -> tuple:
+    """One vehicle's row of the kernel's state array (see the column names in :mod:`~sb3_marl.envs.kernel`)."""
+    hdv = isinstance(v, IDMVehicle)
+    impact = v.impact
+    return (
+        *xy(v.position), v.heading, v.speed, v.lane_index[2], v.target_lane_index[2], v.target_speed, hdv,
+        v.timer if hdv else 0.0, v.crashed, v.collidable, True,
+        *((0.0, 0.0) if impact is None else xy(impact)), impact is not None,
+        v.action["steering"], v.action["acceleration"],
+        *((v.POLITENESS, v.LANE_CHANGE_MAX_BRAKING_IMPOSED, v.LANE_CHANGE_MIN_ACC_GAIN) if hdv else (0.0, 0.0, 0.0)),
+    )
+
+
 @dataclass(frozen=True)
 class Simulator:
     """The highway-env classes a scenario is built from."""
@@ -375,5 +462,10 @@ class Simulator:
 
 #: highway-env's own classes, the reference for parity tests.
 STOCK = Simulator(road=Road, network=RoadNetwork, lane=StraightLane, av=MDPVehicle, hdv=IDMVehicle)
-#: The same behaviour, cheaper (the scenario's default).
+#: The same behaviour, cheaper.
 FAST = Simulator(road=FastRoad, network=FastRoadNetwork, lane=FastStraightLane, av=FastMDPVehicle, hdv=FastIDMVehicle)
+#: FAST with whole policy steps in compiled code (:class:`CompiledRoad`): equal to highway-env within
+#: a per-step tolerance (see :mod:`sb3_marl.envs.kernel`).
+COMPILED = Simulator(
+    road=CompiledRoad, network=FastRoadNetwork, lane=FastStraightLane, av=FastMDPVehicle, hdv=FastIDMVehicle
+)
