@@ -58,6 +58,36 @@ COLUMNS = 20
 
 
 @numba.njit(cache=True)
+def sin(angle: float) -> float:
+    """``np.sin``; sin(±0) = ±0 exactly without the call (most vehicles drive straight)."""
+    return angle if angle == 0 else np.sin(angle)
+
+
+@numba.njit(cache=True)
+def cos(angle: float) -> float:
+    """``np.cos``; cos(±0) = 1 exactly without the call."""
+    return 1.0 if angle == 0 else np.cos(angle)
+
+
+@numba.njit(cache=True)
+def tan(angle: float) -> float:
+    """``np.tan``; tan(±0) = ±0."""
+    return angle if angle == 0 else np.tan(angle)
+
+
+@numba.njit(cache=True)
+def arcsin(value: float) -> float:
+    """``np.arcsin``; arcsin(±0) = ±0."""
+    return value if value == 0 else np.arcsin(value)
+
+
+@numba.njit(cache=True)
+def arctan(value: float) -> float:
+    """``np.arctan``; arctan(±0) = ±0."""
+    return value if value == 0 else np.arctan(value)
+
+
+@numba.njit(cache=True)
 def not_zero(value: float) -> float:
     """highway-env's ``utils.not_zero`` (eps 1e-2)."""
     if abs(value) > 1e-2:
@@ -96,8 +126,8 @@ def _neighbours(state: np.ndarray, on_lane: np.ndarray, k: int, lane: int) -> tu
 @numba.njit(cache=True)
 def _desired_gap(state: np.ndarray, ego: int, front: int) -> float:
     """``IDMVehicle.desired_gap`` [m], projected on the ego's direction."""
-    cos_e, sin_e = np.cos(state[ego, HEADING]), np.sin(state[ego, HEADING])
-    cos_f, sin_f = np.cos(state[front, HEADING]), np.sin(state[front, HEADING])
+    cos_e, sin_e = cos(state[ego, HEADING]), sin(state[ego, HEADING])
+    cos_f, sin_f = cos(state[front, HEADING]), sin(state[front, HEADING])
     v_e, v_f = state[ego, SPEED], state[front, SPEED]
     dv = (v_e * cos_e - v_f * cos_f) * cos_e + (v_e * sin_e - v_f * sin_f) * sin_e
     ab = -COMFORT_ACC_MAX * COMFORT_ACC_MIN
@@ -124,11 +154,11 @@ def _steering(state: np.ndarray, k: int, lane: int, lane_width: float) -> float:
     lateral = state[k, Y] - lane * lane_width
     speed = not_zero(state[k, SPEED])
     lateral_speed_command = -KP_LATERAL * lateral
-    heading_command = np.arcsin(_clip(lateral_speed_command / speed, -1.0, 1.0))
+    heading_command = arcsin(_clip(lateral_speed_command / speed, -1.0, 1.0))
     heading_ref = 0.0 + _clip(heading_command, -np.pi / 4, np.pi / 4)
     heading_rate_command = KP_HEADING * wrap_to_pi(heading_ref - state[k, HEADING])
-    slip_angle = np.arcsin(_clip(LENGTH / 2 / speed * heading_rate_command, -1.0, 1.0))
-    steering_angle = np.arctan(2 * np.tan(slip_angle))
+    slip_angle = arcsin(_clip(LENGTH / 2 / speed * heading_rate_command, -1.0, 1.0))
+    steering_angle = arctan(2 * tan(slip_angle))
     return _clip(steering_angle, -MAX_STEERING_ANGLE, MAX_STEERING_ANGLE)
 
 
@@ -241,15 +271,15 @@ def _move(state: np.ndarray, dt: float, n_lanes: int, lane_width: float, road_le
             state[k, ACCELERATION] = min(state[k, ACCELERATION], 1.0 * (MAX_SPEED - speed))
         elif speed < MIN_SPEED:
             state[k, ACCELERATION] = max(state[k, ACCELERATION], 1.0 * (MIN_SPEED - speed))
-        beta = np.arctan(1 / 2 * np.tan(state[k, STEERING]))
-        state[k, X] += speed * np.cos(heading + beta) * dt
-        state[k, Y] += speed * np.sin(heading + beta) * dt
+        beta = arctan(1 / 2 * tan(state[k, STEERING]))
+        state[k, X] += speed * cos(heading + beta) * dt
+        state[k, Y] += speed * sin(heading + beta) * dt
         if state[k, HAS_IMPACT]:
             state[k, X] += state[k, IMPACT_X]
             state[k, Y] += state[k, IMPACT_Y]
             state[k, CRASHED] = 1.0
             state[k, HAS_IMPACT] = 0.0
-        state[k, HEADING] = heading + speed * np.sin(beta) / (LENGTH / 2) * dt
+        state[k, HEADING] = heading + speed * sin(beta) / (LENGTH / 2) * dt
         state[k, SPEED] = speed + state[k, ACCELERATION] * dt
         state[k, LANE] = _closest_lane(state[k, X], state[k, Y], state[k, HEADING], n_lanes, lane_width, road_length)
 
@@ -257,7 +287,7 @@ def _move(state: np.ndarray, dt: float, n_lanes: int, lane_width: float, road_le
 @numba.njit(cache=True)
 def _polygon(state: np.ndarray, k: int) -> np.ndarray:
     """``RoadObject.polygon``: (5, 2) corners [m], the first repeated."""
-    c, s = np.cos(state[k, HEADING]), np.sin(state[k, HEADING])
+    c, s = cos(state[k, HEADING]), sin(state[k, HEADING])
     points = np.empty((5, 2))
     half_l, half_w = LENGTH / 2, WIDTH / 2
     for i, (px, py) in enumerate(((-half_l, -half_w), (-half_l, half_w), (half_l, half_w), (half_l, -half_w))):
@@ -291,8 +321,8 @@ def _handle_collision(state: np.ndarray, i: int, j: int, dt: float) -> None:
         return
     a, b = _polygon(state, i), _polygon(state, j)
     # displacement_a - displacement_b, each velocity (speed × direction) × dt
-    rel_x = state[i, SPEED] * np.cos(state[i, HEADING]) * dt - state[j, SPEED] * np.cos(state[j, HEADING]) * dt
-    rel_y = state[i, SPEED] * np.sin(state[i, HEADING]) * dt - state[j, SPEED] * np.sin(state[j, HEADING]) * dt
+    rel_x = state[i, SPEED] * cos(state[i, HEADING]) * dt - state[j, SPEED] * cos(state[j, HEADING]) * dt
+    rel_y = state[i, SPEED] * sin(state[i, HEADING]) * dt - state[j, SPEED] * sin(state[j, HEADING]) * dt
     intersecting = will_intersect = True
     min_distance, axis_x, axis_y = np.inf, 0.0, 0.0
     done = False

@@ -16,7 +16,7 @@ from sb3_marl.envs import config as cfg
 from sb3_marl.envs.observation import observation_space, observe
 from sb3_marl.envs.reward import neighbour_matrix, reward_terms, total_reward
 from sb3_marl.envs.road import make_road, spawn_vehicles
-from sb3_marl.envs.simulator import FAST, CompiledRoad, Simulator
+from sb3_marl.envs.simulator import COMPILED, CompiledRoad, Simulator
 from sb3_marl.envs.supervisor import supervise
 from sb3_marl.envs.traffic import TrafficSnapshot
 
@@ -51,7 +51,7 @@ class LaneChangeEnv(AbstractEnv):
 
     metadata = {"render_modes": ["human", "rgb_array"]}
     #: highway-env classes the scenario is built from; ``simulator.STOCK`` gives the same episodes, slower.
-    simulator: Simulator = FAST
+    simulator: Simulator = COMPILED
 
     def __init__(
         self,

@@ -14,10 +14,10 @@ from highway_env.road.road import Road
 from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.controller import MDPVehicle
 
-from sb3_marl.envs.simulator import FAST, Simulator
+from sb3_marl.envs.simulator import COMPILED, Simulator
 
 
-def make_road(config: dict[str, Any], np_random: np.random.Generator, simulator: Simulator = FAST) -> Road:
+def make_road(config: dict[str, Any], np_random: np.random.Generator, simulator: Simulator = COMPILED) -> Road:
     """A one-way highway of ``lanes_count`` straight lanes of ``road_length`` m.
 
     :param config: the scenario config
@@ -66,7 +66,7 @@ def spawn_vehicles(
     n_avs: int,
     n_hdvs: int,
     np_random: np.random.Generator,
-    simulator: Simulator = FAST,
+    simulator: Simulator = COMPILED,
 ) -> tuple[list[MDPVehicle], list[IDMVehicle]]:
     """Place AVs and HDVs in distinct random slots of a grid along every lane.
 

@@ -307,6 +307,14 @@ class FastControlledVehicle(ControlledVehicle):
 class FastMDPVehicle(MDPVehicle, FastControlledVehicle):
     """highway-env's ``MDPVehicle`` (the AVs) on :class:`FastControlledVehicle`."""
 
+    def speed_to_index(self, speed: float) -> int:
+        """Index of the target speed nearest ``speed`` [m/s] on the uniform ladder: highway-env's
+        formula on floats (``round`` rounds half to even, as ``np.round``)."""
+        ladder = self.target_speeds
+        top = ladder.size - 1
+        low, high = float(ladder[0]), float(ladder[top])
+        return min(max(round((speed - low) / (high - low) * top), 0), top)
+
     def decide(self, action: str) -> None:
         """The target speed [m/s] and target lane that ``act(action)`` sets for a meta-action,
         without its low-level control (``Road.act`` recomputes that in the same frame)."""

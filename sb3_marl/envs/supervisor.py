@@ -40,23 +40,32 @@ from typing import Any
 import numba
 import numpy as np
 from highway_env.vehicle.behavior import IDMVehicle
-from highway_env.vehicle.controller import ControlledVehicle, MDPVehicle
+from highway_env.vehicle.controller import MDPVehicle
 from highway_env.vehicle.kinematics import Vehicle
 
-# highway-env's vehicle parameters, read once (numba freezes module globals at compile time)
-LENGTH = float(Vehicle.LENGTH)  # [m]
-WIDTH = float(Vehicle.WIDTH)  # [m]
-MAX_SPEED = float(Vehicle.MAX_SPEED)  # [m/s]
-KP_A = float(ControlledVehicle.KP_A)  # [1/s]
-KP_HEADING = float(ControlledVehicle.KP_HEADING)  # [1/s]
-KP_LATERAL = float(ControlledVehicle.KP_LATERAL)  # [1/s]
-MAX_STEERING_ANGLE = float(ControlledVehicle.MAX_STEERING_ANGLE)  # [rad]
-ACC_MAX = float(IDMVehicle.ACC_MAX)  # [m/s²]
-COMFORT_ACC_MAX = float(IDMVehicle.COMFORT_ACC_MAX)  # [m/s²]
-COMFORT_ACC_MIN = float(IDMVehicle.COMFORT_ACC_MIN)  # [m/s²]
-DISTANCE_WANTED = float(IDMVehicle.DISTANCE_WANTED)  # [m]
-TIME_WANTED = float(IDMVehicle.TIME_WANTED)  # [s]
-ON_LANE_MARGIN = 1.0  # [m], highway-env's margin of "on the lane" in its neighbour search
+from sb3_marl.envs.kernel import (
+    ACC_MAX,
+    COMFORT_ACC_MAX,
+    COMFORT_ACC_MIN,
+    DISTANCE_WANTED,
+    KP_A,
+    KP_HEADING,
+    KP_LATERAL,
+    LENGTH,
+    MAX_SPEED,
+    MAX_STEERING_ANGLE,
+    ON_LANE_MARGIN,
+    TIME_WANTED,
+    WIDTH,
+    arcsin,
+    arctan,
+    cos,
+    not_zero,
+    sin,
+    tan,
+    wrap_to_pi,
+)
+
 NO_LEADER_GAP = 1e6  # [m], headway of an AV without leader (priority only)
 #: Replacement candidates in tie order: IDLE, SLOWER, FASTER, LANE_LEFT, LANE_RIGHT
 #: (highway-env's meta-action indices).
@@ -66,18 +75,6 @@ SPEED_STEP = np.array([0, 0, 0, 1, -1], dtype=np.int64)
 LANE_LEFT, IDLE, LANE_RIGHT = 0, 1, 2
 #: Passes over the AVs in priority order (the second checks against the first pass's final actions).
 PASSES = 2
-
-
-@numba.njit(cache=True)
-def _not_zero(value: float) -> float:
-    if abs(value) > 1e-2:
-        return value
-    return 1e-2 if value >= 0 else -1e-2
-
-
-@numba.njit(cache=True)
-def _wrap_to_pi(angle: float) -> float:
-    return ((angle + np.pi) % (2 * np.pi)) - np.pi
 
 
 @numba.njit(cache=True)
@@ -94,25 +91,25 @@ def _leader(k: int, lane_y: float, x: np.ndarray, y: np.ndarray, lane_width: flo
 @numba.njit(cache=True)
 def _idm(k: int, front: int, x: np.ndarray, v: np.ndarray, desired_speed: float, delta: float) -> float:
     """highway-env's IDM acceleration [m/s²] of vehicle k behind ``front`` (-1: free road)."""
-    ratio = max(v[k], 0.0) / abs(_not_zero(desired_speed))
+    ratio = max(v[k], 0.0) / abs(not_zero(desired_speed))
     acceleration = COMFORT_ACC_MAX * (1.0 - ratio**delta)
     if front >= 0:
         gap = DISTANCE_WANTED + v[k] * TIME_WANTED + v[k] * (v[k] - v[front]) / (
             2.0 * np.sqrt(-COMFORT_ACC_MAX * COMFORT_ACC_MIN)
         )
-        acceleration -= COMFORT_ACC_MAX * (gap / _not_zero(x[front] - x[k])) ** 2
+        acceleration -= COMFORT_ACC_MAX * (gap / not_zero(x[front] - x[k])) ** 2
     return acceleration
 
 
 @numba.njit(cache=True)
-def _room(
-    ego: int, x0: np.ndarray, y0: np.ndarray, h0: np.ndarray, v0: np.ndarray, target_y: np.ndarray,
-    target_speed: np.ndarray, is_hdv: np.ndarray, delta: np.ndarray, crashed: np.ndarray,
-    collidable: np.ndarray, frames: int, dt: float, lane_width: float, n_lanes: int,
-    speed_step: np.ndarray, ladder: np.ndarray, frames_per_step: int,
-) -> float:
-    """Smallest bumper-to-bumper gap [m] over ``frames`` frames of ``dt`` s between vehicle ``ego``
-    and any collidable vehicle overlapping it laterally (negative: a collision).
+def _predict(
+    x0: np.ndarray, y0: np.ndarray, h0: np.ndarray, v0: np.ndarray, target_y: np.ndarray,
+    target_speed: np.ndarray, is_hdv: np.ndarray, delta: np.ndarray, crashed: np.ndarray, frames: int,
+    dt: float, lane_width: float, n_lanes: int, speed_step: np.ndarray, ladder: np.ndarray,
+    frames_per_step: int,
+) -> np.ndarray:
+    """(frames, 4, n) x, y [m], heading [rad] and speed [m/s] of every vehicle after each of
+    ``frames`` frames of ``dt`` s, every vehicle driving towards its targets.
 
     ``speed_step`` (+1 FASTER, -1 SLOWER, 0 otherwise, per vehicle) repeats a speed change at every
     policy step (``frames_per_step`` frames) of the horizon, as ``MDPVehicle.act`` would on the
@@ -121,7 +118,7 @@ def _room(
     x, y, h, v = x0.copy(), y0.copy(), h0.copy(), v0.copy()
     target_speed = target_speed.copy()
     acceleration, steering = np.zeros(n), np.zeros(n)
-    room = np.inf
+    path = np.empty((frames, 4, n))
     top = ladder.size - 1
     for frame in range(frames):
         if frame > 0 and frame % frames_per_step == 0:
@@ -134,10 +131,10 @@ def _room(
                 acceleration[k], steering[k] = -v[k], 0.0
                 continue
             lateral_speed = -KP_LATERAL * (y[k] - target_y[k])
-            heading_ref = min(max(np.arcsin(min(max(lateral_speed / _not_zero(v[k]), -1.0), 1.0)), -np.pi / 4), np.pi / 4)
-            heading_rate = KP_HEADING * _wrap_to_pi(heading_ref - h[k])
-            slip = np.arcsin(min(max(LENGTH / 2 / _not_zero(v[k]) * heading_rate, -1.0), 1.0))
-            steering[k] = min(max(np.arctan(2 * np.tan(slip)), -MAX_STEERING_ANGLE), MAX_STEERING_ANGLE)
+            heading_ref = min(max(arcsin(min(max(lateral_speed / not_zero(v[k]), -1.0), 1.0)), -np.pi / 4), np.pi / 4)
+            heading_rate = KP_HEADING * wrap_to_pi(heading_ref - h[k])
+            slip = arcsin(min(max(LENGTH / 2 / not_zero(v[k]) * heading_rate, -1.0), 1.0))
+            steering[k] = min(max(arctan(2 * tan(slip)), -MAX_STEERING_ANGLE), MAX_STEERING_ANGLE)
             if is_hdv[k]:
                 lane = min(max(int(np.floor(y[k] / lane_width + 0.5)), 0), n_lanes - 1)
                 a = _idm(k, _leader(k, lane * lane_width, x, y, lane_width), x, v, target_speed[k], delta[k])
@@ -149,20 +146,31 @@ def _room(
             if v[k] > MAX_SPEED:
                 acceleration[k] = min(acceleration[k], MAX_SPEED - v[k])
         for k in range(n):  # step: kinematic bicycle model
-            beta = np.arctan(0.5 * np.tan(steering[k]))
-            x[k] += v[k] * np.cos(h[k] + beta) * dt
-            y[k] += v[k] * np.sin(h[k] + beta) * dt
-            h[k] += v[k] * np.sin(beta) / (LENGTH / 2) * dt
+            beta = arctan(0.5 * tan(steering[k]))
+            x[k] += v[k] * cos(h[k] + beta) * dt
+            y[k] += v[k] * sin(h[k] + beta) * dt
+            h[k] += v[k] * sin(beta) / (LENGTH / 2) * dt
             v[k] += acceleration[k] * dt
+        path[frame, 0], path[frame, 1], path[frame, 2], path[frame, 3] = x, y, h, v
+    return path
+
+
+@numba.njit(cache=True)
+def _room(ego: int, path: np.ndarray, collidable: np.ndarray, dt: float) -> float:
+    """Smallest bumper-to-bumper gap [m] along a predicted ``path`` (see :func:`_predict`) between
+    vehicle ``ego`` and any collidable vehicle overlapping it laterally (negative: a collision)."""
+    room = np.inf
+    for frame in range(path.shape[0]):
+        x, y, h, v = path[frame, 0], path[frame, 1], path[frame, 2], path[frame, 3]
         ego_x, ego_y = _half_extents(h[ego])
-        for j in range(n):
+        for j in range(x.size):
             if j != ego and collidable[j]:
                 other_x, other_y = _half_extents(h[j])
                 # highway-env flags a collision when the bodies would meet within the next frame
                 # (each moved by its velocity × dt): the gaps shrink by the closing speed × dt
                 dx, dy = x[j] - x[ego], y[j] - y[ego]
-                closing_x = (v[ego] * np.cos(h[ego]) - v[j] * np.cos(h[j])) * np.sign(dx)
-                closing_y = (v[ego] * np.sin(h[ego]) - v[j] * np.sin(h[j])) * np.sign(dy)
+                closing_x = (v[ego] * cos(h[ego]) - v[j] * cos(h[j])) * np.sign(dx)
+                closing_y = (v[ego] * sin(h[ego]) - v[j] * sin(h[j])) * np.sign(dy)
                 if abs(dy) - max(closing_y, 0.0) * dt < ego_y + other_y:
                     room = min(room, abs(dx) - ego_x - other_x - max(closing_x, 0.0) * dt)
     return room
@@ -172,7 +180,7 @@ def _room(
 def _half_extents(heading: float) -> tuple[float, float]:
     """Half length along x and half width along y [m] of the axis-aligned box around a vehicle
     body rotated by ``heading`` rad (a lane change tilts it: the box covers the corners)."""
-    c, s = abs(np.cos(heading)), abs(np.sin(heading))
+    c, s = abs(cos(heading)), abs(sin(heading))
     return LENGTH / 2 * c + WIDTH / 2 * s, LENGTH / 2 * s + WIDTH / 2 * c
 
 
@@ -216,26 +224,32 @@ def supervise_arrays(
         front = _leader(i, lane * lane_width, x, y, lane_width)
         margin[i] = (x[front] - x[i] if front >= 0 else NO_LEADER_GAP) - v[i] * headway_time
     order = np.argsort(margin, kind="mergesort")
+    # the road predicted under the AVs' current actions, shared by every AV's room until one changes
+    path = _predict(x, y, h, v, target_y, target_speed, is_hdv, delta, crashed, frames, dt, lane_width, n_lanes,
+                    speed_step, ladder, frames_per_step)
     for _ in range(PASSES):
+        changed = False
         for i in order:
             if not collidable[i]:
                 continue
             current = executed[i]
-            room = _room(i, x, y, h, v, target_y, target_speed, is_hdv, delta, crashed, collidable, frames, dt,
-                         lane_width, n_lanes, speed_step, ladder, frames_per_step)
+            room = _room(i, path, collidable, dt)
             if room < min_gap:
-                best, best_room = current, room
+                best, best_room, best_path = current, room, path
                 for a in PREFERENCE:
                     if available[i, a] and a != current:
                         _set_action(i, a, target_y, target_speed, speed_step, candidate_y, candidate_speed, repeat_actions)
-                        candidate_room = _room(i, x, y, h, v, target_y, target_speed, is_hdv, delta, crashed,
-                                               collidable, frames, dt, lane_width, n_lanes, speed_step, ladder,
-                                               frames_per_step)
+                        candidate_path = _predict(x, y, h, v, target_y, target_speed, is_hdv, delta, crashed, frames,
+                                                  dt, lane_width, n_lanes, speed_step, ladder, frames_per_step)
+                        candidate_room = _room(i, candidate_path, collidable, dt)
                         if candidate_room > best_room:
-                            best, best_room = a, candidate_room
-                executed[i], room = best, best_room
+                            best, best_room, best_path = a, candidate_room, candidate_path
+                changed = changed or best != current
+                executed[i], room, path = best, best_room, best_path
                 _set_action(i, best, target_y, target_speed, speed_step, candidate_y, candidate_speed, repeat_actions)
             rooms[i] = room
+        if not changed:
+            break  # another pass would see the same actions and find the same rooms
     # Joint fallback: the passes serve one AV at a time against the others' current actions, so two
     # AVs whose lane changes conflict can each find every option unsafe and end up crossing each
     # other. The AVs still short of room after a lane change keep their lanes (IDLE) together,
@@ -248,12 +262,13 @@ def supervise_arrays(
         for i in range(n_avs):
             if stuck[i]:
                 _set_action(i, IDLE, trial_y, trial_speed, trial_step, candidate_y, candidate_speed, repeat_actions)
+        trial_path = _predict(x, y, h, v, trial_y, trial_speed, is_hdv, delta, crashed, frames, dt, lane_width,
+                              n_lanes, trial_step, ladder, frames_per_step)
         trial_rooms = rooms.copy()
         before, after = np.inf, np.inf
         for i in order:
             if collidable[i]:
-                trial_rooms[i] = _room(i, x, y, h, v, trial_y, trial_speed, is_hdv, delta, crashed, collidable,
-                                       frames, dt, lane_width, n_lanes, trial_step, ladder, frames_per_step)
+                trial_rooms[i] = _room(i, trial_path, collidable, dt)
                 before, after = min(before, rooms[i]), min(after, trial_rooms[i])
         if after > before:
             for i in range(n_avs):
@@ -263,7 +278,7 @@ def supervise_arrays(
     return executed, rooms
 
 
-def candidate_targets(av: MDPVehicle, n_lanes: int, lane_width: float) -> tuple[np.ndarray, np.ndarray]:
+def candidate_targets(av: MDPVehicle, n_lanes: int, lane_width: float) -> tuple[list[float], list[float]]:
     """(5,) target lane centre y [m] and (5,) target speed [m/s] of ``av`` under each meta-action,
     as highway-env's ``MDPVehicle.act`` would set them (LANE_LEFT 0, IDLE 1, LANE_RIGHT 2, FASTER 3,
     SLOWER 4; a lane change to an unreachable lane and a speed change past the range change nothing)."""
@@ -276,9 +291,9 @@ def candidate_targets(av: MDPVehicle, n_lanes: int, lane_width: float) -> tuple[
     speeds = [float(av.target_speed)] * 5
     index = av.speed_to_index(av.speed)
     top = av.target_speeds.size - 1
-    speeds[3] = float(av.index_to_speed(min(max(index + 1, 0), top)))
-    speeds[4] = float(av.index_to_speed(min(max(index - 1, 0), top)))
-    return np.array(lanes, dtype=np.float64) * lane_width, np.array(speeds)
+    speeds[3] = float(av.target_speeds[min(index + 1, top)])
+    speeds[4] = float(av.target_speeds[max(index - 1, 0)])
+    return [lane * lane_width for lane in lanes], speeds
 
 
 def supervise(
@@ -310,8 +325,8 @@ def supervise(
     return supervise_arrays(
         *(np.ascontiguousarray(state[:, c]) for c in range(7)),
         state[:, 7] > 0, state[:, 8] > 0, state[:, 9] > 0,
-        np.array([c[0] for c in candidates]).reshape(n_avs, 5),
-        np.array([c[1] for c in candidates]).reshape(n_avs, 5),
+        np.array([c[0] for c in candidates], dtype=np.float64).reshape(n_avs, 5),
+        np.array([c[1] for c in candidates], dtype=np.float64).reshape(n_avs, 5),
         np.asarray(available, dtype=np.bool_),
         np.asarray(proposed, dtype=np.int64),
         frames, 1.0 / config["simulation_frequency"], lane_width, n_lanes,
