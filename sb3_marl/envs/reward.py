@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import numba
 import numpy as np
 
 from sb3_marl.envs.traffic import TrafficSnapshot
@@ -28,14 +29,17 @@ REWARD_TERMS = ("safety", "headway", "speed", "comfort", "harsh_acceleration", "
 
 def headway_distances(snapshot: TrafficSnapshot, max_distance: float) -> np.ndarray:
     """(n_avs,) gap [m] to the nearest visible vehicle ahead in the same lane, capped at ``max_distance``."""
-    x, lane = snapshot.x.tolist(), snapshot.lane.tolist()
-    return np.array(
-        [
-            min([x[j] - x[i] for j in others if lane[j] == lane[i] and x[j] > x[i]] + [max_distance])
-            for i, others in enumerate(snapshot.visible_others)
-        ],
-        dtype=np.float64,
-    )
+    return _headway_distances(snapshot.x, snapshot.lane, snapshot.visible, snapshot.n_avs, float(max_distance))
+
+
+@numba.njit(cache=True)
+def _headway_distances(x: np.ndarray, lane: np.ndarray, visible: np.ndarray, n_avs: int, max_distance: float) -> np.ndarray:
+    distance = np.full(n_avs, max_distance)
+    for i in range(n_avs):
+        for j in range(x.size):
+            if j != i and visible[j] and lane[j] == lane[i] and x[j] > x[i]:
+                distance[i] = min(distance[i], x[j] - x[i])
+    return distance
 
 
 def reward_terms(
@@ -91,20 +95,27 @@ def neighbour_matrix(snapshot: TrafficSnapshot) -> np.ndarray:
     ahead (dx >= 0) and the nearest visible AV behind (dx < 0); among equally near AVs the first
     one. AVs past the road end are in no other AV's set, and their own set is themselves only.
     """
-    n = snapshot.n_avs
-    x, lane, visible = snapshot.x.tolist(), snapshot.lane.tolist(), snapshot.visible.tolist()
-    neighbours = np.eye(n, dtype=bool)
-    for i, others in enumerate(snapshot.visible_others):
+    return _neighbour_matrix(snapshot.x, snapshot.lane, snapshot.visible, snapshot.n_avs)
+
+
+@numba.njit(cache=True)
+def _neighbour_matrix(x: np.ndarray, lane: np.ndarray, visible: np.ndarray, n: int) -> np.ndarray:
+    neighbours = np.eye(n, dtype=np.bool_)
+    nearest = np.empty((3, 2), dtype=np.int64)  # (lane offset + 1, ahead) -> AV, -1: none
+    for i in range(n):
         if not visible[i]:
             continue
-        nearest: dict[tuple[int, bool], tuple[float, int]] = {}  # (lane offset, ahead) -> (|dx|, AV)
-        for j in others:
-            if j >= n or abs(lane[j] - lane[i]) > 1:
+        nearest[:] = -1
+        for j in range(n):
+            if j == i or not visible[j] or abs(lane[j] - lane[i]) > 1:
                 continue
             dx = x[j] - x[i]
-            key = (lane[j] - lane[i], dx >= 0)
-            if key not in nearest or abs(dx) < nearest[key][0]:
-                nearest[key] = (abs(dx), j)
-        for _, j in nearest.values():
-            neighbours[i, j] = True
+            side, ahead = lane[j] - lane[i] + 1, int(dx >= 0)
+            k = nearest[side, ahead]
+            if k < 0 or abs(dx) < abs(x[k] - x[i]):
+                nearest[side, ahead] = j
+        for side in range(3):
+            for ahead in range(2):
+                if nearest[side, ahead] >= 0:
+                    neighbours[i, nearest[side, ahead]] = True
     return neighbours

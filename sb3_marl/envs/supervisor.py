@@ -54,6 +54,7 @@ from sb3_marl.envs.kernel import (
     LENGTH,
     MAX_SPEED,
     MAX_STEERING_ANGLE,
+    LANE_VEHICLE_LENGTH,
     ON_LANE_MARGIN,
     TIME_WANTED,
     WIDTH,
@@ -65,6 +66,7 @@ from sb3_marl.envs.kernel import (
     tan,
     wrap_to_pi,
 )
+from sb3_marl.envs.simulator import xy
 
 NO_LEADER_GAP = 1e6  # [m], headway of an AV without leader (priority only)
 #: Replacement candidates in tie order: IDLE, SLOWER, FASTER, LANE_LEFT, LANE_RIGHT
@@ -278,22 +280,29 @@ def supervise_arrays(
     return executed, rooms
 
 
-def candidate_targets(av: MDPVehicle, n_lanes: int, lane_width: float) -> tuple[list[float], list[float]]:
-    """(5,) target lane centre y [m] and (5,) target speed [m/s] of ``av`` under each meta-action,
-    as highway-env's ``MDPVehicle.act`` would set them (LANE_LEFT 0, IDLE 1, LANE_RIGHT 2, FASTER 3,
-    SLOWER 4; a lane change to an unreachable lane and a speed change past the range change nothing)."""
-    lane_id = av.target_lane_index[2]
-    lanes = [lane_id] * 5
-    for action, side in ((0, -1), (2, +1)):
-        other = min(max(lane_id + side, 0), n_lanes - 1)
-        if av.road.network.get_lane((*av.target_lane_index[:2], other)).is_reachable_from(av.position):
-            lanes[action] = other
-    speeds = [float(av.target_speed)] * 5
-    index = av.speed_to_index(av.speed)
-    top = av.target_speeds.size - 1
-    speeds[3] = float(av.target_speeds[min(index + 1, top)])
-    speeds[4] = float(av.target_speeds[max(index - 1, 0)])
-    return [lane * lane_width for lane in lanes], speeds
+@numba.njit(cache=True)
+def candidate_targets(
+    x: np.ndarray, y: np.ndarray, v: np.ndarray, target_lane: np.ndarray, target_speed: np.ndarray,
+    ladder: np.ndarray, n_lanes: int, lane_width: float, road_length: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(n_avs, 5) target lane centre y [m] and (n_avs, 5) target speed [m/s] of each AV under each
+    meta-action, as highway-env's ``MDPVehicle.act`` would set them (LANE_LEFT 0, IDLE 1,
+    LANE_RIGHT 2, FASTER 3, SLOWER 4; a lane change to a lane not reachable from the AV's position
+    and a speed change past the ``ladder`` [m/s] change nothing). Arguments: the AVs' rows."""
+    n_avs, top = x.size, ladder.size - 1
+    candidate_y, candidate_speed = np.empty((n_avs, 5)), np.empty((n_avs, 5))
+    for i in range(n_avs):
+        lane = int(target_lane[i])
+        candidate_y[i, :] = lane * lane_width
+        for action, side in ((LANE_LEFT, -1), (LANE_RIGHT, 1)):
+            other = min(max(lane + side, 0), n_lanes - 1)  # StraightLane.is_reachable_from:
+            if abs(y[i] - other * lane_width) <= 2 * lane_width and 0 <= x[i] < road_length + LANE_VEHICLE_LENGTH:
+                candidate_y[i, action] = other * lane_width
+        candidate_speed[i, :] = target_speed[i]
+        index = int(min(max(np.round((v[i] - ladder[0]) / (ladder[top] - ladder[0]) * top), 0), top))
+        candidate_speed[i, 3] = ladder[min(index + 1, top)]
+        candidate_speed[i, 4] = ladder[max(index - 1, 0)]
+    return candidate_y, candidate_speed
 
 
 def supervise(
@@ -312,7 +321,7 @@ def supervise(
     state = np.array(
         [
             (
-                *v.position.tolist(), v.heading, v.speed, v.target_lane_index[2] * lane_width,
+                *xy(v.position), v.heading, v.speed, v.target_lane_index[2],
                 min(max(v.target_speed, 0.0), speed_limit) if isinstance(v, IDMVehicle) else v.target_speed,
                 isinstance(v, IDMVehicle), getattr(v, "DELTA", 4.0), v.crashed, v.collidable,
             )
@@ -320,18 +329,20 @@ def supervise(
         ],
         dtype=np.float64,
     ).reshape(-1, 10)
-    candidates = [candidate_targets(av, n_lanes, lane_width) for av in vehicles[:n_avs]]
+    x, y, h, v, target_lane, target_speed, delta = (np.ascontiguousarray(state[:, c]) for c in (0, 1, 2, 3, 4, 5, 7))
+    ladder = np.asarray(config["target_speeds"], dtype=np.float64)
+    candidate_y, candidate_speed = candidate_targets(
+        x[:n_avs], y[:n_avs], v[:n_avs], target_lane[:n_avs], target_speed[:n_avs], ladder, n_lanes, lane_width,
+        float(config["road_length"]),
+    )
     frames = max(int(round(config["supervisor_horizon"] * config["simulation_frequency"])), 1)
     return supervise_arrays(
-        *(np.ascontiguousarray(state[:, c]) for c in range(7)),
-        state[:, 7] > 0, state[:, 8] > 0, state[:, 9] > 0,
-        np.array([c[0] for c in candidates], dtype=np.float64).reshape(n_avs, 5),
-        np.array([c[1] for c in candidates], dtype=np.float64).reshape(n_avs, 5),
+        x, y, h, v, target_lane * lane_width, target_speed, state[:, 6] > 0, delta, state[:, 8] > 0,
+        state[:, 9] > 0, candidate_y, candidate_speed,
         np.asarray(available, dtype=np.bool_),
         np.asarray(proposed, dtype=np.int64),
         frames, 1.0 / config["simulation_frequency"], lane_width, n_lanes,
-        float(config["headway_time"]), float(config["supervisor_min_gap"]),
-        np.asarray(config["target_speeds"], dtype=np.float64),
+        float(config["headway_time"]), float(config["supervisor_min_gap"]), ladder,
         max(config["simulation_frequency"] // config["policy_frequency"], 1),
         bool(config["supervisor_repeat_actions"]),
     )

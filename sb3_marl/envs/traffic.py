@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property
 
 import numpy as np
 from highway_env.vehicle.kinematics import Vehicle
@@ -56,10 +55,3 @@ class TrafficSnapshot:
             visible=x <= road_length,
             n_avs=n_avs,
         )
-
-    @cached_property
-    def visible_others(self) -> list[list[int]]:
-        """For each AV i, the indices j != i of the visible vehicles (what AV i can perceive);
-        computed once per snapshot for the observation, the headways and the neighbour sets."""
-        visible = self.visible.tolist()
-        return [[j for j, seen in enumerate(visible) if seen and j != i] for i in range(self.n_avs)]
