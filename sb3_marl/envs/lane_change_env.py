@@ -50,7 +50,8 @@ class LaneChangeEnv(AbstractEnv):
     """
 
     metadata = {"render_modes": ["human", "rgb_array"]}
-    #: highway-env classes the scenario is built from; ``simulator.STOCK`` gives the same episodes, slower.
+    #: Classes the scenario is built from (compiled frames); ``simulator.STOCK`` (highway-env's own) and
+    #: ``simulator.FAST`` give the same episodes, within rounding (tests/envs/test_kernel.py), slower.
     simulator: Simulator = COMPILED
 
     def __init__(
@@ -95,8 +96,12 @@ class LaneChangeEnv(AbstractEnv):
         return int(round(self.config["duration"] * self.config["policy_frequency"]))
 
     def define_spaces(self) -> None:
-        self.observation_space = observation_space(self.n_avs, self.config)
-        self.action_space = spaces.MultiDiscrete(np.full(self.n_avs, len(ACTIONS)))
+        """Spaces of the current config; rebuilt only when their shapes change (every reset calls this)."""
+        shape = (self.n_avs, self.config["obs_vehicles_count"])
+        if getattr(self, "_space_shape", None) != shape:
+            self.observation_space = observation_space(self.n_avs, self.config)
+            self.action_space = spaces.MultiDiscrete(np.full(self.n_avs, len(ACTIONS)))
+            self._space_shape = shape
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
         """Spawn a new episode; ``options={"config": {...}}`` reconfigures first, as in highway-env."""

@@ -23,7 +23,7 @@ def make_road(config: dict[str, Any], np_random: np.random.Generator, simulator:
     :param config: the scenario config
     :param np_random: the env's random generator, shared with the vehicles' behaviour
     :param simulator: highway-env's classes (:data:`~sb3_marl.envs.simulator.STOCK`) or the faster
-        equivalents (:data:`~sb3_marl.envs.simulator.FAST`)
+        equivalents (:data:`~sb3_marl.envs.simulator.FAST`, :data:`~sb3_marl.envs.simulator.COMPILED`)
     """
     network = simulator.network()
     lanes = config["lanes_count"]

@@ -14,6 +14,13 @@ parallel to an axis (direction (±1, 0) or (0, ±1)), where every product in hig
 :meth:`FastIDMVehicle.desired_gap` takes its fast path only for an ego heading of exactly 0 rad
 for the same reason, and otherwise calls highway-env's.
 
+:data:`COMPILED` (the scenario's default) goes one step further: :class:`CompiledRoad` runs the
+frames of a whole policy step in compiled code (:mod:`sb3_marl.envs.kernel`) on an array copy of
+the vehicles' state and writes the result back into the same objects. Its transcendental functions
+are the C library's, which differ from numpy's SIMD ones in the last bit for some inputs, so it
+agrees with :data:`STOCK` within a rounding tolerance, with identical episode outcomes
+(tests/envs/test_kernel.py, benchmarks/kernel_parity.py).
+
 Units: positions and distances in m, speeds in m/s, accelerations in m/s², angles in rad, time in s.
 """
 

@@ -1,0 +1,110 @@
+"""Seeded episodes of the scenario under two simulators, side by side (parity checks of the kernel).
+
+:data:`~sb3_marl.envs.simulator.FAST` reproduces highway-env's classes bit for bit
+(tests/envs/test_simulator.py); :data:`~sb3_marl.envs.simulator.COMPILED` agrees with them within
+a rounding tolerance (see :mod:`sb3_marl.envs.kernel`). :func:`compare` runs the same seeded
+episodes, with the same actions, under two simulators and reports the largest state difference
+and every episode whose outcome differs. Used by tests/envs/test_kernel.py and
+benchmarks/kernel_parity.py.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import gymnasium as gym
+import numpy as np
+
+from sb3_marl.envs import ENV_IDS
+from sb3_marl.envs.simulator import Simulator
+
+#: Meta-action probabilities (LANE_LEFT, IDLE, LANE_RIGHT, FASTER, SLOWER). Uniform random actions
+#: end most episodes in a crash within a few steps; "cruise" is mostly IDLE, so that episodes last
+#: and HDVs overtake by MOBIL, with some lane and speed changes of the AVs.
+ACTION_PROBABILITIES = {"uniform": [0.2] * 5, "cruise": [0.04, 0.8, 0.04, 0.06, 0.06]}
+
+
+def vehicle_states(env) -> np.ndarray:
+    """(vehicles, 9): position [m], heading [rad], speed [m/s], lane, target lane, crashed,
+    steering [rad] and acceleration [m/s²] of the low-level action, road order."""
+    return np.array(
+        [
+            [*v.position, v.heading, v.speed, v.lane_index[2], v.target_lane_index[2], v.crashed,
+             v.action["steering"], v.action["acceleration"]]
+            for v in env.road.vehicles
+        ],
+        dtype=np.float64,
+    ).reshape(-1, 9)
+
+
+@dataclass
+class Episode:
+    """One seeded episode: per step the vehicle states and observation, and its outcome."""
+
+    states: list[np.ndarray] = field(default_factory=list)
+    observations: list[np.ndarray] = field(default_factory=list)
+    #: per step: terminated, truncated, the AVs' crash and lane-change flags, the HDVs' target lanes
+    events: list[tuple] = field(default_factory=list)
+
+    @property
+    def outcome(self) -> tuple[int, bool, int]:
+        """(length in policy steps, crashed, lane changes of the AVs)."""
+        return len(self.events), bool(self.events[-1][0]), sum(sum(e[3]) for e in self.events)
+
+
+def run_episode(simulator: Simulator, density: int, seed: int, policy: str, **config) -> Episode:
+    """An episode of ``density`` from ``reset(seed=seed)`` under ``simulator``, the AVs' actions
+    drawn from :data:`ACTION_PROBABILITIES` ``[policy]`` by a generator seeded with ``seed``."""
+    env = gym.make(ENV_IDS[density], config=config).unwrapped
+    env.simulator = simulator
+    rng = np.random.default_rng(seed)
+    obs, _ = env.reset(seed=seed)
+    episode = Episode(states=[vehicle_states(env)], observations=[obs])
+    while True:
+        obs, _, terminated, truncated, info = env.step(rng.choice(5, env.n_avs, p=ACTION_PROBABILITIES[policy]))
+        hdv_targets = tuple(v.target_lane_index[2] for v in env.road.vehicles[env.n_avs :])
+        episode.states.append(vehicle_states(env))
+        episode.observations.append(obs)
+        episode.events.append(
+            (terminated, truncated, tuple(info["crashed"].tolist()), tuple(info["lane_change"].tolist()), hdv_targets)
+        )
+        if terminated or truncated:
+            return episode
+
+
+@dataclass
+class Comparison:
+    """How far two simulators' episodes are apart."""
+
+    episodes: int = 0
+    max_state_difference: float = 0.0  # largest |difference| of any vehicle state entry
+    max_observation_difference: float = 0.0
+    different_outcomes: list[int] = field(default_factory=list)  # seeds whose events differ
+    crashes: int = 0
+    hdv_lane_changes: int = 0
+
+
+def compare(
+    reference: Simulator, candidate: Simulator, density: int, seeds: range, policy: str, **config
+) -> Comparison:
+    """Run each seed under both simulators (scenario ``config`` overrides) and compare states,
+    observations and events."""
+    result = Comparison()
+    for seed in seeds:
+        a = run_episode(reference, density, seed, policy, **config)
+        b = run_episode(candidate, density, seed, policy, **config)
+        result.episodes += 1
+        result.crashes += a.outcome[1]
+        result.hdv_lane_changes += sum(x != y for e, f in zip(a.events, a.events[1:]) for x, y in zip(e[4], f[4]))
+        if a.events != b.events or len(a.states) != len(b.states):
+            result.different_outcomes.append(seed)
+            continue
+        for s, t in zip(a.states, b.states):
+            if s.shape != t.shape:
+                result.different_outcomes.append(seed)
+                break
+            if s.size:
+                result.max_state_difference = max(result.max_state_difference, float(np.abs(s - t).max()))
+        for s, t in zip(a.observations, b.observations):
+            result.max_observation_difference = max(result.max_observation_difference, float(np.abs(s - t).max()))
+    return result
