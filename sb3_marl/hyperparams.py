@@ -29,7 +29,7 @@ import yaml
 
 from sb3_marl.algos import get_algo
 from sb3_marl.envs import default_config, validate_config
-from sb3_marl.policies import ARCHITECTURES, ma2c_policy_kwargs, ma2c_q_policy_kwargs
+from sb3_marl.policies import ACTOR_CRITIC_FUSED_ADAM, ARCHITECTURES, ma2c_policy_kwargs, ma2c_q_policy_kwargs
 from wrappers.parameter_sharing import check_reward_scale, check_sharing_options
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "zoo_configs"
@@ -81,6 +81,11 @@ def algorithm_arguments(algo: str) -> list[str]:
     """Constructor arguments of the algorithm that a config may set."""
     parameters = inspect.signature(get_algo(algo)).parameters
     return sorted(name for name in parameters if name not in ("self", *RESERVED_KEYS))
+
+
+#: Actor-critic learners whose optimizer is SB3's default Adam (A2C's RMSprop and ACKTR's K-FAC
+#: are configured by the algorithm itself).
+ADAM_ACTOR_CRITICS = ("mappo", "matrpo")
 
 
 def is_q_learning(algo: str) -> bool:
@@ -207,4 +212,6 @@ def policy_kwargs_for(algo: str, hyperparams: dict[str, Any]) -> dict[str, Any]:
     if architecture == "default":
         return kwargs
     preset = ma2c_q_policy_kwargs() if is_q_learning(algo) else ma2c_policy_kwargs(architecture)
+    if algo in ADAM_ACTOR_CRITICS:
+        preset["optimizer_kwargs"] = dict(ACTOR_CRITIC_FUSED_ADAM)
     return {**preset, **kwargs}

@@ -74,6 +74,12 @@ def ma2c_policy_kwargs(architecture: str = "shared") -> dict[str, Any]:
     }
 
 
+#: SB3's Adam settings for actor-critic policies (eps 1e-5) with the fused kernel: one call per
+#: optimiser step instead of a handful of tensor operations per parameter (~25 % less time per
+#: gradient step on one CPU core); the same algorithm.
+ACTOR_CRITIC_FUSED_ADAM: dict[str, Any] = {"eps": 1e-5, "fused": True}
+
+
 def ma2c_q_policy_kwargs() -> dict[str, Any]:
     """``policy_kwargs`` for DQN: the same network with a Q-value head, and Adam's fused kernel
     (one call per step instead of a handful of tensor operations per parameter: a gradient step of

@@ -108,10 +108,12 @@ def _predict(
     x0: np.ndarray, y0: np.ndarray, h0: np.ndarray, v0: np.ndarray, target_y: np.ndarray,
     target_speed: np.ndarray, is_hdv: np.ndarray, delta: np.ndarray, crashed: np.ndarray, frames: int,
     dt: float, lane_width: float, n_lanes: int, speed_step: np.ndarray, ladder: np.ndarray,
-    frames_per_step: int,
-) -> np.ndarray:
+    frames_per_step: int, ego: int, collidable: np.ndarray, floor: float,
+) -> tuple[np.ndarray, float]:
     """(frames, 4, n) x, y [m], heading [rad] and speed [m/s] of every vehicle after each of
-    ``frames`` frames of ``dt`` s, every vehicle driving towards its targets.
+    ``frames`` frames of ``dt`` s, every vehicle driving towards its targets, and the room [m] of
+    vehicle ``ego`` along it (see :func:`_room`; inf for ``ego`` -1). The prediction stops as soon
+    as that room is at most ``floor`` m (it can only shrink): the rest of the path is then unset.
 
     ``speed_step`` (+1 FASTER, -1 SLOWER, 0 otherwise, per vehicle) repeats a speed change at every
     policy step (``frames_per_step`` frames) of the horizon, as ``MDPVehicle.act`` would on the
@@ -121,6 +123,7 @@ def _predict(
     target_speed = target_speed.copy()
     acceleration, steering = np.zeros(n), np.zeros(n)
     path = np.empty((frames, 4, n))
+    room = np.inf
     top = ladder.size - 1
     for frame in range(frames):
         if frame > 0 and frame % frames_per_step == 0:
@@ -154,7 +157,11 @@ def _predict(
             h[k] += v[k] * sin(beta) / (LENGTH / 2) * dt
             v[k] += acceleration[k] * dt
         path[frame, 0], path[frame, 1], path[frame, 2], path[frame, 3] = x, y, h, v
-    return path
+        if ego >= 0:
+            room = min(room, _frame_room(ego, x, y, h, v, collidable, dt))
+            if room <= floor:
+                break
+    return path, room
 
 
 @numba.njit(cache=True)
@@ -163,18 +170,27 @@ def _room(ego: int, path: np.ndarray, collidable: np.ndarray, dt: float) -> floa
     vehicle ``ego`` and any collidable vehicle overlapping it laterally (negative: a collision)."""
     room = np.inf
     for frame in range(path.shape[0]):
-        x, y, h, v = path[frame, 0], path[frame, 1], path[frame, 2], path[frame, 3]
-        ego_x, ego_y = _half_extents(h[ego])
-        for j in range(x.size):
-            if j != ego and collidable[j]:
-                other_x, other_y = _half_extents(h[j])
-                # highway-env flags a collision when the bodies would meet within the next frame
-                # (each moved by its velocity × dt): the gaps shrink by the closing speed × dt
-                dx, dy = x[j] - x[ego], y[j] - y[ego]
-                closing_x = (v[ego] * cos(h[ego]) - v[j] * cos(h[j])) * np.sign(dx)
-                closing_y = (v[ego] * sin(h[ego]) - v[j] * sin(h[j])) * np.sign(dy)
-                if abs(dy) - max(closing_y, 0.0) * dt < ego_y + other_y:
-                    room = min(room, abs(dx) - ego_x - other_x - max(closing_x, 0.0) * dt)
+        room = min(room, _frame_room(ego, path[frame, 0], path[frame, 1], path[frame, 2], path[frame, 3], collidable, dt))
+    return room
+
+
+@numba.njit(cache=True)
+def _frame_room(
+    ego: int, x: np.ndarray, y: np.ndarray, h: np.ndarray, v: np.ndarray, collidable: np.ndarray, dt: float
+) -> float:
+    """:func:`_room` of one frame's positions [m], headings [rad] and speeds [m/s]."""
+    room = np.inf
+    ego_x, ego_y = _half_extents(h[ego])
+    for j in range(x.size):
+        if j != ego and collidable[j]:
+            other_x, other_y = _half_extents(h[j])
+            # highway-env flags a collision when the bodies would meet within the next frame
+            # (each moved by its velocity × dt): the gaps shrink by the closing speed × dt
+            dx, dy = x[j] - x[ego], y[j] - y[ego]
+            closing_x = (v[ego] * cos(h[ego]) - v[j] * cos(h[j])) * np.sign(dx)
+            closing_y = (v[ego] * sin(h[ego]) - v[j] * sin(h[j])) * np.sign(dy)
+            if abs(dy) - max(closing_y, 0.0) * dt < ego_y + other_y:
+                room = min(room, abs(dx) - ego_x - other_x - max(closing_x, 0.0) * dt)
     return room
 
 
@@ -228,7 +244,7 @@ def supervise_arrays(
     order = np.argsort(margin, kind="mergesort")
     # the road predicted under the AVs' current actions, shared by every AV's room until one changes
     path = _predict(x, y, h, v, target_y, target_speed, is_hdv, delta, crashed, frames, dt, lane_width, n_lanes,
-                    speed_step, ladder, frames_per_step)
+                    speed_step, ladder, frames_per_step, -1, collidable, -np.inf)[0]
     for _ in range(PASSES):
         changed = False
         for i in order:
@@ -241,9 +257,11 @@ def supervise_arrays(
                 for a in PREFERENCE:
                     if available[i, a] and a != current:
                         _set_action(i, a, target_y, target_speed, speed_step, candidate_y, candidate_speed, repeat_actions)
-                        candidate_path = _predict(x, y, h, v, target_y, target_speed, is_hdv, delta, crashed, frames,
-                                                  dt, lane_width, n_lanes, speed_step, ladder, frames_per_step)
-                        candidate_room = _room(i, candidate_path, collidable, dt)
+                        # stopped once it cannot beat the best: such a candidate is never chosen
+                        candidate_path, candidate_room = _predict(
+                            x, y, h, v, target_y, target_speed, is_hdv, delta, crashed, frames, dt, lane_width,
+                            n_lanes, speed_step, ladder, frames_per_step, i, collidable, best_room,
+                        )
                         if candidate_room > best_room:
                             best, best_room, best_path = a, candidate_room, candidate_path
                 changed = changed or best != current
@@ -265,7 +283,7 @@ def supervise_arrays(
             if stuck[i]:
                 _set_action(i, IDLE, trial_y, trial_speed, trial_step, candidate_y, candidate_speed, repeat_actions)
         trial_path = _predict(x, y, h, v, trial_y, trial_speed, is_hdv, delta, crashed, frames, dt, lane_width,
-                              n_lanes, trial_step, ladder, frames_per_step)
+                              n_lanes, trial_step, ladder, frames_per_step, -1, collidable, -np.inf)[0]
         trial_rooms = rooms.copy()
         before, after = np.inf, np.inf
         for i in order:
