@@ -210,17 +210,17 @@ class LaneChangeEnv(AbstractEnv):
         a lane change only towards an existing lane reachable from the AV's position; FASTER /
         SLOWER unless the AV already tracks the highest / lowest target speed.
         """
-        mask = np.zeros((self.n_avs, len(ACTIONS)), dtype=bool)
-        mask[:, ACTION_INDEX["IDLE"]] = True
-        network = self.road.network
-        for i, av in enumerate(self.avs):
-            lane_id = av.lane_index[2]
-            for side in network.side_lanes(av.lane_index):
-                if network.get_lane(side).is_reachable_from(av.position):
-                    mask[i, ACTION_INDEX["LANE_LEFT" if side[2] < lane_id else "LANE_RIGHT"]] = True
-            mask[i, ACTION_INDEX["FASTER"]] = av.speed_index < av.target_speeds.size - 1
-            mask[i, ACTION_INDEX["SLOWER"]] = av.speed_index > 0
-        return mask
+        rows = []
+        graph = self.road.network.graph
+        for av in self.avs:
+            _from, _to, lane_id = av.lane_index
+            lanes = graph[_from][_to]  # RoadNetwork.side_lanes: the neighbouring ids of this segment
+            left, right = (
+                0 <= side < len(lanes) and lanes[side].is_reachable_from(av.position)
+                for side in (lane_id - 1, lane_id + 1)
+            )
+            rows.append((left, True, right, av.speed_index < av.target_speeds.size - 1, av.speed_index > 0))
+        return np.array(rows, dtype=bool).reshape(self.n_avs, len(ACTIONS))
 
     def _check_actions(self, action: Any) -> np.ndarray:
         actions = np.asarray(action)

@@ -131,18 +131,29 @@ class FastStraightLane(StraightLane):
 class FastRoadNetwork(RoadNetwork):
     """``RoadNetwork`` whose closest-lane search keeps the first minimum without numpy."""
 
+    _indexed: list[tuple[LaneIndex, StraightLane, bool]] | None = None  # (index, lane, fast), graph order
+
+    def add_lane(self, _from: str, _to: str, lane: StraightLane) -> None:
+        super().add_lane(_from, _to, lane)
+        self._indexed = None
+
     def get_closest_lane_index(self, position: np.ndarray, heading: float | None = None) -> LaneIndex:
+        if self._indexed is None:
+            self._indexed = [
+                ((_from, _to, _id), lane, isinstance(lane, FastStraightLane))
+                for _from, to_dict in self.graph.items()
+                for _to, lanes in to_dict.items()
+                for _id, lane in enumerate(lanes)
+            ]
         x, y = xy(position)
         closest, closest_distance = None, None
-        for _from, to_dict in self.graph.items():
-            for _to, lanes in to_dict.items():
-                for _id, lane in enumerate(lanes):
-                    if heading is not None and isinstance(lane, FastStraightLane):
-                        distance = lane.distance_with_heading_xy(x, y, heading)
-                    else:
-                        distance = lane.distance_with_heading(position, heading)
-                    if closest is None or distance < closest_distance:  # np.argmin: the first minimum
-                        closest, closest_distance = (_from, _to, _id), distance
+        for index, lane, fast in self._indexed:
+            if heading is not None and fast:
+                distance = lane.distance_with_heading_xy(x, y, heading)
+            else:
+                distance = lane.distance_with_heading(position, heading)
+            if closest is None or distance < closest_distance:  # np.argmin: the first minimum
+                closest, closest_distance = index, distance
         return closest
 
 
