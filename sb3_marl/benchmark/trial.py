@@ -9,7 +9,8 @@ on it. Beside them:
   off-policy learners, ``evaluations.npz`` and ``state.json``; the same files are reported to Ray
   Tune as the trial's checkpoint, from which Ray restarts a trial whose worker died;
 - ``trial.json``: the trial and its settings, with one entry per attempt (start, host, pid);
-- ``result.json`` (written last): the final evaluation. A trial with it is finished and skipped
+- ``result.json`` (written last): the last periodic evaluation and the paper's final evaluation
+  of the trained model (``paper_evaluation``, :data:`FINAL_EVAL_EPISODES` seeded episodes). A trial with it is finished and skipped
   when the benchmark runs again; one without it continues from ``checkpoint/``.
 """
 
@@ -36,6 +37,9 @@ PREVIOUS_CHECKPOINT = f".{CHECKPOINT}.previous"
 #: Benchmark settings every trial of a log folder shares (``benchmark.json``).
 SETTINGS = ("budget", "eval_every_episodes", "eval_episodes")
 RESULT = "result.json"
+#: The paper's final evaluation of a trained model: 30 seeded episodes (seeds 10000..10029, the
+#: same for every trial and for ``sb3-marl evaluate``), actions sampled, the trial's scenario.
+FINAL_EVAL_EPISODES = 30
 TRIAL = "trial.json"
 
 
@@ -105,7 +109,8 @@ def run_trial(config: dict[str, Any]) -> None:
     from ray import tune
 
     from sb3_marl.callbacks import ScenarioEvalCallback
-    from sb3_marl.experiment import MARLExperimentManager
+    from sb3_marl.evaluation import evaluation_records, model_policy, protocol_label, summarize
+    from sb3_marl.experiment import EVAL_SEED_OFFSET, MARLExperimentManager
 
     torch.set_num_threads(1)  # one core per trial: Ray schedules trials by CPU
     spec = TrialSpec(**config["spec"])
@@ -150,11 +155,19 @@ def run_trial(config: dict[str, Any]) -> None:
     if manager.interrupted:
         raise KeyboardInterrupt(f"trial {spec.trial_id} interrupted")
     manager.save_trained_model(model)
+    wall_time = round(time.perf_counter() - start, 1)
+    records = evaluation_records(model_policy(model), spec.env_id, FINAL_EVAL_EPISODES, EVAL_SEED_OFFSET,
+                                 manager.scenario.get("env_config"))
     result = {
         **info, "num_timesteps": int(model.num_timesteps), "env_steps": int(spec.env_steps(model.num_timesteps)),
         "final_evaluation": evaluation.final_summary(),
         "final_returns": [float(r) for r in evaluation.evaluations["results"][-1]],
-        "wall_time_s": round(time.perf_counter() - start, 1), "machine": f"{platform.node()} ({os.cpu_count()} cores)",
+        "paper_evaluation": {
+            "episodes": FINAL_EVAL_EPISODES, "seeds": [EVAL_SEED_OFFSET, EVAL_SEED_OFFSET + FINAL_EVAL_EPISODES - 1],
+            "protocol": protocol_label(False, model, manager.scenario.get("env_config")),
+            **summarize(records), "returns": [r.episode_return for r in records],
+        },
+        "wall_time_s": wall_time, "machine": f"{platform.node()} ({os.cpu_count()} cores)",
     }
     write_json(folder / RESULT, result)
 

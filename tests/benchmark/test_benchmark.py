@@ -69,6 +69,9 @@ def test_trials_write_the_rl_zoo_layout_and_tensorboard(tiny_benchmark):
         result = json.loads((trial / "result.json").read_text())
         assert result["num_timesteps"] >= 600 and result["final_evaluation"]["timesteps"] == result["num_timesteps"]
         assert evaluations["timesteps"][-1] == result["num_timesteps"]  # a final evaluation at the end
+        paper = result["paper_evaluation"]  # the paper's: 30 seeded episodes of the trained model, sampled
+        assert paper["episodes"] == len(paper["returns"]) == 30 and paper["seeds"] == [10_000, 10_029]
+        assert paper["return_mean"] == pytest.approx(np.mean(paper["returns"])) and "sampled" in paper["protocol"]
         events = list((trial / "tensorboard").rglob("events.out.tfevents.*"))
         accumulator = EventAccumulator(str(events[0].parent)).Reload()
         assert "eval/mean_reward" in accumulator.Tags()["scalars"]
