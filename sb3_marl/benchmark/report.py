@@ -1,7 +1,8 @@
 """Aggregate a benchmark log folder into the paper's table and figures.
 
 - ``paper_table.md``: per experiment, per curve and density, the final evaluation over seeds
-  (mean ± std of the seeds' final evaluation returns; collision rate, mean speed [m/s] and
+  (the paper's: 30 seeded episodes of each trained model, :meth:`TrialLog.final`; mean ± std of
+  the seeds' final evaluation returns; collision rate, mean speed [m/s] and
   acceleration std [m/s²] averaged over seeds) beside the paper's numbers and claims;
 - ``learning_curves_<experiment>.png``: evaluation return against training episodes, one panel
   per density, mean over seeds with a shaded ± std band (the layout of the paper's figures);
@@ -62,6 +63,11 @@ class TrialLog:
         """Mean return of each evaluation."""
         return self.evaluations["results"].mean(axis=1)
 
+    def final(self) -> dict[str, Any]:
+        """The finished trial's final evaluation: the paper's (30 seeded episodes of the trained
+        model, ``paper_evaluation``) where the trial has it, else its last periodic evaluation."""
+        return self.result.get("paper_evaluation") or self.result["final_evaluation"]
+
 
 def load_trials(log_folder: str | Path) -> list[TrialLog]:
     """Every trial under ``<log_folder>/trials/`` that has evaluated at least once."""
@@ -87,7 +93,7 @@ def _select(trials: list[TrialLog], algo: str, variant: str, density: int) -> li
 def final_over_seeds(trials: list[TrialLog]) -> dict[str, float] | None:
     """Mean ± std over seeds of the finished trials' final evaluation return, and the seed means of
     the driving metrics; None without a finished trial."""
-    finals = [t.result["final_evaluation"] for t in trials if t.result is not None]
+    finals = [t.final() for t in trials if t.result is not None]
     if not finals:
         return None
     returns = np.array([f["return_mean"] for f in finals])
@@ -104,7 +110,9 @@ def paper_table(trials: list[TrialLog], settings: dict[str, Any] | None = None) 
     if settings:
         lines += [f"Budget {settings['budget']:g} x the paper's 1M env steps per trial; evaluation: "
                   f"{settings['eval_episodes']} episodes every {settings['eval_every_episodes']:g} training episodes "
-                  "(the paper: 3 every 200). Return: the seeds' final evaluation returns (mean ± std over seeds); "
+                  "(the paper: 3 every 200). Final evaluation: 30 seeded episodes of each trained model (trials "
+                  "from before it existed: their last periodic evaluation). "
+                  "Return: the seeds' final evaluation returns (mean ± std over seeds); "
                   "collision rate, speed and acceleration std: mean over seeds of the final evaluation.", ""]
     lines += [f"Evaluation protocol: {PROTOCOLS[False]}; action masks for the learners that have them; the safety "
               "supervisor as in each learner's zoo config (on in all of them).", ""]
@@ -254,7 +262,7 @@ def plot_comfort(trials: list[TrialLog], log_folder: str | Path, out_dir: str | 
     ax = axes[2]
     width = 0.35
     for k, (label, by_density) in enumerate(curves.items()):
-        stds = [[t.result["final_evaluation"]["acceleration_std"] for t in by_density[d]] for d in densities]
+        stds = [[t.final()["acceleration_std"] for t in by_density[d]] for d in densities]
         variant = EXPERIMENTS["comfort"][label][1]
         ax.bar(np.arange(len(densities)) + (k - 0.5) * width, [np.mean(s) for s in stds], width,
                yerr=[np.std(s) for s in stds], capsize=4,
