@@ -55,6 +55,19 @@ from sb3_marl.tuning import SAMPLERS, TrialPruningCallback, best_hyperparams_yam
 EVAL_SEED_OFFSET = 10_000
 
 
+def interrupted_by_user(error: BaseException) -> bool:
+    """Whether ``error`` is, or was caused by, a KeyboardInterrupt (Ctrl-C, or SIGTERM as the CLI
+    maps it). A signal that arrives while compiled (numba) code is running raises its
+    KeyboardInterrupt inside numba's dispatcher, which reports it as a SystemError caused by it."""
+    seen = set()
+    while error is not None and id(error) not in seen:
+        if isinstance(error, KeyboardInterrupt):
+            return True
+        seen.add(id(error))
+        error = error.__cause__ or error.__context__
+    return False
+
+
 class MARLExperimentManager(ExperimentManager):
     """:class:`rl_zoo3.exp_manager.ExperimentManager` on a ParameterSharingVecEnv (see module doc).
 
@@ -184,7 +197,9 @@ class MARLExperimentManager(ExperimentManager):
                     model.learn(remaining, reset_num_timesteps=not self.continue_training, **kwargs)
             else:
                 print(f"The loaded model has {model.num_timesteps} timesteps >= n_timesteps={self.n_timesteps}.")
-        except KeyboardInterrupt:
+        except BaseException as error:  # Ctrl-C / SIGTERM: stop, keep what was learnt
+            if not interrupted_by_user(error):
+                raise
             self.interrupted = True
         finally:
             if self.callbacks:
@@ -259,7 +274,9 @@ class MARLExperimentManager(ExperimentManager):
               f"(sampler {self.sampler}, pruner {self.pruner}, {self.n_evaluations} evaluation(s) per trial)")
         try:
             study.optimize(self.objective, n_trials=self.n_trials, n_jobs=self.n_jobs, gc_after_trial=True)
-        except KeyboardInterrupt:
+        except BaseException as error:
+            if not interrupted_by_user(error):
+                raise
             self.interrupted = True
         folder = os.path.join(self.log_folder, self.algo)
         os.makedirs(folder, exist_ok=True)

@@ -148,6 +148,45 @@ def test_resume_continues_the_timestep_count(logs):
     assert sorted(p.name for p in resumed.glob("rl_model_*")) == ["rl_model_1800_steps.zip"]
 
 
+def test_a_signal_during_compiled_code_counts_as_an_interruption():
+    """Ctrl-C / SIGTERM raise KeyboardInterrupt from a Python signal handler; when the signal lands
+    while numba's compiled supervisor runs, numba's dispatcher reports it as a SystemError caused
+    by the KeyboardInterrupt. Both must stop training as an interruption, not as a failure."""
+    import gymnasium as gym
+
+    from sb3_marl.envs import ENV_IDS
+    from sb3_marl.experiment import interrupted_by_user
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt
+
+    env = gym.make(ENV_IDS[3], config={"safety_supervisor": True}).unwrapped
+    previous = signal.signal(signal.SIGALRM, interrupt)
+    try:
+        for attempt in range(8):  # the signal lands in Python or in compiled code: both count
+            env.reset(seed=attempt)
+            signal.setitimer(signal.ITIMER_REAL, 0.05, 0.002)
+            try:
+                while True:
+                    _, _, terminated, truncated, _ = env.step(np.ones(env.n_avs, dtype=int))
+                    if terminated or truncated:
+                        env.reset()
+            except BaseException as error:  # noqa: BLE001 - what the training loop sees
+                signal.setitimer(signal.ITIMER_REAL, 0)
+                assert interrupted_by_user(error), repr(error)
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+    try:
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as cause:
+            raise SystemError("CPUDispatcher(...) returned a result with an exception set") from cause
+    except SystemError as error:
+        assert interrupted_by_user(error)
+    assert not interrupted_by_user(SystemError("a real failure")) and not interrupted_by_user(ValueError())
+
+
 def test_sigterm_saves_the_model_and_logs(tmp_path):
     command = [sys.executable, "-m", "sb3_marl", "train", "-f", str(tmp_path), "-n", "10000000", "--save-freq", "240",
                "--eval-freq", "-1", "-params", "n_steps:20", "--verbose", "0"]
