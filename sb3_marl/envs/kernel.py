@@ -104,7 +104,8 @@ def wrap_to_pi(angle: float) -> float:
 
 
 @numba.njit(cache=True)
-def _clip(value: float, low: float, high: float) -> float:
+def clip(value: float, low: float = -1.0, high: float = 1.0) -> float:
+    """``np.clip`` of one number: max with ``low``, then min with ``high``."""
     return min(max(value, low), high)
 
 
@@ -141,7 +142,7 @@ def _idm(state: np.ndarray, ego: int, front: int, speed_limit: float) -> float:
     """``IDMVehicle.acceleration`` [m/s²] of ``ego`` behind ``front`` (-1: free road; ego -1: 0)."""
     if ego < 0:
         return 0.0
-    target = _clip(state[ego, TARGET_SPEED], 0.0, speed_limit)
+    target = clip(state[ego, TARGET_SPEED], 0.0, speed_limit)
     ratio = max(state[ego, SPEED], 0.0) / abs(not_zero(target))
     acceleration = COMFORT_ACC_MAX * (1 - ratio**DELTA)
     if front >= 0:
@@ -156,12 +157,12 @@ def _steering(state: np.ndarray, k: int, lane: int, lane_width: float) -> float:
     lateral = state[k, Y] - lane * lane_width
     speed = not_zero(state[k, SPEED])
     lateral_speed_command = -KP_LATERAL * lateral
-    heading_command = arcsin(_clip(lateral_speed_command / speed, -1.0, 1.0))
-    heading_ref = 0.0 + _clip(heading_command, -np.pi / 4, np.pi / 4)
+    heading_command = arcsin(clip(lateral_speed_command / speed, -1.0, 1.0))
+    heading_ref = 0.0 + clip(heading_command, -np.pi / 4, np.pi / 4)
     heading_rate_command = KP_HEADING * wrap_to_pi(heading_ref - state[k, HEADING])
-    slip_angle = arcsin(_clip(LENGTH / 2 / speed * heading_rate_command, -1.0, 1.0))
+    slip_angle = arcsin(clip(LENGTH / 2 / speed * heading_rate_command, -1.0, 1.0))
     steering_angle = arctan(2 * tan(slip_angle))
-    return _clip(steering_angle, -MAX_STEERING_ANGLE, MAX_STEERING_ANGLE)
+    return clip(steering_angle, -MAX_STEERING_ANGLE, MAX_STEERING_ANGLE)
 
 
 @numba.njit(cache=True)
@@ -241,7 +242,7 @@ def _act(state: np.ndarray, n_lanes: int, lane_width: float, road_length: float,
         if lane != target:
             acceleration = min(acceleration, _idm(state, k, _neighbours(state, on_lane, k, target)[0], speed_limit))
         state[k, STEERING] = steering
-        state[k, ACCELERATION] = _clip(acceleration, -ACC_MAX, ACC_MAX)
+        state[k, ACCELERATION] = clip(acceleration, -ACC_MAX, ACC_MAX)
 
 
 @numba.njit(cache=True)

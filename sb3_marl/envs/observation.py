@@ -21,6 +21,7 @@ import numba
 import numpy as np
 from gymnasium import spaces
 
+from sb3_marl.envs.kernel import clip
 from sb3_marl.envs.traffic import TrafficSnapshot
 
 FEATURES = ("presence", "x", "y", "vx", "vy")
@@ -42,11 +43,6 @@ def observe(snapshot: TrafficSnapshot, config: dict[str, Any]) -> np.ndarray:
 
 
 @numba.njit(cache=True)
-def _clip(value: float, low: float = -1.0, high: float = 1.0) -> float:
-    return min(max(value, low), high)
-
-
-@numba.njit(cache=True)
 def _observe(
     x: np.ndarray, y: np.ndarray, vx: np.ndarray, vy: np.ndarray, visible: np.ndarray, n_avs: int, rows: int,
     road_length: float, x_range: float, y_range: float, v_range: float,
@@ -56,8 +52,8 @@ def _observe(
     obs = np.zeros((n_avs, rows, 5), dtype=np.float32)
     distance = np.empty(x.size)
     for i in range(n_avs):
-        obs[i, 0] = (1.0, _clip(x[i] / road_length, 0.0, 1.0), _clip(y[i] / y_range), _clip(vx[i] / v_range),
-                     _clip(vy[i] / v_range))
+        obs[i, 0] = (1.0, clip(x[i] / road_length, 0.0, 1.0), clip(y[i] / y_range), clip(vx[i] / v_range),
+                     clip(vy[i] / v_range))
         count = 0
         for j in range(x.size):
             distance[j] = abs(x[j] - x[i])
@@ -67,6 +63,6 @@ def _observe(
                 distance[j] = np.inf
         nearest = np.argsort(distance, kind="mergesort")[: min(count, rows - 1)]  # stable: ties by index
         for row, j in enumerate(nearest):
-            obs[i, row + 1] = (1.0, _clip((x[j] - x[i]) / x_range), _clip((y[j] - y[i]) / y_range),
-                               _clip((vx[j] - vx[i]) / v_range), _clip((vy[j] - vy[i]) / v_range))
+            obs[i, row + 1] = (1.0, clip((x[j] - x[i]) / x_range), clip((y[j] - y[i]) / y_range),
+                               clip((vx[j] - vx[i]) / v_range), clip((vy[j] - vy[i]) / v_range))
     return obs

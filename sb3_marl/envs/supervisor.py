@@ -40,7 +40,6 @@ from typing import Any
 import numba
 import numpy as np
 from highway_env.vehicle.behavior import IDMVehicle
-from highway_env.vehicle.controller import MDPVehicle
 from highway_env.vehicle.kinematics import Vehicle
 
 from sb3_marl.envs.kernel import (
@@ -129,8 +128,7 @@ def _predict(
         if frame > 0 and frame % frames_per_step == 0:
             for k in range(n):
                 if speed_step[k] != 0:
-                    index = min(max(np.round((v[k] - ladder[0]) / (ladder[top] - ladder[0]) * top), 0), top)
-                    target_speed[k] = ladder[int(min(max(index + speed_step[k], 0), top))]
+                    target_speed[k] = ladder[min(max(_speed_index(v[k], ladder) + speed_step[k], 0), top)]
         for k in range(n):  # act: every vehicle decides on the same frozen positions
             if crashed[k]:
                 acceleration[k], steering[k] = -v[k], 0.0
@@ -192,6 +190,14 @@ def _frame_room(
             if abs(dy) - max(closing_y, 0.0) * dt < ego_y + other_y:
                 room = min(room, abs(dx) - ego_x - other_x - max(closing_x, 0.0) * dt)
     return room
+
+
+@numba.njit(cache=True)
+def _speed_index(speed: float, ladder: np.ndarray) -> int:
+    """``MDPVehicle.speed_to_index``: the index of the target speed nearest ``speed`` [m/s] on the
+    uniform ``ladder`` [m/s] (rounding half to even, as ``np.round``)."""
+    top = ladder.size - 1
+    return int(min(max(np.round((speed - ladder[0]) / (ladder[top] - ladder[0]) * top), 0), top))
 
 
 @numba.njit(cache=True)
@@ -317,7 +323,7 @@ def candidate_targets(
             if abs(y[i] - other * lane_width) <= 2 * lane_width and 0 <= x[i] < road_length + LANE_VEHICLE_LENGTH:
                 candidate_y[i, action] = other * lane_width
         candidate_speed[i, :] = target_speed[i]
-        index = int(min(max(np.round((v[i] - ladder[0]) / (ladder[top] - ladder[0]) * top), 0), top))
+        index = _speed_index(v[i], ladder)
         candidate_speed[i, 3] = ladder[min(index + 1, top)]
         candidate_speed[i, 4] = ladder[max(index - 1, 0)]
     return candidate_y, candidate_speed
@@ -336,6 +342,9 @@ def supervise(
     """
     n_lanes, lane_width = config["lanes_count"], float(config["lane_width"])
     speed_limit = float(config["speed_limit"])
+    # one row per vehicle; the columns, in order: x, y [m], heading [rad], speed [m/s], target lane,
+    # target speed [m/s] (an HDV's capped by the speed limit, as its IDM does), is HDV, IDM exponent,
+    # crashed, collidable
     state = np.array(
         [
             (
@@ -347,7 +356,9 @@ def supervise(
         ],
         dtype=np.float64,
     ).reshape(-1, 10)
-    x, y, h, v, target_lane, target_speed, delta = (np.ascontiguousarray(state[:, c]) for c in (0, 1, 2, 3, 4, 5, 7))
+    x, y, h, v, target_lane, target_speed, is_hdv, delta, crashed, collidable = (
+        np.ascontiguousarray(column) for column in state.T
+    )
     ladder = np.asarray(config["target_speeds"], dtype=np.float64)
     candidate_y, candidate_speed = candidate_targets(
         x[:n_avs], y[:n_avs], v[:n_avs], target_lane[:n_avs], target_speed[:n_avs], ladder, n_lanes, lane_width,
@@ -355,8 +366,8 @@ def supervise(
     )
     frames = max(int(round(config["supervisor_horizon"] * config["simulation_frequency"])), 1)
     return supervise_arrays(
-        x, y, h, v, target_lane * lane_width, target_speed, state[:, 6] > 0, delta, state[:, 8] > 0,
-        state[:, 9] > 0, candidate_y, candidate_speed,
+        x, y, h, v, target_lane * lane_width, target_speed, is_hdv > 0, delta, crashed > 0, collidable > 0,
+        candidate_y, candidate_speed,
         np.asarray(available, dtype=np.bool_),
         np.asarray(proposed, dtype=np.int64),
         frames, 1.0 / config["simulation_frequency"], lane_width, n_lanes,
