@@ -1,4 +1,4 @@
-"""Hand-written AV policies used as references: uniformly random and IDM/MOBIL-driven."""
+"""Hand-written AV policies used as references: uniformly random, cruise and IDM/MOBIL-driven."""
 
 from __future__ import annotations
 
@@ -17,6 +17,15 @@ class RandomPolicy:
 
     def __call__(self, env: LaneChangeEnv, obs: np.ndarray) -> np.ndarray:
         return self.rng.integers(0, len(ACTION_INDEX), size=env.n_avs)
+
+
+class CruisePolicy:
+    """IDLE for every AV at every step: each AV keeps its lane and the target speed it spawned with
+    (the speed ladder's value nearest its initial 25-30 m/s). The simplest comfortable policy; with
+    the safety supervisor on, the supervisor alone brakes it before a predicted collision."""
+
+    def __call__(self, env: LaneChangeEnv, obs: np.ndarray) -> np.ndarray:
+        return np.full(env.n_avs, ACTION_INDEX["IDLE"])
 
 
 class IDMMobilPolicy:
@@ -61,4 +70,4 @@ class IDMMobilPolicy:
         return ACTION_INDEX["IDLE"]
 
 
-BASELINES = {"random": RandomPolicy, "idm-mobil": IDMMobilPolicy}
+BASELINES = {"random": RandomPolicy, "cruise": CruisePolicy, "idm-mobil": IDMMobilPolicy}

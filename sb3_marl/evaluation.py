@@ -178,15 +178,17 @@ def model_policy(model: Any, deterministic: bool = False) -> Policy:
 
 
 def evaluation_records(
-    policy: Policy, env_id: str, n_episodes: int, seed: int = 0, config: dict | None = None
+    policy: Policy, env_id: str, n_episodes: int, seed: int = 0, config: dict | None = None,
+    on_step: StepHook | None = None,
 ) -> list[EpisodeRecord]:
-    """``n_episodes`` episodes with seeds ``seed, seed + 1, ...``, cycling through the density's AV counts."""
+    """``n_episodes`` episodes with seeds ``seed, seed + 1, ...``, cycling through the density's AV
+    counts (``on_step`` as in :func:`run_episodes`)."""
     counts = av_counts(env_id, config)
     envs = {n: gym.make(env_id, config={**(config or {}), "n_avs": n}).unwrapped for n in counts}
     records = []
     for episode in range(n_episodes):
         env = envs[counts[episode % len(counts)]]
-        records += run_episodes(env, policy, 1, seed=seed + episode)
+        records += run_episodes(env, policy, 1, seed=seed + episode, on_step=on_step)
     for env in envs.values():
         env.close()
     return records

@@ -19,14 +19,16 @@ from torch import nn
 
 #: Actor-critic network layouts: one trunk for both heads (the paper's) or one network each.
 ARCHITECTURES = ("shared", "separate")
-#: Feature columns of each physical unit in the scenario's observation (slices: views, no copies).
+#: Feature columns of each physical unit in the scenario's observation (slices: views, no copies);
+#: the optional 6th feature, the ego's target speed [m/s], is a velocity.
 UNIT_COLUMNS = {"presence": slice(0, 1), "position": slice(1, 3), "velocity": slice(3, 5)}
+UNIT_COLUMNS_WITH_TARGET_SPEED = {**UNIT_COLUMNS, "velocity": slice(3, 6)}
 
 
 class MA2CFeaturesExtractor(BaseFeaturesExtractor):
     """Inputs split by physical unit, one FC layer each, concatenated, then a ``features_dim`` FC layer.
 
-    :param observation_space: Box of shape (vehicles, 5)
+    :param observation_space: Box of shape (vehicles, 5), or (vehicles, 6) with the target speed
     :param unit_dims: output units of the presence, position and velocity layers
     :param features_dim: units of the trunk layer (128 in the paper)
     """
@@ -37,24 +39,25 @@ class MA2CFeaturesExtractor(BaseFeaturesExtractor):
         unit_dims: tuple[int, int, int] = (32, 64, 64),
         features_dim: int = 128,
     ) -> None:
-        if len(observation_space.shape) != 2 or observation_space.shape[1] != 5:
+        if len(observation_space.shape) != 2 or observation_space.shape[1] not in (5, 6):
             raise ValueError(
                 f"MA2CFeaturesExtractor needs observations of shape (vehicles, 5) with features "
-                f"(presence, x, y, vx, vy), got {observation_space.shape}."
+                f"(presence, x, y, vx, vy), or (vehicles, 6) with the target speed, got {observation_space.shape}."
             )
         super().__init__(observation_space, features_dim)
         vehicles = observation_space.shape[0]
+        self.columns = UNIT_COLUMNS if observation_space.shape[1] == 5 else UNIT_COLUMNS_WITH_TARGET_SPEED
         self.units = nn.ModuleDict(
             {
                 unit: nn.Sequential(nn.Linear(vehicles * (columns.stop - columns.start), dim), nn.ReLU())
-                for (unit, columns), dim in zip(UNIT_COLUMNS.items(), unit_dims)
+                for (unit, columns), dim in zip(self.columns.items(), unit_dims)
             }
         )
         self.trunk = nn.Sequential(nn.Linear(sum(unit_dims), features_dim), nn.ReLU())
 
     def forward(self, observations: th.Tensor) -> th.Tensor:
         parts = [
-            layer(observations[:, :, UNIT_COLUMNS[unit]].flatten(start_dim=1)) for unit, layer in self.units.items()
+            layer(observations[:, :, self.columns[unit]].flatten(start_dim=1)) for unit, layer in self.units.items()
         ]
         return self.trunk(th.cat(parts, dim=1))
 

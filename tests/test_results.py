@@ -47,3 +47,18 @@ def test_committed_models_reproduce_their_evaluation(logs):
         again = run.evaluate(model, 3, committed["seeds"][0], committed["deterministic"])
         assert again["returns"] == pytest.approx(committed["returns"][:3], rel=1e-9, abs=1e-9)
         assert again["protocol"] == committed["protocol"]
+
+
+PAPER_GRID = RESULTS / "paper-grid"
+
+
+def test_the_paper_grid_table_regenerates():
+    """results/paper_table.md is `sb3-marl benchmark report -f results/paper-grid -o results`'s
+    table of the committed trials (finished trials' slim logs, unfinished trials' checkpoints)."""
+    import json
+
+    from sb3_marl.benchmark.report import load_trials, paper_table
+
+    settings = json.loads((PAPER_GRID / "benchmark.json").read_text())
+    assert settings == {"budget": 1.0, "eval_every_episodes": 200, "eval_episodes": 3}  # the paper's protocol
+    assert paper_table(load_trials(PAPER_GRID), settings) == (RESULTS / "paper_table.md").read_text()

@@ -2,12 +2,18 @@
 
 - ``paper_table.md``: per experiment, per curve and density, the final evaluation over seeds
   (the paper's: 30 seeded episodes of each trained model, :meth:`TrialLog.final`; mean ± std of
-  the seeds' final evaluation returns; collision rate, mean speed [m/s] and
-  acceleration std [m/s²] averaged over seeds) beside the paper's numbers and claims;
+  the seeds' final evaluation returns; the interquartile mean of all the seeds' episode returns
+  with a 95 % stratified-bootstrap confidence interval, :func:`iqm_with_ci`; collision rate, lane
+  changes per episode, mean speed [m/s], acceleration std [m/s²] and supervisor intervention rate
+  averaged over seeds) beside the paper's numbers and claims;
 - ``learning_curves_<experiment>.png``: evaluation return against training episodes, one panel
   per density, mean over seeds with a shaded ± std band (the layout of the paper's figures);
 - ``comfort.png``: AV acceleration traces of one evaluation episode with the comfort term on and
-  off, and the acceleration std of the final evaluations.
+  off, and the acceleration std of the final evaluations;
+- ``cooperative_lane_change.png`` / ``.json`` (the paper's experiment 6, policy interpretation):
+  among the final evaluation episodes of the finished MA2C trials at densities 2 and 3, the
+  lane change an AV yielded to with the largest speed drop (:mod:`sb3_marl.interpretation`),
+  as road snapshots and speed traces; the json says which, or that no AV yielded.
 
 Only finished trials (with ``result.json``) enter the table; curves also show unfinished ones.
 """
@@ -45,6 +51,12 @@ PAPER_FINDINGS = {
     "politeness": ("Experiment 4: HDV politeness p=0 vs p=1", "stable performance under both"),
     "baselines": ("Experiment 5: baselines", "MA2C best at densities 1 and 3 (MADQN at density 2)"),
 }
+
+
+#: Driving metrics of the final evaluation, averaged over seeds in the table.
+DRIVING_METRICS = ("collision_rate", "lane_changes_per_episode", "speed_mean", "acceleration_std", "intervention_rate")
+#: Bootstrap resamples of the IQM's confidence interval (rliable's default).
+BOOTSTRAP_REPS = 50_000
 
 
 @dataclass
@@ -90,17 +102,52 @@ def _select(trials: list[TrialLog], algo: str, variant: str, density: int) -> li
                   key=lambda t: t.spec.seed)
 
 
+def interquartile_mean(scores: np.ndarray, axis: int | None = None) -> np.ndarray:
+    """rliable's IQM: the mean of the middle 50 % of ``scores`` (``scipy.stats.trim_mean`` with
+    0.25 cut from each end, ``int(0.25 n)`` values each side), over ``axis`` (None: all values)."""
+    scores = np.asarray(scores, dtype=float)
+    if axis is None:
+        scores, axis = scores.reshape(-1), 0
+    n = scores.shape[axis]
+    cut = int(0.25 * n)
+    return np.sort(scores, axis=axis).take(np.arange(cut, n - cut), axis=axis).mean(axis=axis)
+
+
+def iqm_with_ci(scores: np.ndarray, reps: int = BOOTSTRAP_REPS, confidence: float = 0.95,
+                seed: int = 0) -> tuple[float, float, float]:
+    """IQM of a (runs, tasks) score matrix and its percentile confidence interval by rliable's
+    stratified bootstrap (runs resampled with replacement independently within each task).
+
+    Here runs are a curve's seeds and tasks the 30 seeded evaluation episodes that every seed plays.
+    Seeded, so the same scores give the same interval. (rliable itself is not a dependency: its
+    pinned ``arch<8`` fails to import under pandas 3.)
+    """
+    scores = np.asarray(scores, dtype=float)
+    runs, tasks = scores.shape
+    rows = np.random.default_rng(seed).integers(0, runs, size=(reps, runs, tasks))
+    resampled = np.take_along_axis(np.broadcast_to(scores, (reps, runs, tasks)), rows, axis=1)
+    estimates = interquartile_mean(resampled.reshape(reps, -1), axis=1)
+    tail = 100 * (1 - confidence) / 2
+    low, high = np.percentile(estimates, [tail, 100 - tail])
+    return float(interquartile_mean(scores)), float(low), float(high)
+
+
 def final_over_seeds(trials: list[TrialLog]) -> dict[str, float] | None:
-    """Mean ± std over seeds of the finished trials' final evaluation return, and the seed means of
-    the driving metrics; None without a finished trial."""
-    finals = [t.final() for t in trials if t.result is not None]
-    if not finals:
+    """Mean ± std over seeds of the finished trials' final evaluation return, the IQM of their
+    episode returns with its 95 % CI (where every seed has the paper's final evaluation), and the
+    seed means of the driving metrics; None without a finished trial."""
+    finished = [t for t in trials if t.result is not None]
+    if not finished:
         return None
+    finals = [t.final() for t in finished]
     returns = np.array([f["return_mean"] for f in finals])
     summary = {"seeds": len(finals), "return_mean": float(returns.mean()), "return_std": float(returns.std())}
-    for metric in ("collision_rate", "speed_mean", "acceleration_std"):
+    if all("returns" in f for f in finals) and len({len(f["returns"]) for f in finals}) == 1:
+        iqm, low, high = iqm_with_ci(np.array([f["returns"] for f in finals]))
+        summary.update(iqm=iqm, iqm_low=low, iqm_high=high)
+    for metric in DRIVING_METRICS:
         summary[metric] = float(np.mean([f[metric] for f in finals]))
-    summary["env_steps"] = int(np.mean([t.result["env_steps"] for t in trials if t.result is not None]))
+    summary["env_steps"] = int(np.mean([t.result["env_steps"] for t in finished]))
     return summary
 
 
@@ -112,8 +159,11 @@ def paper_table(trials: list[TrialLog], settings: dict[str, Any] | None = None) 
                   f"{settings['eval_episodes']} episodes every {settings['eval_every_episodes']:g} training episodes "
                   "(the paper: 3 every 200). Final evaluation: 30 seeded episodes of each trained model (trials "
                   "from before it existed: their last periodic evaluation). "
-                  "Return: the seeds' final evaluation returns (mean ± std over seeds); "
-                  "collision rate, speed and acceleration std: mean over seeds of the final evaluation.", ""]
+                  "Return: the seeds' final evaluation returns (mean ± std over seeds), and the interquartile "
+                  "mean (IQM) of all the seeds' episode returns with its 95 % confidence interval "
+                  f"(rliable's definitions: stratified percentile bootstrap over seeds, {BOOTSTRAP_REPS:,} resamples, "
+                  "seeded); the other columns: mean over seeds of the final evaluation. Supervisor interventions: "
+                  "share of AV-steps whose action the safety supervisor replaced.", ""]
     lines += [f"Evaluation protocol: {PROTOCOLS[False]}; action masks for the learners that have them; the safety "
               "supervisor as in each learner's zoo config (on in all of them).", ""]
     finished = sum(t.result is not None for t in trials)
@@ -129,23 +179,37 @@ def paper_table(trials: list[TrialLog], settings: dict[str, Any] | None = None) 
                 paper = PAPER_RETURNS.get((algo, density)) if experiment == "baselines" else None
                 paper_return = f"{paper[0]:.2f} ± {paper[1]:.2f}" if paper else "—"
                 paper_accel = PAPER_ACCELERATION_STD.get(variant) if experiment == "comfort" else None
+                iqm = f"{summary['iqm']:.2f} [{summary['iqm_low']:.2f}, {summary['iqm_high']:.2f}]" if "iqm" in summary else "—"
                 rows.append(
                     f"| {label} | {density} | {summary['seeds']} | {summary['env_steps']:,} | "
-                    f"{summary['return_mean']:.2f} ± {summary['return_std']:.2f} | {paper_return} | "
-                    f"{summary['collision_rate']:.2f} | {summary['speed_mean']:.2f} | "
-                    f"{summary['acceleration_std']:.3f}" + (f" (paper {paper_accel})" if paper_accel else "") + " |"
+                    f"{summary['return_mean']:.2f} ± {summary['return_std']:.2f} | {iqm} | {paper_return} | "
+                    f"{summary['collision_rate']:.2f} | {summary['lane_changes_per_episode']:.1f} | "
+                    f"{summary['speed_mean']:.2f} | {summary['acceleration_std']:.3f}"
+                    + (f" (paper {paper_accel})" if paper_accel else "") + f" | {summary['intervention_rate']:.3f} |"
                 )
         if not rows:
             continue
         lines += [f"## {title}", "", f"The paper: {finding}.", "",
-                  ("| curve | density | seeds | env steps | return (ours) | return (paper) | collision rate "
-                   "| mean speed [m/s] | accel. std [m/s²] |"),
-                  "|---|---|---|---|---|---|---|---|---|", *rows, "", *_findings(experiment, trials), ""]
+                  ("| curve | density | seeds | env steps | return: mean ± std over seeds | return: IQM [95 % CI] "
+                   "| return (paper) | collision rate | lane changes / ep. | mean speed [m/s] | accel. std [m/s²] "
+                   "| supervisor interventions |"),
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|", *rows, "", *_findings(experiment, trials), ""]
     return "\n".join(lines)
 
 
 def _compare(a: float, b: float, above: str, below: str) -> str:
     return "the same" if np.isclose(a, b, rtol=0, atol=1e-9) else above if a > b else below
+
+
+def _ci_verdict(a: dict[str, float], b: dict[str, float]) -> str:
+    """Whether the IQMs' 95 % confidence intervals of ``a`` and ``b`` separate them."""
+    if "iqm" not in a or "iqm" not in b:
+        return "no IQM"
+    if a["iqm_low"] > b["iqm_high"]:
+        return "IQM higher, CIs disjoint"
+    if a["iqm_high"] < b["iqm_low"]:
+        return "IQM lower, CIs disjoint"
+    return "IQM CIs overlap: not separated"
 
 
 def _findings(experiment: str, trials: list[TrialLog]) -> list[str]:
@@ -159,7 +223,8 @@ def _findings(experiment: str, trials: list[TrialLog]) -> list[str]:
             continue
         (first, a), (second, b) = list(finals.items())[:2]
         if experiment in ("reward", "sharing"):
-            finding = (f"{first} vs {second}: return {_compare(a['return_mean'], b['return_mean'], 'higher', 'lower')}, "
+            finding = (f"{first} vs {second}: return {_compare(a['return_mean'], b['return_mean'], 'higher', 'lower')}"
+                       f" ({_ci_verdict(a, b)}), "
                        f"std over seeds {_compare(a['return_std'], b['return_std'], 'higher', 'lower')}")
         elif experiment == "comfort":
             finding = (f"acceleration std {a['acceleration_std']:.3f} m/s² ({first}) vs {b['acceleration_std']:.3f} m/s² "
@@ -167,10 +232,13 @@ def _findings(experiment: str, trials: list[TrialLog]) -> list[str]:
         elif experiment == "politeness":
             gap = abs(a["return_mean"] - b["return_mean"])
             finding = (f"returns differ by {gap:.2f}, {'within' if gap <= max(a['return_std'], b['return_std']) else 'beyond'}"
-                       " the larger std over seeds")
+                       " the larger std over seeds"
+                       f" ({_ci_verdict(a, b)})")
         else:
             best = max(finals, key=lambda label: finals[label]["return_mean"])
-            finding = f"best final return: {best}"
+            others = [label for label in finals if label != best]
+            finding = f"best final return: {best}; its IQM against " + ", ".join(
+                f"{label}: {_ci_verdict(finals[best], finals[label])}" for label in others)
         lines.append(f"- Here, density {density}: {finding}.")
     return lines
 
@@ -297,7 +365,44 @@ def write_report(log_folder: str | Path, out_dir: str | Path = "results", seed: 
     comfort = plot_comfort(trials, log_folder, out_dir, seed)
     if comfort is not None:
         written.append(comfort)
+    written += plot_interpretation(trials, log_folder, out_dir, seed)
     return written
+
+
+def plot_interpretation(trials: list[TrialLog], log_folder: str | Path, out_dir: str | Path, seed: int) -> list[Path]:
+    """``cooperative_lane_change.json`` and, if an AV yielded, ``.png`` (see module doc); nothing
+    without a finished MA2C trial at density 2 or 3."""
+    from sb3_marl.evaluation import model_policy
+    from sb3_marl.interpretation import describe, find_cooperative_lane_change, plot_cooperative_lane_change
+    from sb3_marl.runs import find_run
+
+    from sb3_marl.benchmark.trial import FINAL_EVAL_EPISODES
+
+    candidates = [t for density in (3, 2) for t in _select(trials, "ma2c", "default", density) if t.result is not None]
+    if not candidates:
+        return []
+    searched, best = {}, None
+    for trial in candidates:
+        run = find_run(Path(log_folder) / "trials" / trial.spec.trial_id, "ma2c", trial.spec.env_id)
+        policy = model_policy(run.load_model("cpu"))
+        event, count = find_cooperative_lane_change(policy, trial.spec.env_id, FINAL_EVAL_EPISODES, seed, run.env_config)
+        searched[trial.spec.trial_id] = describe(event, count)
+        if event is not None and (best is None or event.speed_drop > best[1].speed_drop):
+            best = (trial, event, policy, run.env_config)
+    out_dir = Path(out_dir)
+    summary = {"episodes": f"the final evaluation's {FINAL_EVAL_EPISODES} episodes per trial, seeds {seed}..",
+               "trials": searched, "figure": None}
+    written = []
+    if best is not None:
+        trial, event, policy, config = best
+        summary["figure"] = {"trial": trial.spec.trial_id, **describe(event, 0)["chosen"]}
+        written.append(plot_cooperative_lane_change(
+            policy, trial.spec.env_id, event, out_dir / "cooperative_lane_change.png", config,
+            title=f"Cooperative lane change by MA2C ({trial.spec.trial_id}): episode seed {event.episode_seed}, "
+                  f"{event.n_avs} AVs"))
+    path = out_dir / "cooperative_lane_change.json"
+    path.write_text(json.dumps(summary, indent=2) + "\n")
+    return [path, *written]
 
 
 __all__ = ["PAPER_ACCELERATION_STD", "PAPER_RETURNS", "TrialLog", "load_trials", "paper_table", "write_report"]

@@ -67,6 +67,9 @@ def default_config() -> dict[str, Any]:
         "obs_x_range": 150.0,  # [m] normalisation and perception range of relative x
         "obs_y_range": 12.0,  # [m] normalisation of y
         "obs_speed_range": 45.0,  # [m/s] normalisation of vx, vy
+        # True adds a 6th feature: the ego's target speed (the set-point its meta-actions move) on
+        # the ego row, 0 on the others. The paper observes (presence, x, y, vx, vy) only.
+        "obs_target_speed": False,
         # Reward: w_s*r_s + w_d*r_d + w_v*r_v - w_c*r_c
         "safety_weight": 200.0,
         "headway_weight": 4.0,
@@ -173,6 +176,7 @@ _SCHEMA: dict[str, tuple[Check, str]] = {
     "speed_weight": _NON_NEGATIVE,
     "comfort_weight": _NON_NEGATIVE,
     "comfort": _boolean(),
+    "obs_target_speed": _boolean(),
     "headway_time": _POSITIVE,
     "headway_max_distance": _POSITIVE,
     "reward_speed_range": _pair(0),

@@ -114,7 +114,7 @@ class LaneChangeEnv(AbstractEnv):
         self.done = False
         self._reset()
         snapshot = self._snapshot()
-        obs = observe(snapshot, self.config)
+        obs = observe(snapshot, self.config, self._target_speeds())
         n = self.n_avs
         zeros, none = np.zeros(n), np.full(n, -1, dtype=np.int64)
         info = self._info(snapshot, zeros, np.zeros(n, dtype=bool), np.zeros(n, dtype=bool), none, none)
@@ -156,7 +156,7 @@ class LaneChangeEnv(AbstractEnv):
         truncated = not terminated and (self.steps_done >= self.max_steps or bool(self._exited.all()))
         if self.render_mode == "human":
             self.render()
-        return observe(snapshot, self.config), float(info["rewards"].mean()), terminated, truncated, info
+        return observe(snapshot, self.config, self._target_speeds()), float(info["rewards"].mean()), terminated, truncated, info
 
     def _simulate(self, actions: np.ndarray) -> None:
         """Apply the executed meta-actions and simulate the frames of one policy step.
@@ -248,6 +248,10 @@ class LaneChangeEnv(AbstractEnv):
 
     def _snapshot(self) -> TrafficSnapshot:
         return TrafficSnapshot.capture(self.road.vehicles, self.n_avs, self.config["road_length"])
+
+    def _target_speeds(self) -> np.ndarray | None:
+        """[m/s] the AVs' target speeds, for the ``obs_target_speed`` feature (None without it)."""
+        return np.array([av.target_speed for av in self.avs]) if self.config["obs_target_speed"] else None
 
     def _info(
         self,

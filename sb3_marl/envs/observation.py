@@ -7,7 +7,10 @@ Per AV, a matrix of ``obs_vehicles_count`` rows x 5 features ``(presence, x, y, 
 - rows 1.. are the nearest other visible vehicles (AV or HDV, nearest |dx| first, within
   ``obs_x_range`` m), relative to the ego: dx / obs_x_range, dy / obs_y_range,
   dvx / obs_speed_range, dvy / obs_speed_range, clipped to [-1, 1];
-- absent rows are all zeros (presence 0).
+- absent rows are all zeros (presence 0);
+- with ``obs_target_speed`` (not the paper's), a 6th column: the ego's target speed /
+  obs_speed_range on row 0 (the set-point FASTER and SLOWER move, which vx alone does not reveal
+  while the speed is still converging to it), 0 on the other rows.
 
 Vehicles past the road end never appear. This matches highway-env's ``Kinematics`` observation
 (``absolute=False``, normalised, ego row first) without its per-step pandas cost.
@@ -25,21 +28,35 @@ from sb3_marl.envs.kernel import clip
 from sb3_marl.envs.traffic import TrafficSnapshot
 
 FEATURES = ("presence", "x", "y", "vx", "vy")
+TARGET_SPEED_FEATURE = "target_speed"
+
+
+def features(config: dict[str, Any]) -> tuple[str, ...]:
+    """The observed features (columns) under ``config``."""
+    return (*FEATURES, TARGET_SPEED_FEATURE) if config["obs_target_speed"] else FEATURES
 
 
 def observation_space(n_avs: int, config: dict[str, Any]) -> spaces.Box:
-    """Box of shape (n_avs, obs_vehicles_count, 5) in [-1, 1]."""
-    shape = (n_avs, config["obs_vehicles_count"], len(FEATURES))
+    """Box of shape (n_avs, obs_vehicles_count, features) in [-1, 1]."""
+    shape = (n_avs, config["obs_vehicles_count"], len(features(config)))
     return spaces.Box(low=-1.0, high=1.0, shape=shape, dtype=np.float32)
 
 
-def observe(snapshot: TrafficSnapshot, config: dict[str, Any]) -> np.ndarray:
-    """Observations of all AVs, shape (n_avs, obs_vehicles_count, 5), float32."""
-    return _observe(
+def observe(snapshot: TrafficSnapshot, config: dict[str, Any], target_speeds: np.ndarray | None = None) -> np.ndarray:
+    """Observations of all AVs, shape (n_avs, obs_vehicles_count, features), float32.
+
+    :param target_speeds: [m/s] the AVs' target speeds, needed with ``obs_target_speed``
+    """
+    obs = _observe(
         snapshot.x, snapshot.y, snapshot.vx, snapshot.vy, snapshot.visible, snapshot.n_avs,
         config["obs_vehicles_count"], float(config["road_length"]), float(config["obs_x_range"]),
         float(config["obs_y_range"]), float(config["obs_speed_range"]),
     )
+    if not config["obs_target_speed"]:
+        return obs
+    column = np.zeros(obs.shape[:2] + (1,), dtype=np.float32)
+    column[:, 0, 0] = np.clip(np.asarray(target_speeds, dtype=float) / config["obs_speed_range"], -1.0, 1.0)
+    return np.concatenate([obs, column], axis=2)
 
 
 @numba.njit(cache=True)

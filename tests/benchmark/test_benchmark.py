@@ -84,13 +84,15 @@ def test_report_writes_the_table_and_the_figures(tiny_benchmark, tmp_path, capsy
     for label, variant in (("local reward", "default"), ("global reward", "global-reward")):
         final = trials[variant].result["paper_evaluation"]  # the paper's 30-episode final evaluation
         assert final["return_mean"] != trials[variant].result["final_evaluation"]["return_mean"]
-        assert f"| {label} | 1 | 1 | 300 | {final['return_mean']:.2f} ± 0.00 | — |" in table
+        iqm = np.sort(final["returns"])[7:23].mean()  # rliable's IQM of 30 returns: the middle 16
+        assert f"| {label} | 1 | 1 | 300 | {final['return_mean']:.2f} ± 0.00 | {iqm:.2f} [" in table
     assert "| MA2C | 1 | 1 | 300 |" in table and "58.00 ± 9.31" in table  # beside the paper's number
     assert "budget 0.0003" in table.lower()
     for experiment in ("reward", "baselines"):
         png = tmp_path / f"learning_curves_{experiment}.png"
         assert png.stat().st_size > 10_000 and png.read_bytes()[:4] == b"\x89PNG"
     assert not (tmp_path / "comfort.png").exists()  # no comfort-off trial in this grid
+    assert not (tmp_path / "cooperative_lane_change.json").exists()  # experiment 6 needs density 2 or 3
     assert "wrote" in capsys.readouterr().out
 
 
@@ -211,3 +213,24 @@ def test_without_ray_installed_the_command_says_how_to_install_it(monkeypatch, t
     monkeypatch.setitem(sys.modules, "ray", None)  # as if ray were not installed
     assert main(["benchmark", "--grid", "reward", "--densities", "1", "--seeds", "1", "-f", str(tmp_path)]) == 1
     assert "pip install 'sb3-marl[ray]'" in capsys.readouterr().err
+
+
+def test_iqm_and_its_bootstrap_interval_follow_rliable():
+    from scipy.stats import trim_mean
+
+    from sb3_marl.benchmark.report import interquartile_mean, iqm_with_ci
+
+    rng = np.random.default_rng(3)
+    for size in (1, 3, 4, 30, 90, 91):
+        scores = rng.normal(size=size)
+        assert interquartile_mean(scores) == pytest.approx(trim_mean(scores, 0.25))
+    scores = rng.normal(10.0, 5.0, size=(3, 30))  # 3 seeds x 30 evaluation episodes
+    iqm, low, high = iqm_with_ci(scores, reps=2_000)
+    assert iqm == pytest.approx(trim_mean(scores, 0.25, axis=None)) and low < iqm < high
+    assert iqm_with_ci(scores, reps=2_000) == (iqm, low, high)  # seeded: reproducible
+    # one seed: every stratified resample is that seed, so the interval is the point
+    assert iqm_with_ci(scores[:1], reps=200)[1:] == pytest.approx((trim_mean(scores[0], 0.25),) * 2)
+    # more seeds, narrower interval
+    wide = iqm_with_ci(rng.normal(10.0, 5.0, size=(3, 30)), reps=2_000)
+    narrow = iqm_with_ci(rng.normal(10.0, 5.0, size=(30, 30)), reps=2_000)
+    assert narrow[2] - narrow[1] < wide[2] - wide[1]

@@ -97,8 +97,9 @@ def test_evaluate_prints_and_saves_the_paper_metrics(logs, capsys):
         assert np.isfinite(result[key]), key
     assert result["model"].endswith("best_model.zip") and result["seeds"] == [10_000, 10_002]
     assert result["return_mean"] == pytest.approx(np.mean(result["returns"]))
-    assert sorted(result["baselines"]) == ["idm-mobil", "random"]
+    assert sorted(result["baselines"]) == ["cruise", "idm-mobil", "random"]
     assert result["baselines"]["idm-mobil"]["collision_rate"] == 0.0
+    assert result["baselines"]["cruise"]["lane_changes_per_episode"] == 0.0  # always IDLE: keeps its lane
     out = capsys.readouterr().out
     assert f"| ma2c | {result['num_timesteps']} |" in out and "| random | - |" in out and "| idm-mobil | - |" in out
 
@@ -259,5 +260,5 @@ def test_baselines_table(tmp_path, capsys):
     out = tmp_path / "baselines.md"
     assert main(["baselines", "--episodes", "1", "--out", str(out)]) == 0
     rows = json.loads(out.with_suffix(".json").read_text())
-    assert [(r["policy"], r["n_avs"]) for r in rows] == [(p, n) for p in ("random", "idm-mobil") for n in (1, 2, 3)]
+    assert [(r["policy"], r["n_avs"]) for r in rows] == [(p, n) for p in ("random", "cruise", "idm-mobil") for n in (1, 2, 3)]
     assert "| idm-mobil | 3 |" in out.read_text()

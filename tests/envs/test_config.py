@@ -25,6 +25,7 @@ BAD_CONFIGS = [
     ({"spawn_slots_per_lane": 2}, "spawn_slots_per_lane", "enough slots"),
     ({"comfort": "yes"}, "comfort", "true or false"),
     ({"comfort": 1}, "comfort", "true or false"),
+    ({"obs_target_speed": "yes"}, "obs_target_speed", "true or false"),
     ({"lanes_count": 2.5}, "lanes_count", "integer"),
     ({"target_speeds": [30.0, 10.0]}, "target_speeds", "increasing"),
     ({"reward_speed_range": [10.0, 10.0]}, "reward_speed_range", "min < max"),

@@ -53,6 +53,28 @@ def test_observation_values_in_a_constructed_situation():
     assert not obs[1, 1:].any()
 
 
+def test_the_target_speed_feature_adds_the_egos_set_point_and_changes_nothing_else():
+    """``obs_target_speed`` (not the paper's): a 6th column, the ego's target speed / 45 m/s on the
+    ego row (it moves with FASTER/SLOWER at once, while vx converges over ~1 s), 0 elsewhere."""
+    paper, extended = make(3, n_avs=4), make(3, n_avs=4, obs_target_speed=True)
+    assert extended.observation_space.shape == (4, 5, 6) and paper.observation_space.shape == (4, 5, 5)
+    obs_paper, _ = paper.reset(seed=3)
+    obs, _ = extended.reset(seed=3)
+    initial = np.array([av.target_speed for av in extended.avs])
+    for step in range(6):
+        assert extended.observation_space.contains(obs)
+        np.testing.assert_array_equal(obs[..., :5], obs_paper)  # the same episode, the same 5 features
+        targets = np.array([av.target_speed for av in extended.avs])
+        np.testing.assert_allclose(obs[:, 0, 5], targets / 45, rtol=1e-6)
+        assert not obs[:, 1:, 5].any()
+        actions = np.full(4, ACTION_INDEX["SLOWER"] if step < 2 else IDLE)
+        obs, *_ = extended.step(actions)
+        obs_paper, *_ = paper.step(actions)
+    # SLOWER sets the target one 5 m/s step below the ladder value nearest the current speed
+    # (highway-env's MDPVehicle), so two in a row 0.2 s apart move it once
+    np.testing.assert_allclose(obs[:, 0, 5] * 45, initial - 5, rtol=1e-6)
+
+
 def test_observation_stays_normalised():
     env = make(3)
     for obs in rollout(env, seed=0, steps=60):
