@@ -7,6 +7,8 @@ an entry may set the scenario and the wrapper:
 - ``n_copies``: scenario copies (default: one per AV count of the density)
 - ``env_config``: scenario overrides, e.g. ``{hdv_politeness: 1.0, comfort: false}``
 - ``reward_scale``: factor applied to the training rewards (the MARL_CAVs code uses 0.05)
+- ``intervention_penalty``: subtracted from an AV's training reward (paper units, before the
+  scale) when the safety supervisor replaced its proposed action (default 0: the paper's reward)
 - ``architecture``: ``shared`` or ``separate`` MA2C network (actor-critic algorithms), or
   ``default`` for SB3's own MLP
 
@@ -35,7 +37,8 @@ from wrappers.parameter_sharing import check_reward_scale, check_sharing_options
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "zoo_configs"
 #: Algorithms registered under two names share one file: ``acktr`` reads ``maacktr.yml``.
 CONFIG_FILES = {"acktr": "maacktr"}
-SCENARIO_KEYS = ("reward_mode", "n_copies", "env_config", "reward_scale", "architecture", "stored_actions")
+SCENARIO_KEYS = ("reward_mode", "n_copies", "env_config", "reward_scale", "intervention_penalty", "architecture",
+                 "stored_actions")
 #: What the learner stores when the safety supervisor replaced an action: the policy's proposal
 #: (the authors' choice) or the action executed.
 STORED_ACTIONS = ("proposed", "executed")
@@ -128,6 +131,7 @@ VALUE_RANGES: dict[str, tuple[str, float | None, float | None, tuple]] = {
     "damping": ("float", 0, None, ()),
     "kl_clip": ("float", 0, None, ()),
     "reward_scale": ("float", 0, None, ()),
+    "intervention_penalty": ("float", 0, None, ()),
 }
 
 

@@ -28,7 +28,7 @@ def make_venv(
     monitor_file: str = "monitor.csv",
 ) -> VecEnv:
     """The parameter-sharing VecEnv of the scenario, with the entry's reward mode, copies,
-    scenario overrides and reward scale; with ``monitor_dir``, SB3's VecMonitor writes each AV's
+    scenario overrides, intervention penalty and reward scale; with ``monitor_dir``, SB3's VecMonitor writes each AV's
     episodes (unscaled return, length) to ``<monitor_dir>/<monitor_file>``, as rl_zoo3 expects (SB3's
     ``load_results`` reads every ``*monitor.csv`` of a folder)."""
     venv: VecEnv = ParameterSharingVecEnv(
@@ -42,8 +42,9 @@ def make_venv(
     if monitor_dir is not None:
         os.makedirs(monitor_dir, exist_ok=True)
         venv = VecMonitor(venv, os.path.join(monitor_dir, monitor_file))
-    if hyperparams.get("reward_scale", 1.0) != 1.0:
-        venv = VecRewardScale(venv, hyperparams["reward_scale"])
+    scale, penalty = hyperparams.get("reward_scale", 1.0), hyperparams.get("intervention_penalty", 0.0)
+    if scale != 1.0 or penalty:
+        venv = VecRewardScale(venv, scale, penalty)
     return venv
 
 

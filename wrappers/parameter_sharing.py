@@ -51,6 +51,12 @@ def check_sharing_options(reward_mode: str, n_copies: int | None) -> None:
         raise ValueError(f"Invalid n_copies={n_copies!r}: expected an integer >= 1 (or None: one per AV count).")
 
 
+def check_penalty(penalty: float, name: str = "penalty") -> None:
+    """A ValueError naming ``name`` unless ``penalty`` is a finite number >= 0."""
+    if isinstance(penalty, bool) or not isinstance(penalty, (int, float)) or not 0 <= penalty < float("inf"):
+        raise ValueError(f"Invalid {name}={penalty!r}: expected a finite number >= 0.")
+
+
 def check_reward_scale(scale: float, name: str = "scale") -> None:
     """A reward scale must be a number > 0; a ValueError naming ``name`` otherwise."""
     if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not scale > 0:
@@ -549,22 +555,33 @@ class ParameterSharingVecEnv(VecEnv):
 
 
 class VecRewardScale(VecEnvWrapper):
-    """Multiply rewards by a constant (the MARL_CAVs code trains on rewards / 20).
+    """The training rewards: ``(reward - intervention_penalty * intervened) * scale``.
 
-    Infos keep the unscaled values (``reward``, ``episode``), so metrics stay in the paper's units.
+    ``scale``: the MARL_CAVs code trains on rewards / 20. ``intervention_penalty`` (not the paper's,
+    default 0) lowers the reward of each AV slot whose proposed action the safety supervisor
+    replaced (``info["intervened"]``), in the paper's units: a training signal that the proposal
+    was unsafe (the learner stores the proposed action, so without it the supervisor's braking
+    reaches that proposal only through its consequences).
+    Infos keep the unscaled, unpenalised values (``reward``, ``episode``), so metrics stay in the
+    paper's units, and evaluation uses the paper's reward.
 
     :param venv: the VecEnv to wrap
     :param scale: the factor, > 0
+    :param intervention_penalty: >= 0
     """
 
-    def __init__(self, venv: VecEnv, scale: float) -> None:
+    def __init__(self, venv: VecEnv, scale: float = 1.0, intervention_penalty: float = 0.0) -> None:
         check_reward_scale(scale)
+        check_penalty(intervention_penalty, "intervention_penalty")
         super().__init__(venv)
         self.scale = float(scale)
+        self.intervention_penalty = float(intervention_penalty)
 
     def reset(self) -> np.ndarray:
         return self.venv.reset()
 
     def step_wait(self) -> VecEnvStepReturn:
         obs, rewards, dones, infos = self.venv.step_wait()
+        if self.intervention_penalty:
+            rewards = rewards - self.intervention_penalty * np.array([bool(i.get("intervened", False)) for i in infos])
         return obs, rewards * self.scale, dones, infos

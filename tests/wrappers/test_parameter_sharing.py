@@ -19,7 +19,7 @@ from helpers import place  # noqa: E402
 
 from sb3_marl.envs import ENV_IDS  # noqa: E402
 from sb3_marl.envs.lane_change_env import ACTION_INDEX  # noqa: E402
-from wrappers import ParameterSharingVecEnv  # noqa: E402
+from wrappers import ParameterSharingVecEnv, VecRewardScale  # noqa: E402
 
 IDLE = ACTION_INDEX["IDLE"]
 
@@ -306,3 +306,25 @@ def test_action_masks_come_from_the_current_observations():
         assert np.array_equal(cached, asked)
         vec.step(np.array([rng.choice(np.flatnonzero(row)) for row in cached]))
     vec.close()
+
+
+def test_intervention_penalty_lowers_the_training_reward_of_overruled_slots_only():
+    """Same seeds, same random actions: the penalised rewards differ from the plain ones by the
+    penalty exactly where the supervisor replaced the slot's action; infos keep the paper's reward."""
+    config = {"safety_supervisor": True}
+    plain = ParameterSharingVecEnv(ENV_IDS[3], seed=5, config=config)
+    penalised = VecRewardScale(ParameterSharingVecEnv(ENV_IDS[3], seed=5, config=config), 0.5, intervention_penalty=2.5)
+    plain.reset(), penalised.reset()
+    rng = np.random.default_rng(0)
+    overruled = 0
+    for _ in range(60):
+        actions = rng.integers(0, 5, size=plain.num_envs)
+        _, reward, _, infos = plain.step(actions)
+        _, penalised_reward, _, penalised_infos = penalised.step(actions)
+        intervened = np.array([info["intervened"] for info in infos])
+        overruled += intervened.sum()
+        np.testing.assert_allclose(penalised_reward, (reward - 2.5 * intervened) * 0.5)
+        assert [info["reward"] for info in penalised_infos] == [info["reward"] for info in infos]
+    assert overruled > 0  # random actions at density 3: the supervisor steps in
+    with pytest.raises(ValueError, match="Invalid intervention_penalty=-1"):
+        VecRewardScale(plain, intervention_penalty=-1)
