@@ -224,7 +224,8 @@ def build_parser() -> argparse.ArgumentParser:
     benchmark.add_argument("action", nargs="?", choices=["run", "report"], default="run",
                            help="run the grid (default) or report on it")
     benchmark.add_argument("--grid", default="paper", choices=list(GRIDS),
-                           help="paper (all five experiments) or one experiment (default: paper)")
+                           help="paper (the five experiments of the paper and our intervention-penalty one) or one "
+                                "experiment (default: paper)")
     benchmark.add_argument("-f", "--log-folder", default="logs/benchmark", help="default: logs/benchmark")
     benchmark.add_argument("--budget", type=_budget, default=1.0,
                            help="fraction of the paper's 1M env steps per trial (default: 1)")

@@ -1,4 +1,4 @@
-"""The experiment grid of the paper (experiments 1-5 of Zhou, Chen et al.) as a list of trials.
+"""The experiment grid of the paper (experiments 1-5 of Zhou, Chen et al., and one of ours) as a list of trials.
 
 A trial is one (algorithm, density, variant, seed). A *variant* is a named set of hyperparameter
 overrides on the algorithm's zoo config (``default`` = the paper's MA2C set-up: local reward, shared
@@ -30,6 +30,7 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "separate-networks": {"architecture": "separate"},
     "no-comfort": {"env_config": {"comfort": False}},
     "politeness-1": {"env_config": {"hdv_politeness": 1.0}},
+    "no-intervention-penalty": {"intervention_penalty": 0.0},
 }
 
 #: Experiment -> its curves: label -> (algorithm, variant). In the order of the paper's sections.
@@ -43,6 +44,11 @@ EXPERIMENTS: dict[str, dict[str, tuple[str, str]]] = {
         "MA2C": ("ma2c", "default"),
         "MAACKTR": ("maacktr", "default"),
         "MAPPO": ("mappo", "default"),
+    },
+    # beyond the paper: MA2C's training-only penalty for overruled proposals (zoo_configs/ma2c.yml)
+    "penalty": {
+        "intervention penalty (ours)": ("ma2c", "default"),
+        "no penalty (the authors' reward)": ("ma2c", "no-intervention-penalty"),
     },
 }
 

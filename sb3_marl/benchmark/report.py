@@ -50,6 +50,8 @@ PAPER_FINDINGS = {
     "comfort": ("Experiment 3: comfort term on vs off", "acceleration std 0.455 m/s² (on) vs 0.582 m/s² (off)"),
     "politeness": ("Experiment 4: HDV politeness p=0 vs p=1", "stable performance under both"),
     "baselines": ("Experiment 5: baselines", "MA2C best at densities 1 and 3 (MADQN at density 2)"),
+    "penalty": ("Beyond the paper: MA2C's intervention penalty on vs off",
+                "not studied (the authors train on the paper's reward alone)"),
 }
 
 
@@ -222,7 +224,7 @@ def _findings(experiment: str, trials: list[TrialLog]) -> list[str]:
         if any(summary is None for summary in finals.values()):
             continue
         (first, a), (second, b) = list(finals.items())[:2]
-        if experiment in ("reward", "sharing"):
+        if experiment in ("reward", "sharing", "penalty"):
             finding = (f"{first} vs {second}: return {_compare(a['return_mean'], b['return_mean'], 'higher', 'lower')}"
                        f" ({_ci_verdict(a, b)}), "
                        f"std over seeds {_compare(a['return_std'], b['return_std'], 'higher', 'lower')}")

@@ -46,10 +46,11 @@ def tiny_benchmark(local_ray, tmp_path_factory) -> Path:
 def test_grids_hold_each_trial_once():
     assert len(make_grid("baselines")) == 4 * 3 * 2
     assert len(make_grid("reward")) == 2 * 3 * 2
-    # the paper grid shares the default MA2C trials between experiments: 4 algos + 4 MA2C variants
+    # the paper grid shares the default MA2C trials between experiments: 4 algos + 5 MA2C variants
     paper = make_grid("paper")
-    assert len(paper) == (4 + 4) * 3 * 2 == len({spec.trial_id for spec in paper})
-    assert set(GRIDS) == {"paper", "baselines", "reward", "sharing", "comfort", "politeness"}
+    assert len(paper) == (4 + 5) * 3 * 2 == len({spec.trial_id for spec in paper})
+    assert set(GRIDS) == {"paper", "baselines", "reward", "sharing", "comfort", "politeness", "penalty"}
+    assert make_grid("penalty", seeds=1)[-1].hyperparams == {"intervention_penalty": 0.0}
     spec = make_grid("comfort", densities=(2,), seeds=1)[1]
     assert spec.hyperparams == {"env_config": {"comfort": False}}
     assert spec.n_timesteps(1.0) == 3_000_000  # 1M env steps at 3 AV-steps per env step (copies of 2+3+4 AVs)
