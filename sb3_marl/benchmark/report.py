@@ -21,7 +21,7 @@ Only finished trials (with ``result.json``) enter the table; curves also show un
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -374,11 +374,10 @@ def write_report(log_folder: str | Path, out_dir: str | Path = "results", seed: 
 def plot_interpretation(trials: list[TrialLog], log_folder: str | Path, out_dir: str | Path, seed: int) -> list[Path]:
     """``cooperative_lane_change.json`` and, if an AV yielded, ``.png`` (see module doc); nothing
     without a finished MA2C trial at density 2 or 3."""
+    from sb3_marl.benchmark.trial import FINAL_EVAL_EPISODES
     from sb3_marl.evaluation import model_policy
     from sb3_marl.interpretation import describe, find_cooperative_lane_change, plot_cooperative_lane_change
     from sb3_marl.runs import find_run
-
-    from sb3_marl.benchmark.trial import FINAL_EVAL_EPISODES
 
     candidates = [t for density in (3, 2) for t in _select(trials, "ma2c", "default", density) if t.result is not None]
     if not candidates:
@@ -393,11 +392,13 @@ def plot_interpretation(trials: list[TrialLog], log_folder: str | Path, out_dir:
             best = (trial, event, policy, run.env_config)
     out_dir = Path(out_dir)
     summary = {"episodes": f"the final evaluation's {FINAL_EVAL_EPISODES} episodes per trial, seeds {seed}..",
-               "trials": searched, "figure": None}
+               "trials": searched, "figure": None,
+               "finding": "no AV yielded to another's lane change in these episodes" if best is None else
+               "the yield with the largest speed drop is drawn in cooperative_lane_change.png"}
     written = []
     if best is not None:
         trial, event, policy, config = best
-        summary["figure"] = {"trial": trial.spec.trial_id, **describe(event, 0)["chosen"]}
+        summary["figure"] = {"trial": trial.spec.trial_id, **asdict(event)}
         written.append(plot_cooperative_lane_change(
             policy, trial.spec.env_id, event, out_dir / "cooperative_lane_change.png", config,
             title=f"Cooperative lane change by MA2C ({trial.spec.trial_id}): episode seed {event.episode_seed}, "
