@@ -39,6 +39,18 @@ def test_features_extractor_splits_inputs_by_physical_unit():
         MA2CFeaturesExtractor(spaces.Box(-1, 1, (25,)))
 
 
+def test_the_target_speed_feature_joins_the_velocity_unit():
+    """With ``obs_target_speed`` the 6th column (the ego's target speed) is a velocity input."""
+    extractor = MA2CFeaturesExtractor(spaces.Box(-1, 1, (5, 6)))
+    assert [layer[0].in_features for layer in extractor.units.values()] == [5, 10, 15]
+    hp = {**load_hyperparams("ma2c", ENV_IDS[3]), "env_config": {"safety_supervisor": True, "obs_target_speed": True}}
+    venv = make_venv(ENV_IDS[3], hp, seed=0)
+    assert venv.observation_space.shape == (5, 6)
+    model = make_model("ma2c", venv, hp, seed=0).learn(1_500)  # one rollout of the 15 slots
+    assert model.num_timesteps == 1_500
+    venv.close()
+
+
 def test_shared_and_separate_architectures():
     venv = make_venv(ENV_IDS[1], {}, seed=0)
     shared = make_model("ma2c", venv, {"architecture": "shared"}, seed=0).policy
