@@ -10,7 +10,7 @@ speed traces.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -55,12 +55,12 @@ class _Trace:
 
     seed: int
     n_avs: int
-    x: list[np.ndarray]
-    lane: list[np.ndarray]
-    target_lane: list[np.ndarray]
-    speed: list[np.ndarray]
-    executed: list[np.ndarray]
-    lane_change: list[np.ndarray]
+    x: list[np.ndarray] = field(default_factory=list)
+    lane: list[np.ndarray] = field(default_factory=list)
+    target_lane: list[np.ndarray] = field(default_factory=list)
+    speed: list[np.ndarray] = field(default_factory=list)
+    executed: list[np.ndarray] = field(default_factory=list)
+    lane_change: list[np.ndarray] = field(default_factory=list)
 
     def record(self, env: LaneChangeEnv, info: dict) -> None:
         self.x.append(np.array([av.position[0] for av in env.avs]))
@@ -95,7 +95,7 @@ def _traces(policy: Policy, env_id: str, n_episodes: int, seed: int, config: dic
 
     def record(env: LaneChangeEnv, info: dict) -> None:
         if info["step"] == 0:
-            traces.append(_Trace(seed + len(traces), env.n_avs, [], [], [], [], [], []))
+            traces.append(_Trace(seed + len(traces), env.n_avs))
         traces[-1].record(env, info)
 
     evaluation_records(policy, env_id, n_episodes, seed, config, on_step=record)
@@ -127,7 +127,7 @@ def plot_cooperative_lane_change(
                                  render_mode="rgb_array").unwrapped
     moments = [event.step + offset for offset in SNAPSHOT_OFFSETS]
     frames: dict[int, np.ndarray] = {}
-    trace = _Trace(event.episode_seed, event.n_avs, [], [], [], [], [], [])
+    trace = _Trace(event.episode_seed, event.n_avs)
 
     def record(env: LaneChangeEnv, info: dict) -> None:
         trace.record(env, info)
@@ -149,7 +149,10 @@ def plot_cooperative_lane_change(
     axes = fig.subplots(len(moments) + 1, 1, gridspec_kw={"height_ratios": [1] * len(moments) + [2.5]})
     frequency = env.config["policy_frequency"]
     for ax, moment in zip(axes, moments):
-        ax.imshow(frames[moment]) if moment in frames else ax.text(0.5, 0.5, "episode over", ha="center")
+        if moment in frames:
+            ax.imshow(frames[moment])
+        else:
+            ax.text(0.5, 0.5, "episode over", ha="center")
         ax.set_axis_off()
         ax.set_title(f"t = {moment / frequency:.1f} s (step {moment}, {moment - event.step:+d} from the lane change)",
                      fontsize=9)

@@ -24,7 +24,7 @@ ENV_ID = "sb3_marl/LaneChange-density3-v0"
 def _trace(follower_actions: list[str], follower_offset: float = -20.0, steps: int = 14, change_at: int = 6) -> _Trace:
     """AV 0 drives in lane 0 and starts a lane change into lane 1 at ``change_at``; AV 1 drives in
     lane 1, ``follower_offset`` m from AV 0, braking from 25 m/s once it executes SLOWER."""
-    trace = _Trace(seed=7, n_avs=2, x=[], lane=[], target_lane=[], speed=[], executed=[], lane_change=[])
+    trace = _Trace(seed=7, n_avs=2)
     speed = 25.0
     for step in range(steps):
         action = follower_actions[step] if step < len(follower_actions) else "IDLE"
