@@ -16,6 +16,8 @@
   as road snapshots and speed traces; the json says which, or that no AV yielded.
 
 Only finished trials (with ``result.json``) enter the table; curves also show unfinished ones.
+Outputs of an earlier report that this one does not produce (a figure whose trials are gone) are
+removed from the output folder, so it always shows one report; other files there are left alone.
 """
 
 from __future__ import annotations
@@ -59,6 +61,8 @@ PAPER_FINDINGS = {
 DRIVING_METRICS = ("collision_rate", "lane_changes_per_episode", "speed_mean", "acceleration_std", "intervention_rate")
 #: Bootstrap resamples of the IQM's confidence interval (rliable's default).
 BOOTSTRAP_REPS = 50_000
+#: Names (glob patterns) of the files a report writes into its output folder.
+REPORT_OUTPUTS = ("paper_table.md", "learning_curves_*.png", "comfort.png", "cooperative_lane_change.*")
 
 
 @dataclass
@@ -371,7 +375,16 @@ def write_report(log_folder: str | Path, out_dir: str | Path = "results", seed: 
     if comfort is not None:
         written.append(comfort)
     written += plot_interpretation(trials, log_folder, out_dir, seed)
+    _remove_stale_outputs(out_dir, written)
     return written
+
+
+def _remove_stale_outputs(out_dir: Path, written: list[Path]) -> None:
+    """Delete the report outputs in ``out_dir`` (:data:`REPORT_OUTPUTS`) that were not ``written`` now."""
+    for pattern in REPORT_OUTPUTS:
+        for path in out_dir.glob(pattern):
+            if path not in written:
+                path.unlink()
 
 
 def plot_interpretation(trials: list[TrialLog], log_folder: str | Path, out_dir: str | Path, seed: int) -> list[Path]:

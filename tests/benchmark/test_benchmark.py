@@ -79,6 +79,10 @@ def test_trials_write_the_rl_zoo_layout_and_tensorboard(tiny_benchmark):
 
 
 def test_report_writes_the_table_and_the_figures(tiny_benchmark, tmp_path, capsys):
+    # an earlier report's outputs that this grid does not produce go; other files stay
+    stale = ["comfort.png", "learning_curves_withdrawn.png", "cooperative_lane_change.json"]
+    for name in [*stale, "notes.md"]:
+        (tmp_path / name).write_text("earlier")
     assert main(["benchmark", "report", "-f", str(tiny_benchmark), "-o", str(tmp_path)]) == 0
     table = (tmp_path / "paper_table.md").read_text()
     trials = {t.spec.variant: t for t in load_trials(tiny_benchmark)}
@@ -94,6 +98,8 @@ def test_report_writes_the_table_and_the_figures(tiny_benchmark, tmp_path, capsy
         assert png.stat().st_size > 10_000 and png.read_bytes()[:4] == b"\x89PNG"
     assert not (tmp_path / "comfort.png").exists()  # no comfort-off trial in this grid
     assert not (tmp_path / "cooperative_lane_change.json").exists()  # experiment 6 needs density 2 or 3
+    assert not (tmp_path / "learning_curves_withdrawn.png").exists()  # no such experiment any more
+    assert (tmp_path / "notes.md").read_text() == "earlier"
     assert "wrote" in capsys.readouterr().out
 
 
