@@ -196,7 +196,11 @@ def test_comfort_grid_reports_the_comfort_figure(local_ray, tmp_path):
     assert (tmp_path / "results" / "comfort.png").stat().st_size > 20_000
     table = (tmp_path / "results" / "paper_table.md").read_text()
     assert "| comfort off | 1 | 1 | 300 |" in table and "(paper 0.582)" in table
-    assert "- Here, density 1: acceleration std" in table
+    stds = {t.spec.variant: t.final()["acceleration_std"] for t in load_trials(tmp_path / "logs")}
+    on, off = stds["default"], stds["no-comfort"]
+    assert (f"- Here, density 1: acceleration std {on:.3f} m/s² (comfort on) vs {off:.3f} m/s² (comfort off): "
+            f"{'lower' if on < off else 'higher'} with comfort (seeds {on:.3f}–{on:.3f} vs {off:.3f}–{off:.3f}: "
+            "every seed apart).") in table  # one seed each: apart unless equal
     trial = next(t for t in load_trials(tmp_path / "logs") if t.spec.variant == "no-comfort")
     trace = acceleration_traces(trial, tmp_path / "logs", seed=10_000)
     assert trace.shape[1] == 3 and 1 <= len(trace) <= 100  # 3 AVs (density 1's largest count), <= 20 s at 5 Hz
