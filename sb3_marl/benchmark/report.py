@@ -9,6 +9,8 @@
   by their IQM CIs, acceleration std by its range over seeds);
 - ``learning_curves_<experiment>.png``: evaluation return against training episodes, one panel
   per density, mean over seeds with a shaded ± std band (the layout of the paper's figures);
+- ``final_returns.png``: the table's final returns at a glance: per experiment and density, each
+  curve's IQM with its 95 % CI beside the paper's Table-5 numbers;
 - ``comfort.png``: AV acceleration traces of one evaluation episode with the comfort term on and
   off, and the acceleration std of the final evaluations;
 - ``cooperative_lane_change.png`` / ``.json`` (the paper's experiment 6, policy interpretation):
@@ -30,6 +32,7 @@ from typing import Any
 
 import numpy as np
 from matplotlib.figure import Figure  # no pyplot: no global backend, works headless and in notebooks
+from matplotlib.patches import Patch
 
 from sb3_marl.benchmark.grid import EPISODE_STEPS, EXPERIMENTS, TrialSpec
 from sb3_marl.benchmark.runner import SETTINGS_FILE
@@ -63,7 +66,8 @@ DRIVING_METRICS = ("collision_rate", "lane_changes_per_episode", "speed_mean", "
 #: Bootstrap resamples of the IQM's confidence interval (rliable's default).
 BOOTSTRAP_REPS = 50_000
 #: Names (glob patterns) of the files a report writes into its output folder.
-REPORT_OUTPUTS = ("paper_table.md", "learning_curves_*.png", "comfort.png", "cooperative_lane_change.*")
+REPORT_OUTPUTS = ("paper_table.md", "learning_curves_*.png", "final_returns.png", "comfort.png",
+                  "cooperative_lane_change.*")
 
 
 @dataclass
@@ -160,6 +164,13 @@ def final_over_seeds(trials: list[TrialLog]) -> dict[str, float] | None:
     return summary
 
 
+def curve_summaries(trials: list[TrialLog]) -> dict[tuple[str, str, int], dict[str, float] | None]:
+    """:func:`final_over_seeds` of every (algorithm, variant, density) of the experiments, each once
+    (the default MA2C curve appears in every experiment)."""
+    return {(algo, variant, density): final_over_seeds(_select(trials, algo, variant, density))
+            for curves in EXPERIMENTS.values() for algo, variant in curves.values() for density in (1, 2, 3)}
+
+
 def paper_table(trials: list[TrialLog], settings: dict[str, Any] | None = None) -> str:
     """The markdown of ``paper_table.md`` (see module doc)."""
     lines = ["# Paper reproduction: final evaluation over seeds", ""]
@@ -177,9 +188,7 @@ def paper_table(trials: list[TrialLog], settings: dict[str, Any] | None = None) 
               "supervisor as in each learner's zoo config (on in all of them).", ""]
     finished = sum(t.result is not None for t in trials)
     lines += [f"Trials: {finished} finished, {len(trials) - finished} unfinished (not in the table).", ""]
-    # each (algorithm, variant, density) once: the default MA2C curve appears in every experiment
-    summaries = {(algo, variant, density): final_over_seeds(_select(trials, algo, variant, density))
-                 for curves in EXPERIMENTS.values() for algo, variant in curves.values() for density in (1, 2, 3)}
+    summaries = curve_summaries(trials)
     for experiment, curves in EXPERIMENTS.items():
         title, finding = PAPER_FINDINGS[experiment]
         rows = []
@@ -300,6 +309,59 @@ def plot_learning_curves(trials: list[TrialLog], out_dir: str | Path) -> list[Pa
     return written
 
 
+@with_default_style
+def plot_final_returns(trials: list[TrialLog], out_dir: str | Path) -> Path | None:
+    """``final_returns.png``: one panel per experiment with a finished trial; per density, each
+    curve's IQM of the final evaluation returns with its 95 % CI as a bar and error bar, and the
+    paper's Table-5 mean (MA2C in every panel, the other baselines in theirs) as a black tick.
+    None without a finished trial."""
+    summaries = curve_summaries(trials)
+    experiments = [e for e, curves in EXPERIMENTS.items()
+                   if any(summaries[algo, variant, d] for algo, variant in curves.values() for d in (1, 2, 3))]
+    if not experiments:
+        return None
+    columns = min(3, len(experiments))
+    rows = -(-len(experiments) // columns)
+    fig = Figure(figsize=(5.5 * columns, 4 * rows))
+    axes = fig.subplots(rows, columns, squeeze=False).ravel()
+    for ax, experiment in zip(axes, experiments):
+        curves = EXPERIMENTS[experiment]
+        width = 0.8 / len(curves)
+        legend: dict[str, Any] = {}
+        for k, (label, (algo, variant)) in enumerate(curves.items()):
+            x, iqm, low, high, paper = [], [], [], [], []
+            for density in (1, 2, 3):
+                summary = summaries[algo, variant, density]
+                position = density + (k - (len(curves) - 1) / 2) * width
+                if summary is not None and "iqm" in summary:
+                    x.append(position)
+                    iqm.append(summary["iqm"])
+                    low.append(summary["iqm"] - summary["iqm_low"])
+                    high.append(summary["iqm_high"] - summary["iqm"])
+                if variant == "default" and (algo, density) in PAPER_RETURNS:
+                    paper.append((position, PAPER_RETURNS[algo, density][0]))
+            ax.bar(x, iqm, width, yerr=[low, high], capsize=3, color=f"C{k}")
+            legend[label if x else f"{label}: no finished trial"] = Patch(color=f"C{k}", alpha=1.0 if x else 0.3)
+            if paper:
+                legend["the paper (Table 5)"] = ax.plot(*zip(*paper), linestyle="none", marker="_", markersize=14,
+                                                        markeredgewidth=2.5, color="black")[0]
+        if "the paper (Table 5)" in legend:  # after the curves
+            legend["the paper (Table 5)"] = legend.pop("the paper (Table 5)")
+        ax.legend(legend.values(), legend.keys(), fontsize=7)
+        ax.set_xticks([1, 2, 3], ["density 1", "density 2", "density 3"])
+        ax.set_ylabel("final return: IQM [95 % CI]")
+        ax.set_title(PAPER_FINDINGS[experiment][0], fontsize=10)
+        ax.axhline(0, color="grey", linewidth=0.8)
+        ax.grid(alpha=0.3, axis="y")
+    for ax in axes[len(experiments):]:
+        ax.set_visible(False)
+    fig.suptitle("Final evaluation (30 seeded episodes per trial, all seeds): IQM with 95 % bootstrap CI")
+    fig.tight_layout()
+    path = Path(out_dir) / "final_returns.png"
+    fig.savefig(path, dpi=100)
+    return path
+
+
 def acceleration_traces(trial: TrialLog, log_folder: str | Path, seed: int) -> np.ndarray:
     """Accelerations [m/s²] of each AV (columns) at each step (rows) of one evaluation episode of the
     trial's final model, with the density's largest AV count and episode seed ``seed``."""
@@ -382,9 +444,9 @@ def write_report(log_folder: str | Path, out_dir: str | Path = "results", seed: 
     table = out_dir / "paper_table.md"
     table.write_text(paper_table(trials, settings))
     written = [table, *plot_learning_curves(trials, out_dir)]
-    comfort = plot_comfort(trials, log_folder, out_dir, seed)
-    if comfort is not None:
-        written.append(comfort)
+    for figure in (plot_final_returns(trials, out_dir), plot_comfort(trials, log_folder, out_dir, seed)):
+        if figure is not None:
+            written.append(figure)
     written += plot_interpretation(trials, log_folder, out_dir, seed)
     _remove_stale_outputs(out_dir, written)
     return written

@@ -93,8 +93,8 @@ def test_report_writes_the_table_and_the_figures(tiny_benchmark, tmp_path, capsy
         assert f"| {label} | 1 | 1 | 300 | {final['return_mean']:.2f} ± 0.00 | {iqm:.2f} [" in table
     assert "| MA2C | 1 | 1 | 300 |" in table and "58.00 ± 9.31" in table  # beside the paper's number
     assert "budget 0.0003" in table.lower()
-    for experiment in ("reward", "baselines"):
-        png = tmp_path / f"learning_curves_{experiment}.png"
+    for name in ("learning_curves_reward", "learning_curves_baselines", "final_returns"):
+        png = tmp_path / f"{name}.png"
         assert png.stat().st_size > 10_000 and png.read_bytes()[:4] == b"\x89PNG"
     assert not (tmp_path / "comfort.png").exists()  # no comfort-off trial in this grid
     assert not (tmp_path / "cooperative_lane_change.json").exists()  # experiment 6 needs density 2 or 3
