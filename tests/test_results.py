@@ -57,8 +57,10 @@ def test_the_paper_grid_table_regenerates():
     table of the committed trials (finished trials' slim logs, unfinished trials' checkpoints)."""
     import json
 
-    from sb3_marl.benchmark.report import load_trials, paper_table
+    from sb3_marl.benchmark.report import load_trials, paper_table, reference_summaries
 
     settings = json.loads((PAPER_GRID / "benchmark.json").read_text())
     assert settings == {"budget": 1.0, "eval_every_episodes": 200, "eval_episodes": 3}  # the paper's protocol
-    assert paper_table(load_trials(PAPER_GRID), settings) == (RESULTS / "paper_table.md").read_text()
+    trials = load_trials(PAPER_GRID)
+    references = reference_summaries(trials, PAPER_GRID, seed=10_000)  # IDM/MOBIL etc., replayed
+    assert paper_table(trials, settings, references) == (RESULTS / "paper_table.md").read_text()

@@ -6,7 +6,8 @@
   with a 95 % stratified-bootstrap confidence interval, :func:`iqm_with_ci`; collision rate, lane
   changes per episode, mean speed [m/s], acceleration std [m/s²] and supervisor intervention rate
   averaged over seeds) beside the paper's numbers and claims, each claim checked per density (returns
-  by their IQM CIs, acceleration std by its range over seeds);
+  by their IQM CIs, acceleration std by its range over seeds), and the hand-written reference
+  policies (IDM/MOBIL, cruise, random) on the same episodes, with the learners against IDM/MOBIL;
 - ``learning_curves_<experiment>.png``: evaluation return against training episodes, one panel
   per density, mean over seeds with a shaded ± std band (the layout of the paper's figures);
 - ``final_returns.png``: the table's final returns at a glance: per experiment and density, each
@@ -171,8 +172,37 @@ def curve_summaries(trials: list[TrialLog]) -> dict[tuple[str, str, int], dict[s
             for curves in EXPERIMENTS.values() for algo, variant in curves.values() for density in (1, 2, 3)}
 
 
-def paper_table(trials: list[TrialLog], settings: dict[str, Any] | None = None) -> str:
-    """The markdown of ``paper_table.md`` (see module doc)."""
+def reference_summaries(trials: list[TrialLog], log_folder: str | Path, seed: int) -> dict[tuple[str, int], dict[str, float]]:
+    """Each hand-written policy of :data:`sb3_marl.baselines.BASELINES`, keyed by (name, density), on
+    the final evaluation's episodes (seeds ``seed ..``, the same AV counts) at each density with a
+    finished default MA2C trial, in that trial's scenario config (the zoo's: safety supervisor on).
+
+    The IQM's confidence interval resamples the 30 episodes (a fixed policy: its only randomness
+    is the episodes'), where the learners' resamples seeds."""
+    from sb3_marl.baselines import BASELINES
+    from sb3_marl.benchmark.trial import FINAL_EVAL_EPISODES
+    from sb3_marl.evaluation import evaluation_records, summarize
+    from sb3_marl.runs import find_run
+
+    summaries = {}
+    for density in (1, 2, 3):
+        finished = [t for t in _select(trials, "ma2c", "default", density) if t.result is not None]
+        if not finished:
+            continue
+        spec = finished[0].spec
+        config = find_run(Path(log_folder) / "trials" / spec.trial_id, spec.algo, spec.env_id).env_config
+        for name, policy_class in BASELINES.items():
+            records = evaluation_records(policy_class(), spec.env_id, FINAL_EVAL_EPISODES, seed, config)
+            summary = summarize(records)
+            iqm, low, high = iqm_with_ci(np.array([[r.episode_return] for r in records]))
+            summaries[name, density] = {**summary, "iqm": iqm, "iqm_low": low, "iqm_high": high}
+    return summaries
+
+
+def paper_table(trials: list[TrialLog], settings: dict[str, Any] | None = None,
+                references: dict[tuple[str, int], dict[str, float]] | None = None) -> str:
+    """The markdown of ``paper_table.md`` (see module doc), with the hand-written policies'
+    :func:`reference_summaries` after the paper's experiments if given."""
     lines = ["# Paper reproduction: final evaluation over seeds", ""]
     if settings:
         lines += [f"Budget {settings['budget']:g} x the paper's 1M env steps per trial; evaluation: "
@@ -200,10 +230,9 @@ def paper_table(trials: list[TrialLog], settings: dict[str, Any] | None = None) 
                 paper = PAPER_RETURNS.get((algo, density)) if experiment == "baselines" else None
                 paper_return = f"{paper[0]:.2f} ± {paper[1]:.2f}" if paper else "—"
                 paper_accel = PAPER_ACCELERATION_STD.get(variant) if experiment == "comfort" else None
-                iqm = f"{summary['iqm']:.2f} [{summary['iqm_low']:.2f}, {summary['iqm_high']:.2f}]" if "iqm" in summary else "—"
                 rows.append(
                     f"| {label} | {density} | {summary['seeds']} | {summary['env_steps']:,} | "
-                    f"{summary['return_mean']:.2f} ± {summary['return_std']:.2f} | {iqm} | {paper_return} | "
+                    f"{summary['return_mean']:.2f} ± {summary['return_std']:.2f} | {_iqm_cell(summary)} | {paper_return} | "
                     f"{summary['collision_rate']:.2f} | {summary['lane_changes_per_episode']:.1f} | "
                     f"{summary['speed_mean']:.2f} | {summary['acceleration_std']:.3f}"
                     + (f" (paper {paper_accel})" if paper_accel else "") + f" | {summary['intervention_rate']:.3f} |"
@@ -215,7 +244,40 @@ def paper_table(trials: list[TrialLog], settings: dict[str, Any] | None = None) 
                    "| return (paper) | collision rate | lane changes / ep. | mean speed [m/s] | accel. std [m/s²] "
                    "| supervisor interventions |"),
                   "|---|---|---|---|---|---|---|---|---|---|---|---|", *rows, "", *_findings(experiment, summaries), ""]
+    if references:
+        lines += _reference_section(references, summaries)
     return "\n".join(lines)
+
+
+def _iqm_cell(summary: dict[str, float]) -> str:
+    return f"{summary['iqm']:.2f} [{summary['iqm_low']:.2f}, {summary['iqm_high']:.2f}]" if "iqm" in summary else "—"
+
+
+def _reference_section(references: dict[tuple[str, int], dict[str, float]],
+                       summaries: dict[tuple[str, str, int], dict[str, float] | None]) -> list[str]:
+    """The hand-written policies' rows (:func:`reference_summaries`) and, per density, the
+    learners of experiment 5 against IDM/MOBIL."""
+    rows = [f"| {name} | {density} | {s['episodes']} | {s['return_mean']:.2f} ± {s['return_std']:.2f} | "
+            f"{_iqm_cell(s)} | {s['collision_rate']:.2f} | {s['lane_changes_per_episode']:.1f} | "
+            f"{s['speed_mean']:.2f} | {s['acceleration_std']:.3f} | {s['intervention_rate']:.3f} |"
+            for (name, density), s in sorted(references.items(), key=lambda item: item[0][1])]
+    lines = ["## Beyond the paper: hand-written reference policies", "",
+             "Not learned (`sb3_marl/baselines.py`): IDM/MOBIL picks the meta-action a human driver of the scenario "
+             "would; cruise always IDLE; random uniform. The same 30 episodes as the final evaluations, in the "
+             "default MA2C trial's scenario config (safety supervisor on). Return: mean ± std over the episodes; "
+             "the IQM's CI resamples episodes (the learners' resample seeds).", "",
+             "| policy | density | episodes | return: mean ± std over episodes | return: IQM [95 % CI] | collision rate "
+             "| lane changes / ep. | mean speed [m/s] | accel. std [m/s²] | supervisor interventions |",
+             "|---|---|---|---|---|---|---|---|---|---|", *rows, ""]
+    for density in (1, 2, 3):
+        reference = references.get(("idm-mobil", density))
+        learners = {label: summaries[algo, variant, density]
+                    for label, (algo, variant) in EXPERIMENTS["baselines"].items() if summaries[algo, variant, density]}
+        if reference is None or not learners:
+            continue
+        lines.append(f"- Here, density {density}: against IDM/MOBIL ({reference['iqm']:.2f}), " + ", ".join(
+            f"{label} {s['iqm']:.2f} ({_ci_verdict(s, reference)})" for label, s in learners.items() if "iqm" in s) + ".")
+    return [*lines, ""]
 
 
 def _compare(a: float, b: float, above: str, below: str) -> str:
@@ -310,10 +372,12 @@ def plot_learning_curves(trials: list[TrialLog], out_dir: str | Path) -> list[Pa
 
 
 @with_default_style
-def plot_final_returns(trials: list[TrialLog], out_dir: str | Path) -> Path | None:
+def plot_final_returns(trials: list[TrialLog], out_dir: str | Path,
+                       references: dict[tuple[str, int], dict[str, float]] | None = None) -> Path | None:
     """``final_returns.png``: one panel per experiment with a finished trial; per density, each
-    curve's IQM of the final evaluation returns with its 95 % CI as a bar and error bar, and the
-    paper's Table-5 mean (MA2C in every panel, the other baselines in theirs) as a black tick.
+    curve's IQM of the final evaluation returns with its 95 % CI as a bar and error bar, the
+    paper's Table-5 mean (MA2C in every panel, the other baselines in theirs) as a black tick and,
+    in the baselines' panel, IDM/MOBIL's IQM on the same episodes (``references``) as a grey line.
     None without a finished trial."""
     summaries = curve_summaries(trials)
     experiments = [e for e, curves in EXPERIMENTS.items()
@@ -322,7 +386,7 @@ def plot_final_returns(trials: list[TrialLog], out_dir: str | Path) -> Path | No
         return None
     columns = min(3, len(experiments))
     rows = -(-len(experiments) // columns)
-    fig = Figure(figsize=(5.5 * columns, 4 * rows))
+    fig = Figure(figsize=(5.5 * columns, 5 * rows))  # legends below the panels
     axes = fig.subplots(rows, columns, squeeze=False).ravel()
     for ax, experiment in zip(axes, experiments):
         curves = EXPERIMENTS[experiment]
@@ -345,9 +409,15 @@ def plot_final_returns(trials: list[TrialLog], out_dir: str | Path) -> Path | No
             if paper:
                 legend["the paper (Table 5)"] = ax.plot(*zip(*paper), linestyle="none", marker="_", markersize=14,
                                                         markeredgewidth=2.5, color="black")[0]
+        idm_mobil = [(density, references["idm-mobil", density]["iqm"]) for density in (1, 2, 3)
+                     if experiment == "baselines" and references and ("idm-mobil", density) in references]
+        if idm_mobil:
+            legend["IDM/MOBIL, same episodes (IQM)"] = ax.hlines(
+                [iqm for _, iqm in idm_mobil], [d - 0.45 for d, _ in idm_mobil], [d + 0.45 for d, _ in idm_mobil],
+                colors="grey", linestyles="dashed")
         if "the paper (Table 5)" in legend:  # after the curves
             legend["the paper (Table 5)"] = legend.pop("the paper (Table 5)")
-        ax.legend(legend.values(), legend.keys(), fontsize=7)
+        ax.legend(legend.values(), legend.keys(), fontsize=7, ncol=2, loc="upper center", bbox_to_anchor=(0.5, -0.1))
         ax.set_xticks([1, 2, 3], ["density 1", "density 2", "density 3"])
         ax.set_ylabel("final return: IQM [95 % CI]")
         ax.set_title(PAPER_FINDINGS[experiment][0], fontsize=10)
@@ -442,9 +512,10 @@ def write_report(log_folder: str | Path, out_dir: str | Path = "results", seed: 
     settings_path = Path(log_folder) / SETTINGS_FILE
     settings = json.loads(settings_path.read_text()) if settings_path.is_file() else None
     table = out_dir / "paper_table.md"
-    table.write_text(paper_table(trials, settings))
+    references = reference_summaries(trials, log_folder, seed)
+    table.write_text(paper_table(trials, settings, references))
     written = [table, *plot_learning_curves(trials, out_dir)]
-    for figure in (plot_final_returns(trials, out_dir), plot_comfort(trials, log_folder, out_dir, seed)):
+    for figure in (plot_final_returns(trials, out_dir, references), plot_comfort(trials, log_folder, out_dir, seed)):
         if figure is not None:
             written.append(figure)
     written += plot_interpretation(trials, log_folder, out_dir, seed)

@@ -93,6 +93,10 @@ def test_report_writes_the_table_and_the_figures(tiny_benchmark, tmp_path, capsy
         assert f"| {label} | 1 | 1 | 300 | {final['return_mean']:.2f} ± 0.00 | {iqm:.2f} [" in table
     assert "| MA2C | 1 | 1 | 300 |" in table and "58.00 ± 9.31" in table  # beside the paper's number
     assert "budget 0.0003" in table.lower()
+    # the hand-written policies on the same 30 episodes, and the learners against IDM/MOBIL
+    assert "## Beyond the paper: hand-written reference policies" in table
+    assert "| idm-mobil | 1 | 30 | " in table and "| cruise | 1 | 30 | " in table
+    assert "- Here, density 1: against IDM/MOBIL (" in table
     for name in ("learning_curves_reward", "learning_curves_baselines", "final_returns"):
         png = tmp_path / f"{name}.png"
         assert png.stat().st_size > 10_000 and png.read_bytes()[:4] == b"\x89PNG"
