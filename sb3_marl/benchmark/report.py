@@ -61,6 +61,13 @@ PAPER_FINDINGS = {
                 "not studied (the authors train on the paper's reward alone)"),
 }
 
+#: Experiment -> what a reader must know to compare its curves' returns.
+EXPERIMENT_NOTES = {
+    "comfort": "With the comfort term off, the reward (training and evaluation) has no comfort penalty, so the "
+               "comfort-off returns are not comparable with the comfort-on ones; compare the acceleration std.",
+    "politeness": "With p = 1 the HDVs themselves drive differently (MOBIL weighs their neighbours' gain), so the "
+                  "scenario, not only the learner, differs between the curves.",
+}
 
 #: Driving metrics of the final evaluation, averaged over seeds in the table.
 DRIVING_METRICS = ("collision_rate", "lane_changes_per_episode", "speed_mean", "acceleration_std", "intervention_rate")
@@ -239,7 +246,8 @@ def paper_table(trials: list[TrialLog], settings: dict[str, Any] | None = None,
                 )
         if not rows:
             continue
-        lines += [f"## {title}", "", f"The paper: {finding}.", "",
+        note = [EXPERIMENT_NOTES[experiment], ""] if experiment in EXPERIMENT_NOTES else []
+        lines += [f"## {title}", "", f"The paper: {finding}.", "", *note,
                   ("| curve | density | seeds | env steps | return: mean ± std over seeds | return: IQM [95 % CI] "
                    "| return (paper) | collision rate | lane changes / ep. | mean speed [m/s] | accel. std [m/s²] "
                    "| supervisor interventions |"),
