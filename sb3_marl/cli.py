@@ -6,9 +6,10 @@
     sb3-marl record-video --algo ma2c --env sb3_marl/LaneChange-density1-v0 -f logs
     sb3-marl push-to-hub --algo ma2c --env sb3_marl/LaneChange-density1-v0 -f logs -orga ORG [--dry-run PATH]
     sb3-marl load-from-hub --repo-id ORG/NAME -f logs
-    sb3-marl baselines --density 1        (reference policies: random and IDM/MOBIL)
+    sb3-marl baselines --density 1        (reference policies: random, cruise and IDM/MOBIL)
     sb3-marl summary -f logs              (markdown table of the evaluated runs)
     sb3-marl benchmark --grid paper --budget 0.05   (the paper's experiments as Ray Tune trials)
+    sb3-marl benchmark status -f logs/benchmark     (where each trial stands)
     sb3-marl benchmark report -f logs/benchmark -o results
 
 Timesteps (``-n``, ``--eval-freq``, ``--save-freq``) count AV-steps, SB3's timesteps on the
@@ -213,7 +214,7 @@ def build_parser() -> argparse.ArgumentParser:
     load.add_argument("--repo-id", required=True, help="ORG/NAME")
     load.add_argument("-f", "--folder", "--log-folder", dest="folder", default="logs")
 
-    baselines = commands.add_parser("baselines", help="metrics of the reference policies (random, IDM/MOBIL)")
+    baselines = commands.add_parser("baselines", help="metrics of the reference policies (random, cruise, IDM/MOBIL)")
     baselines.add_argument("--density", type=int, choices=sorted(DENSITIES), default=1)
     baselines.add_argument("--episodes", type=_positive(), default=20, help="episodes per policy and AV count")
     baselines.add_argument("--seed", type=int, default=0)
@@ -221,8 +222,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     benchmark = commands.add_parser("benchmark", help="the paper's experiment grid as Ray Tune trials; "
                                     "`benchmark report` writes its table and figures")
-    benchmark.add_argument("action", nargs="?", choices=["run", "report"], default="run",
-                           help="run the grid (default) or report on it")
+    benchmark.add_argument("action", nargs="?", choices=["run", "report", "status"], default="run",
+                           help="run the grid (default), report on it, or list where its trials stand")
     benchmark.add_argument("--grid", default="paper", choices=list(GRIDS),
                            help="paper (the five experiments of the paper and our intervention-penalty one) or one "
                                 "experiment (default: paper)")
@@ -543,6 +544,9 @@ def benchmark(args: argparse.Namespace) -> int:
             print(f"wrote {path}")
         return 0
 
+    if args.action == "status":
+        return _benchmark_status(args)
+
     from sb3_marl.benchmark.runner import run_benchmark
 
     try:
@@ -565,6 +569,27 @@ def benchmark(args: argparse.Namespace) -> int:
     if outcome.unfinished:
         print(f"{len(outcome.unfinished)} trial(s) stopped before the end; the same command continues them.")
         return EXIT_INTERRUPTED[signal.SIGINT]
+    return 0
+
+
+def _benchmark_status(args: argparse.Namespace) -> int:
+    """Print each trial of ``--grid`` in ``-f``: state, AV-steps of the budget, final return, wall time."""
+    from sb3_marl.benchmark.runner import grid_status
+
+    try:
+        statuses = grid_status(args.grid, args.log_folder, args.seeds, tuple(args.densities))
+    except FileNotFoundError as error:
+        raise UsageError(str(error)) from None
+    counts = {state: sum(s.state == state for s in statuses) for state in ("finished", "unfinished", "not started")}
+    print(f"Benchmark grid {args.grid!r} in {args.log_folder}: {counts['finished']} of {len(statuses)} trials finished, "
+          f"{counts['unfinished']} unfinished (continue from their checkpoint), {counts['not started']} not started\n")
+    width = max(len(s.trial_id) for s in statuses)
+    print(f"{'trial':<{width}}  {'state':<11}  {'AV-steps done':>25}  {'return':>7}  {'wall time':>9}")
+    for s in statuses:
+        done = f"{s.timesteps:,} / {s.n_timesteps:,}"
+        returns = f"{s.return_mean:.2f}" if s.return_mean is not None else "-"
+        wall = f"{s.wall_time_s:.0f} s" if s.wall_time_s is not None else "-"
+        print(f"{s.trial_id:<{width}}  {s.state:<11}  {done:>25}  {returns:>7}  {wall:>9}")
     return 0
 
 

@@ -64,3 +64,14 @@ def test_the_paper_grid_table_regenerates():
     trials = load_trials(PAPER_GRID)
     references = reference_summaries(trials, PAPER_GRID, seed=10_000)  # IDM/MOBIL etc., replayed
     assert paper_table(trials, settings, references) == (RESULTS / "paper_table.md").read_text()
+
+
+def test_the_readmes_state_the_committed_grid_status(capsys):
+    """The grid status both READMEs state is `sb3-marl benchmark status` of the committed trials."""
+    import re
+
+    assert main(["benchmark", "status", "--seeds", "3", "-f", str(PAPER_GRID)]) == 0
+    finished = re.search(r": (\d+) of 81 trials finished", capsys.readouterr().out).group(1)
+    readme = re.sub(r"\s+", " ", (RESULTS.parent / "README.md").read_text())
+    assert f"**Status: {finished} of 81 trials finished**" in readme
+    assert f"**Done: {finished} of 81 trials**" in (RESULTS / "README.md").read_text()

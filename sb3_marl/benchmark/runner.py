@@ -27,7 +27,7 @@ from sb3_marl.benchmark.grid import (
     check_budget,
     make_grid,
 )
-from sb3_marl.benchmark.trial import RESULT, run_trial, trial_folder
+from sb3_marl.benchmark.trial import CHECKPOINT, RESULT, run_trial, trial_folder
 
 SETTINGS_FILE = "benchmark.json"
 
@@ -161,8 +161,51 @@ def run_benchmark(
     return outcome
 
 
+@dataclass
+class TrialStatus:
+    """Where one trial of a grid stands in a log folder: ``finished`` (``result.json``),
+    ``unfinished`` (a checkpoint to continue from) or ``not started``; AV-steps done of the budget's
+    ``n_timesteps``; the final evaluation's mean return and wall time once finished."""
+
+    trial_id: str
+    state: str
+    timesteps: int
+    n_timesteps: int
+    return_mean: float | None = None
+    wall_time_s: float | None = None
+
+
+def grid_status(grid: str, log_folder: str | Path, seeds: int = PAPER_SEEDS,
+                densities: tuple[int, ...] = (1, 2, 3)) -> list[TrialStatus]:
+    """Each trial of ``grid`` (as :func:`run_benchmark` would run it into ``log_folder``), in order.
+
+    :raises FileNotFoundError: if ``log_folder`` holds no benchmark (no ``benchmark.json``)
+    :raises ValueError: naming a bad grid, density or seed count
+    """
+    trials = make_grid(grid, tuple(densities), seeds)
+    settings_path = Path(log_folder) / SETTINGS_FILE
+    if not settings_path.is_file():
+        raise FileNotFoundError(f"No benchmark in {log_folder}/ (no {SETTINGS_FILE}): run `sb3-marl benchmark "
+                                f"-f {log_folder}` first.")
+    budget = json.loads(settings_path.read_text())["budget"]
+    statuses = []
+    for spec in trials:
+        folder = trial_folder(log_folder, spec)
+        status = TrialStatus(spec.trial_id, "not started", 0, spec.n_timesteps(budget))
+        if (folder / RESULT).is_file():
+            result = json.loads((folder / RESULT).read_text())
+            final = result.get("paper_evaluation") or result["final_evaluation"]
+            status.state, status.timesteps = "finished", result["num_timesteps"]
+            status.return_mean, status.wall_time_s = final["return_mean"], result.get("wall_time_s")
+        elif (folder / CHECKPOINT / "state.json").is_file():
+            status.state = "unfinished"
+            status.timesteps = json.loads((folder / CHECKPOINT / "state.json").read_text())["num_timesteps"]
+        statuses.append(status)
+    return statuses
+
+
 def _trial_id(trial: Any) -> str:
     return TrialSpec(**trial.config["spec"]).trial_id
 
 
-__all__ = ["SETTINGS_FILE", "BenchmarkRun", "check_settings", "run_benchmark"]
+__all__ = ["SETTINGS_FILE", "BenchmarkRun", "TrialStatus", "check_settings", "grid_status", "run_benchmark"]

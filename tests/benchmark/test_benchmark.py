@@ -107,6 +107,22 @@ def test_report_writes_the_table_and_the_figures(tiny_benchmark, tmp_path, capsy
     assert "wrote" in capsys.readouterr().out
 
 
+def test_status_lists_where_each_trial_stands(tiny_benchmark, capsys):
+    # the comfort grid shares its default MA2C trial with the reward grid: finished; comfort off: not started
+    assert main(["benchmark", "status", "--grid", "comfort", "--seeds", "1", "--densities", "1",
+                 "-f", str(tiny_benchmark)]) == 0
+    out = capsys.readouterr().out
+    assert "1 of 2 trials finished, 0 unfinished (continue from their checkpoint), 1 not started" in out
+    final = json.loads((tiny_benchmark / "trials" / "ma2c_density1_default_seed0" / "result.json").read_text())
+    row = next(line for line in out.splitlines() if line.startswith("ma2c_density1_default_seed0 "))
+    assert row.split()[1:5] == ["finished", f"{final['num_timesteps']:,}", "/", "600"]
+    assert f"{final['paper_evaluation']['return_mean']:.2f}" in row
+    assert next(line for line in out.splitlines() if line.startswith("ma2c_density1_no-comfort_seed0 ")).split()[1:3] \
+        == ["not", "started"]
+    assert main(["benchmark", "status", "-f", str(tiny_benchmark / "missing")]) == 2
+    assert "No benchmark in" in capsys.readouterr().err and not (tiny_benchmark / "missing").exists()
+
+
 def test_second_invocation_skips_finished_trials_and_resumes_unfinished(tiny_benchmark):
     results = sorted((tiny_benchmark / "trials").glob("*/result.json"))
     before = {path: path.read_text() for path in results}
