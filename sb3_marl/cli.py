@@ -615,6 +615,9 @@ def main(argv: list[str] | None = None) -> int:
     except (UsageError, CommandFailed) as error:
         print(f"sb3-marl {args.command}: error: {error}", file=sys.stderr)
         return 2 if isinstance(error, UsageError) else 1
+    except BrokenPipeError:  # `sb3-marl ... | head` closed the pipe: stop quietly, as other tools do
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no error when Python flushes at exit
+        return 1
 
 
 if __name__ == "__main__":

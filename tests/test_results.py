@@ -75,3 +75,13 @@ def test_the_readmes_state_the_committed_grid_status(capsys):
     readme = re.sub(r"\s+", " ", (RESULTS.parent / "README.md").read_text())
     assert f"**Status: {finished} of 81 trials finished**" in readme
     assert f"**Done: {finished} of 81 trials**" in (RESULTS / "README.md").read_text()
+
+
+def test_status_piped_into_head_stops_quietly():
+    import subprocess
+    import sys
+
+    executable = Path(sys.executable).parent / "sb3-marl"
+    piped = subprocess.run(f"'{executable}' benchmark status --seeds 3 -f '{PAPER_GRID}' | head -n 1", shell=True,
+                           capture_output=True, text=True, timeout=120)
+    assert piped.stdout.startswith("Benchmark grid 'paper' in ") and piped.stderr == ""
