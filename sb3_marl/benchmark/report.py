@@ -330,7 +330,8 @@ def _findings(experiment: str, summaries: dict[tuple[str, str, int], dict[str, f
                        f" ({_range_verdict(a, b, 'acceleration_std')})")
         elif experiment == "politeness":
             gap = abs(a["return_mean"] - b["return_mean"])
-            finding = (f"returns differ by {gap:.2f}, {'within' if gap <= max(a['return_std'], b['return_std']) else 'beyond'}"
+            finding = (f"{first} vs {second}: returns differ by {gap:.2f}, "
+                       f"{'within' if gap <= max(a['return_std'], b['return_std']) else 'beyond'}"
                        " the larger std over seeds"
                        f" ({_ci_verdict(a, b)})")
         else:
