@@ -11,7 +11,7 @@
 - ``learning_curves_<experiment>.png``: evaluation return against training episodes, one panel
   per density, mean over seeds with a shaded ± std band (the layout of the paper's figures);
 - ``final_returns.png``: the table's final returns at a glance: per experiment and density, each
-  curve's IQM with its 95 % CI beside the paper's Table-5 numbers;
+  curve's IQM with its 95 % CI beside the paper's Table-5 numbers and IDM/MOBIL's;
 - ``comfort.png``: AV acceleration traces of one evaluation episode with the comfort term on and
   off, and the acceleration std of the final evaluations;
 - ``cooperative_lane_change.png`` / ``.json`` (the paper's experiment 6, policy interpretation):
