@@ -37,7 +37,7 @@ from matplotlib.patches import Patch
 
 from sb3_marl.benchmark.grid import EPISODE_STEPS, EXPERIMENTS, TrialSpec
 from sb3_marl.benchmark.runner import SETTINGS_FILE
-from sb3_marl.benchmark.trial import RESULT, TRIAL
+from sb3_marl.benchmark.trial import RESULT, TRIAL, final_evaluation
 from sb3_marl.evaluation import PROTOCOLS
 from sb3_marl.plotting import with_default_style
 
@@ -97,7 +97,7 @@ class TrialLog:
     def final(self) -> dict[str, Any]:
         """The finished trial's final evaluation: the paper's (30 seeded episodes of the trained
         model, ``paper_evaluation``) where the trial has it, else its last periodic evaluation."""
-        return self.result.get("paper_evaluation") or self.result["final_evaluation"]
+        return final_evaluation(self.result)
 
 
 def load_trials(log_folder: str | Path) -> list[TrialLog]:

@@ -27,7 +27,7 @@ from sb3_marl.benchmark.grid import (
     check_budget,
     make_grid,
 )
-from sb3_marl.benchmark.trial import CHECKPOINT, RESULT, run_trial, trial_folder
+from sb3_marl.benchmark.trial import CHECKPOINT, RESULT, checkpoint_timesteps, final_evaluation, run_trial, trial_folder
 
 SETTINGS_FILE = "benchmark.json"
 
@@ -194,12 +194,12 @@ def grid_status(grid: str, log_folder: str | Path, seeds: int = PAPER_SEEDS,
         status = TrialStatus(spec.trial_id, "not started", 0, spec.n_timesteps(budget))
         if (folder / RESULT).is_file():
             result = json.loads((folder / RESULT).read_text())
-            final = result.get("paper_evaluation") or result["final_evaluation"]
+            final = final_evaluation(result)
             status.state, status.timesteps = "finished", result["num_timesteps"]
             status.return_mean, status.wall_time_s = final["return_mean"], result.get("wall_time_s")
         elif (folder / CHECKPOINT / "state.json").is_file():
             status.state = "unfinished"
-            status.timesteps = json.loads((folder / CHECKPOINT / "state.json").read_text())["num_timesteps"]
+            status.timesteps = checkpoint_timesteps(folder / CHECKPOINT)
         statuses.append(status)
     return statuses
 

@@ -47,6 +47,17 @@ def trial_folder(log_folder: str | Path, spec: TrialSpec) -> Path:
     return Path(log_folder) / "trials" / spec.trial_id
 
 
+def checkpoint_timesteps(checkpoint: Path) -> int:
+    """AV-steps the trial had trained when it wrote ``checkpoint`` (its ``state.json``)."""
+    return json.loads((checkpoint / "state.json").read_text())["num_timesteps"]
+
+
+def final_evaluation(result: dict[str, Any]) -> dict[str, Any]:
+    """A finished trial's final evaluation: the paper's (30 seeded episodes of the trained model,
+    ``paper_evaluation``) where ``result`` has it, else its last periodic evaluation."""
+    return result.get("paper_evaluation") or result["final_evaluation"]
+
+
 def write_json(path: Path, data: dict[str, Any]) -> None:
     with replaced_atomically(path) as temporary:
         Path(temporary).write_text(json.dumps(data, indent=2) + "\n")
@@ -125,7 +136,7 @@ def run_trial(config: dict[str, Any]) -> None:
     checkpoint = folder / CHECKPOINT
     if not checkpoint.is_dir() and (folder / PREVIOUS_CHECKPOINT).is_dir():  # killed between the two renames
         (folder / PREVIOUS_CHECKPOINT).rename(checkpoint)
-    resumed_at = json.loads((checkpoint / "state.json").read_text())["num_timesteps"] if checkpoint.is_dir() else 0
+    resumed_at = checkpoint_timesteps(checkpoint) if checkpoint.is_dir() else 0
 
     info = json.loads((folder / TRIAL).read_text()) if (folder / TRIAL).is_file() else {
         "trial": spec.to_dict(), "trial_id": spec.trial_id, "env_id": spec.env_id, "hyperparams": spec.hyperparams,
