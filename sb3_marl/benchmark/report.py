@@ -207,9 +207,11 @@ def reference_summaries(trials: list[TrialLog], log_folder: str | Path, seed: in
 
 
 def paper_table(trials: list[TrialLog], settings: dict[str, Any] | None = None,
-                references: dict[tuple[str, int], dict[str, float]] | None = None) -> str:
+                references: dict[tuple[str, int], dict[str, float]] | None = None,
+                summaries: dict[tuple[str, str, int], dict[str, float] | None] | None = None) -> str:
     """The markdown of ``paper_table.md`` (see module doc), with the hand-written policies'
-    :func:`reference_summaries` after the paper's experiments if given."""
+    :func:`reference_summaries` after the paper's experiments if given; ``summaries``: the trials'
+    :func:`curve_summaries` if already computed."""
     lines = ["# Paper reproduction: final evaluation over seeds", ""]
     if settings:
         lines += [f"Budget {settings['budget']:g} x the paper's 1M env steps per trial; evaluation: "
@@ -225,7 +227,7 @@ def paper_table(trials: list[TrialLog], settings: dict[str, Any] | None = None,
               "supervisor as in each learner's zoo config (on in all of them).", ""]
     finished = sum(t.result is not None for t in trials)
     lines += [f"Trials: {finished} finished, {len(trials) - finished} unfinished (not in the table).", ""]
-    summaries = curve_summaries(trials)
+    summaries = curve_summaries(trials) if summaries is None else summaries
     for experiment, curves in EXPERIMENTS.items():
         title, finding = PAPER_FINDINGS[experiment]
         rows = []
@@ -382,13 +384,14 @@ def plot_learning_curves(trials: list[TrialLog], out_dir: str | Path) -> list[Pa
 
 @with_default_style
 def plot_final_returns(trials: list[TrialLog], out_dir: str | Path,
-                       references: dict[tuple[str, int], dict[str, float]] | None = None) -> Path | None:
+                       references: dict[tuple[str, int], dict[str, float]] | None = None,
+                       summaries: dict[tuple[str, str, int], dict[str, float] | None] | None = None) -> Path | None:
     """``final_returns.png``: one panel per experiment with a finished trial; per density, each
     curve's IQM of the final evaluation returns with its 95 % CI as a bar and error bar, the
     paper's Table-5 mean (MA2C in every panel, the other baselines in theirs) as a black tick and,
     in the baselines' panel, IDM/MOBIL's IQM on the same episodes (``references``) as a grey line.
-    None without a finished trial."""
-    summaries = curve_summaries(trials)
+    None without a finished trial. ``summaries``: the trials' :func:`curve_summaries` if already computed."""
+    summaries = curve_summaries(trials) if summaries is None else summaries
     experiments = [e for e, curves in EXPERIMENTS.items()
                    if any(summaries[algo, variant, d] for algo, variant in curves.values() for d in (1, 2, 3))]
     if not experiments:
@@ -522,9 +525,10 @@ def write_report(log_folder: str | Path, out_dir: str | Path = "results", seed: 
     settings = json.loads(settings_path.read_text()) if settings_path.is_file() else None
     table = out_dir / "paper_table.md"
     references = reference_summaries(trials, log_folder, seed)
-    table.write_text(paper_table(trials, settings, references))
+    summaries = curve_summaries(trials)
+    table.write_text(paper_table(trials, settings, references, summaries))
     written = [table, *plot_learning_curves(trials, out_dir)]
-    for figure in (plot_final_returns(trials, out_dir, references), plot_comfort(trials, log_folder, out_dir, seed)):
+    for figure in (plot_final_returns(trials, out_dir, references, summaries), plot_comfort(trials, log_folder, out_dir, seed)):
         if figure is not None:
             written.append(figure)
     written += plot_interpretation(trials, log_folder, out_dir, seed)
