@@ -56,7 +56,7 @@ PAPER_FINDINGS = {
     "sharing": ("Experiment 2: shared vs separate actor-critic", "shared network: higher return and lower variance"),
     "comfort": ("Experiment 3: comfort term on vs off", "acceleration std 0.455 m/s² (on) vs 0.582 m/s² (off)"),
     "politeness": ("Experiment 4: HDV politeness p=0 vs p=1", "stable performance under both"),
-    "baselines": ("Experiment 5: baselines", "MA2C best at densities 1 and 3 (MADQN at density 2)"),
+    "baselines": ("Experiment 5: baselines", "best mean return in its Table 5: MA2C at density 1, MADQN at densities 2 and 3"),
     "penalty": ("Beyond the paper: MA2C's intervention penalty on vs off",
                 "not studied (the authors train on the paper's reward alone)"),
 }
