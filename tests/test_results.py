@@ -77,6 +77,37 @@ def test_the_readmes_state_the_committed_grid_status(capsys):
     assert f"**Done: {finished} of 81 trials**" in (RESULTS / "README.md").read_text()
 
 
+#: A Table-5 row's first cell in the READMEs (its start) -> (the curve's label in paper_table.md,
+#: the algorithm whose paper return goes in parentheses); longest prefix first.
+TABLE_5_ROWS = (("MA2C, separate actor and critic", "separate actor and critic", None),
+                ("MA2C (", "MA2C", "ma2c"), ("MADQN", "MADQN", "madqn"), ("MAACKTR", "MAACKTR", "maacktr"),
+                ("MAPPO", "MAPPO", "mappo"), ("IDM/MOBIL", "idm-mobil", None))
+
+
+@pytest.mark.parametrize("readme", [RESULTS.parent / "README.md", RESULTS / "README.md"], ids=["README", "results"])
+def test_the_readmes_table_5_is_the_committed_table(readme):
+    """The hand-copied Table 5 of each README ("| policy | density 1 | density 2 | density 3 |")
+    gives, per row and density, the mean ± std of results/paper_table.md and the paper's mean."""
+    import re
+
+    from sb3_marl.benchmark.report import PAPER_RETURNS
+
+    table = (RESULTS / "paper_table.md").read_text()
+    committed = {(label, int(density)): value for label, density, value in re.findall(
+        r"^\| ([^|]+?) \| ([123]) \| [\d,]+ \|(?: [\d,]+ \|)? (-?[\d.]+ ± [\d.]+) \|", table, re.MULTILINE)}
+    text = readme.read_text()
+    rows = text[text.index("| policy | density 1 | density 2 | density 3 |"):].split("\n\n")[0].splitlines()[2:]
+    assert len(rows) == len(TABLE_5_ROWS)
+    for row in rows:
+        first, *cells = [cell.strip() for cell in row.strip("|").split("|")]
+        label, algo = next((label, algo) for prefix, label, algo in TABLE_5_ROWS if first.startswith(prefix))
+        for density, cell in zip((1, 2, 3), cells, strict=True):
+            ours, _, paper = cell.partition(" (")
+            assert ours == committed[label, density], (row, density)
+            if algo is not None:
+                assert paper == f"{PAPER_RETURNS[algo, density][0]:.2f})", (row, density)
+
+
 def test_status_piped_into_head_stops_quietly():
     import subprocess
     import sys
