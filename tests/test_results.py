@@ -77,6 +77,34 @@ def test_the_readmes_state_the_committed_grid_status(capsys):
     assert f"**Done: {finished} of 81 trials**" in (RESULTS / "README.md").read_text()
 
 
+def _markdown_tables(text: str) -> list[list[dict[str, str]]]:
+    """Every markdown table of ``text`` (a block between blank lines) as rows of {header: cell}."""
+
+    def cells(line: str) -> list[str]:
+        return [cell.strip() for cell in line.strip().strip("|").split("|")]
+
+    tables = []
+    for block in text.split("\n\n"):
+        lines = block.strip().splitlines()
+        if len(lines) >= 3 and lines[0].startswith("|") and set(lines[1]) <= set("|-: "):
+            header = cells(lines[0])
+            tables.append([dict(zip(header, cells(line), strict=True)) for line in lines[2:]])
+    return tables
+
+
+def _readme_table(readme: Path, header: list[str]) -> list[dict[str, str]]:
+    (table,) = [t for t in _markdown_tables(readme.read_text()) if list(t[0]) == header]
+    return table
+
+
+@pytest.fixture(scope="module")
+def committed_rows() -> dict[tuple[str, int], dict[str, str]]:
+    """results/paper_table.md's rows keyed by (curve or policy, density)."""
+    return {(row.get("curve", row.get("policy")), int(row["density"])): row
+            for table in _markdown_tables((RESULTS / "paper_table.md").read_text()) for row in table}
+
+
+DENSITIES = ["density 1", "density 2", "density 3"]
 #: A Table-5 row's first cell in the READMEs (its start) -> (the curve's label in paper_table.md,
 #: the algorithm whose paper return goes in parentheses); longest prefix first.
 TABLE_5_ROWS = (("MA2C, separate actor and critic", "separate actor and critic", None),
@@ -85,27 +113,42 @@ TABLE_5_ROWS = (("MA2C, separate actor and critic", "separate actor and critic",
 
 
 @pytest.mark.parametrize("readme", [RESULTS.parent / "README.md", RESULTS / "README.md"], ids=["README", "results"])
-def test_the_readmes_table_5_is_the_committed_table(readme):
+def test_the_readmes_table_5_is_the_committed_table(readme, committed_rows):
     """The hand-copied Table 5 of each README ("| policy | density 1 | density 2 | density 3 |")
     gives, per row and density, the mean ± std of results/paper_table.md and the paper's mean."""
-    import re
-
     from sb3_marl.benchmark.report import PAPER_RETURNS
 
-    table = (RESULTS / "paper_table.md").read_text()
-    committed = {(label, int(density)): value for label, density, value in re.findall(
-        r"^\| ([^|]+?) \| ([123]) \| [\d,]+ \|(?: [\d,]+ \|)? (-?[\d.]+ ± [\d.]+) \|", table, re.MULTILINE)}
-    text = readme.read_text()
-    rows = text[text.index("| policy | density 1 | density 2 | density 3 |"):].split("\n\n")[0].splitlines()[2:]
+    rows = _readme_table(readme, ["policy", *DENSITIES])
     assert len(rows) == len(TABLE_5_ROWS)
     for row in rows:
-        first, *cells = [cell.strip() for cell in row.strip("|").split("|")]
-        label, algo = next((label, algo) for prefix, label, algo in TABLE_5_ROWS if first.startswith(prefix))
-        for density, cell in zip((1, 2, 3), cells, strict=True):
-            ours, _, paper = cell.partition(" (")
-            assert ours == committed[label, density], (row, density)
+        label, algo = next((label, algo) for prefix, label, algo in TABLE_5_ROWS if row["policy"].startswith(prefix))
+        for density, column in enumerate(DENSITIES, start=1):
+            ours, _, paper = row[column].partition(" (")
+            committed = committed_rows[label, density]
+            assert ours == committed.get("return: mean ± std over seeds", committed.get("return: mean ± std over episodes"))
             if algo is not None:
                 assert paper == f"{PAPER_RETURNS[algo, density][0]:.2f})", (row, density)
+
+
+#: results/README.md's "MA2C in detail" rows -> the cell of paper_table.md's rows they copy.
+MA2C_DETAIL_ROWS = {
+    "MA2C (current config): mean ± std over seeds": lambda rows, d: rows["MA2C", d]["return: mean ± std over seeds"],
+    "MA2C: IQM [95 % CI]": lambda rows, d: rows["MA2C", d]["return: IQM [95 % CI]"],
+    "the paper's MA2C": lambda rows, d: rows["MA2C", d]["return (paper)"],
+    "MA2C, the authors' reward (no penalty)":
+        lambda rows, d: rows["no penalty (the authors' reward)", d]["return: mean ± std over seeds"],
+    "MA2C collision rate / lane changes per episode":
+        lambda rows, d: f"{rows['MA2C', d]['collision rate']} / {rows['MA2C', d]['lane changes / ep.']}",
+    "MA2C acceleration std [m/s²]": lambda rows, d: rows["MA2C", d]["accel. std [m/s²]"],
+}
+
+
+def test_the_results_readmes_ma2c_detail_is_the_committed_table(committed_rows):
+    rows = _readme_table(RESULTS / "README.md", ["", *DENSITIES])
+    assert [row[""] for row in rows] == list(MA2C_DETAIL_ROWS)
+    for row in rows:
+        for density, column in enumerate(DENSITIES, start=1):
+            assert row[column] == MA2C_DETAIL_ROWS[row[""]](committed_rows, density), (row[""], density)
 
 
 def test_status_piped_into_head_stops_quietly():
