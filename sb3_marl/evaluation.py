@@ -6,7 +6,8 @@ of the AVs. Driving metrics are averaged over AV-steps of AVs still on the road.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -112,21 +113,34 @@ def markdown_table(rows: list[tuple[dict[str, Any], dict[str, float]]]) -> str:
 StepHook = Callable[[LaneChangeEnv, dict], None]
 
 
+@contextmanager
+def _numpy_fork(seed: int) -> Iterator[None]:
+    """numpy's global generator seeded with ``seed`` inside, its state outside as before."""
+    state = np.random.get_state()
+    np.random.seed(seed)
+    try:
+        yield
+    finally:
+        np.random.set_state(state)
+
+
 def run_episodes(
     env: LaneChangeEnv, policy: Policy, n_episodes: int, seed: int = 0, on_step: StepHook | None = None
 ) -> list[EpisodeRecord]:
     """Play ``n_episodes`` episodes with seeds ``seed, seed + 1, ...``: the one episode runner of
     evaluation, videos and reports.
 
-    Episode ``k`` also seeds torch with ``seed + k`` inside a fork of torch's random state, so
-    sampled actions are reproducible and a training run's own random stream is untouched.
+    Episode ``k`` also seeds torch's and numpy's global generators with ``seed + k`` (the
+    actor-critics sample with torch, MADQN's ε-greedy draws with numpy, as SB3's DQN), each inside a
+    fork of its random state, so sampled actions are reproducible and a training run's own random
+    streams are untouched.
 
     :param on_step: called as ``on_step(env, info)`` after the reset (``info["step"] == 0``) and
         after every step of every episode
     """
     records = []
     for episode in range(n_episodes):
-        with th.random.fork_rng():
+        with th.random.fork_rng(), _numpy_fork(seed + episode):
             th.manual_seed(seed + episode)
             obs, info = env.reset(seed=seed + episode)
             if on_step is not None:
