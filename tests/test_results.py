@@ -66,6 +66,19 @@ def test_the_paper_grid_table_regenerates():
     assert paper_table(trials, settings, references) == (RESULTS / "paper_table.md").read_text()
 
 
+@pytest.mark.parametrize("algo", ["ma2c", "madqn", "maacktr", "mappo"])
+def test_committed_grid_models_reproduce_their_final_evaluation(algo):
+    """Each learner's density-1 seed-0 grid model, re-evaluated on the first 3 episodes of its
+    final evaluation (same seeds, sampled actions, its scenario config), gives the committed returns."""
+    from sb3_marl.evaluation import evaluation_records, model_policy
+
+    trial = PAPER_GRID / "trials" / f"{algo}_density1_default_seed0"
+    committed = json.loads((trial / "result.json").read_text())["paper_evaluation"]
+    run = find_run(trial, algo, "sb3_marl/LaneChange-density1-v0")
+    records = evaluation_records(model_policy(run.load_model("cpu")), run.env_id, 3, committed["seeds"][0], run.env_config)
+    assert [r.episode_return for r in records] == committed["returns"][:3]
+
+
 def test_the_readmes_state_the_committed_grid_status(capsys):
     """The grid status both READMEs state is `sb3-marl benchmark status` of the committed trials."""
     import re
