@@ -114,14 +114,16 @@ StepHook = Callable[[LaneChangeEnv, dict], None]
 
 
 @contextmanager
-def _numpy_fork(seed: int) -> Iterator[None]:
-    """numpy's global generator seeded with ``seed`` inside, its state outside as before."""
+def _seeded_global_generators(seed: int) -> Iterator[None]:
+    """torch's and numpy's global generators seeded with ``seed`` inside, their states outside as before."""
     state = np.random.get_state()
-    np.random.seed(seed)
-    try:
-        yield
-    finally:
-        np.random.set_state(state)
+    with th.random.fork_rng():
+        th.manual_seed(seed)
+        np.random.seed(seed)
+        try:
+            yield
+        finally:
+            np.random.set_state(state)
 
 
 def run_episodes(
@@ -140,8 +142,7 @@ def run_episodes(
     """
     records = []
     for episode in range(n_episodes):
-        with th.random.fork_rng(), _numpy_fork(seed + episode):
-            th.manual_seed(seed + episode)
+        with _seeded_global_generators(seed + episode):
             obs, info = env.reset(seed=seed + episode)
             if on_step is not None:
                 on_step(env, info)

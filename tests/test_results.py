@@ -70,13 +70,12 @@ def test_the_paper_grid_table_regenerates():
 def test_committed_grid_models_reproduce_their_final_evaluation(algo):
     """Each learner's density-1 seed-0 grid model, re-evaluated on the first 3 episodes of its
     final evaluation (same seeds, sampled actions, its scenario config), gives the committed returns."""
-    from sb3_marl.evaluation import evaluation_records, model_policy
-
     trial = PAPER_GRID / "trials" / f"{algo}_density1_default_seed0"
     committed = json.loads((trial / "result.json").read_text())["paper_evaluation"]
     run = find_run(trial, algo, "sb3_marl/LaneChange-density1-v0")
-    records = evaluation_records(model_policy(run.load_model("cpu")), run.env_id, 3, committed["seeds"][0], run.env_config)
-    assert [r.episode_return for r in records] == committed["returns"][:3]
+    again = run.evaluate(run.load_model("cpu"), 3, committed["seeds"][0])
+    assert again["returns"] == committed["returns"][:3]
+    assert again["protocol"] == committed["protocol"]
 
 
 def test_the_readmes_state_the_committed_grid_status(capsys):

@@ -383,15 +383,16 @@ def plot_learning_curves(trials: list[TrialLog], out_dir: str | Path) -> list[Pa
 
 
 @with_default_style
-def plot_final_returns(trials: list[TrialLog], out_dir: str | Path,
-                       references: dict[tuple[str, int], dict[str, float]] | None = None,
-                       summaries: dict[tuple[str, str, int], dict[str, float] | None] | None = None) -> Path | None:
+def plot_final_returns(summaries: dict[tuple[str, str, int], dict[str, float] | None], out_dir: str | Path,
+                       references: dict[tuple[str, int], dict[str, float]] | None = None) -> Path | None:
     """``final_returns.png``: one panel per experiment with a finished trial; per density, each
     curve's IQM of the final evaluation returns with its 95 % CI as a bar and error bar, the
     paper's Table-5 mean (MA2C in every panel, the other baselines in theirs) as a black tick and,
     in the baselines' panel, IDM/MOBIL's IQM on the same episodes (``references``) as a grey line.
-    None without a finished trial. ``summaries``: the trials' :func:`curve_summaries` if already computed."""
-    summaries = curve_summaries(trials) if summaries is None else summaries
+    None without a finished trial.
+
+    :param summaries: the trials' :func:`curve_summaries`
+    """
     experiments = [e for e, curves in EXPERIMENTS.items()
                    if any(summaries[algo, variant, d] for algo, variant in curves.values() for d in (1, 2, 3))]
     if not experiments:
@@ -528,7 +529,7 @@ def write_report(log_folder: str | Path, out_dir: str | Path = "results", seed: 
     summaries = curve_summaries(trials)
     table.write_text(paper_table(trials, settings, references, summaries))
     written = [table, *plot_learning_curves(trials, out_dir)]
-    for figure in (plot_final_returns(trials, out_dir, references, summaries), plot_comfort(trials, log_folder, out_dir, seed)):
+    for figure in (plot_final_returns(summaries, out_dir, references), plot_comfort(trials, log_folder, out_dir, seed)):
         if figure is not None:
             written.append(figure)
     written += plot_interpretation(trials, log_folder, out_dir, seed)
