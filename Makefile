@@ -16,13 +16,15 @@ install: $(STAMP)
 
 ## run: the main job: train MA2C on density 1 (short budget), evaluate it beside the reference
 ## policies, plot the learning curves; TensorBoard logs in logs/tensorboard
+## (RUN_LOGS: the log folder, default logs; the tests point it at a temporary folder)
 RUN_ENV ?= sb3_marl/LaneChange-density1-v0
 RUN_TIMESTEPS ?= 100000
+RUN_LOGS ?= logs
 run: $(STAMP)
-	$(VENV)/bin/sb3-marl train --algo ma2c --env $(RUN_ENV) -n $(RUN_TIMESTEPS) --eval-freq 20000 --eval-episodes 6 --progress
-	$(VENV)/bin/sb3-marl evaluate --algo ma2c --env $(RUN_ENV) --eval-episodes 30 --with-baselines
-	$(VENV)/bin/sb3-marl plot --algo ma2c --env $(RUN_ENV)
-	@echo "TensorBoard: $(VENV)/bin/tensorboard --logdir logs/tensorboard"
+	$(VENV)/bin/sb3-marl train --algo ma2c --env $(RUN_ENV) -n $(RUN_TIMESTEPS) --eval-freq 20000 --eval-episodes 6 --progress -f $(RUN_LOGS)
+	$(VENV)/bin/sb3-marl evaluate --algo ma2c --env $(RUN_ENV) --eval-episodes 30 --with-baselines -f $(RUN_LOGS)
+	$(VENV)/bin/sb3-marl plot --algo ma2c --env $(RUN_ENV) -f $(RUN_LOGS)
+	@echo "TensorBoard: $(VENV)/bin/tensorboard --logdir $(RUN_LOGS)/tensorboard"
 
 ## test: the whole test suite
 test: $(STAMP)

@@ -17,11 +17,11 @@ from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
 from sb3_marl.envs.lane_change_env import ACTIONS
 from sb3_marl.evaluation import (
     EpisodeRecord,
-    evaluation_records,
     model_policy,
+    protocol_records,
     summarize,
 )
-from sb3_marl.files import replaced_atomically
+from sb3_marl.files import read_evaluations, replaced_atomically
 
 #: Per-AV-step driving samples of the slot infos, averaged (speed, headway) or spread (acceleration).
 DRIVING_SAMPLES = ("speed", "headway", "acceleration")
@@ -149,16 +149,20 @@ class ScenarioEvalCallback(BaseCallback):
     Unlike SB3's ``EvalCallback`` (one return per VecEnv slot, i.e. per AV) each evaluation episode
     scores the paper's metric: the sum over steps of the mean AV reward. The same seeds
     (``seed, seed + 1, ...``) are used at every evaluation, so the curve compares like with like.
-    Results go to ``<log_path>/evaluations.npz`` in SB3's layout (``timesteps``, ``results``,
-    ``ep_lengths``) plus one array per driving metric, to the logger under ``eval/``, and the best
-    model so far to ``<best_model_save_path>/best_model.zip``. ``callback_after_eval`` is called
+    Each evaluation plays the episodes twice: with the safety supervisor (the authors' protocol)
+    and without it (the policy alone). Results go to ``<log_path>/evaluations.npz`` in SB3's layout
+    (``timesteps``, ``results``, ``ep_lengths``: supervisor on) plus one array per driving metric,
+    and the same with the prefix ``supervisor_off_`` for the policy alone; to the logger under
+    ``eval/`` and ``eval/supervisor_off/``; and the best model so far (supervisor on) to ``<best_model_save_path>/best_model.zip``. ``callback_after_eval`` is called
     after each evaluation (as in SB3's ``EvalCallback``; it sees this callback as ``parent``, with
     the latest summary in ``last_summary``; returning False stops training). With ``evaluate_at_end``, training that ends normally
     ends with an evaluation of the final model (unless one was just made at that step).
     """
 
     METRICS = ("collision_rate", "success_rate", "speed_mean", "headway_mean", "acceleration_std",
-               "lane_changes_per_episode", "intervention_rate")
+               "lane_changes_per_episode", "yields_per_episode", "intervention_rate")
+    #: Prefix of the policy-alone (supervisor off) arrays in ``evaluations.npz``.
+    OFF = "supervisor_off_"
 
     def __init__(
         self,
@@ -207,46 +211,55 @@ class ScenarioEvalCallback(BaseCallback):
         """The latest evaluation's summary, also when it was loaded with :meth:`load_history`."""
         if not self.evaluations["results"]:
             raise ValueError("No evaluation has been made.")
-        returns = np.asarray(self.evaluations["results"][-1])
-        return {"timesteps": int(self.evaluations["timesteps"][-1]), "return_mean": float(returns.mean()),
-                "return_std": float(returns.std()), **{m: float(self.evaluations[m][-1]) for m in self.METRICS}}
+        def latest(prefix: str) -> dict[str, float]:
+            returns = np.asarray(self.evaluations[f"{prefix}results"][-1])
+            return {"return_mean": float(returns.mean()), "return_std": float(returns.std()),
+                    **{m: float(self.evaluations[f"{prefix}{m}"][-1]) for m in self.METRICS
+                       if len(self.evaluations.get(f"{prefix}{m}", []))}}
+
+        summary: dict[str, Any] = {"timesteps": int(self.evaluations["timesteps"][-1]), **latest("")}
+        if len(self.evaluations.get(f"{self.OFF}results", [])):
+            summary["supervisor_off"] = latest(self.OFF)
+        return summary
 
     def load_history(self, path: str | Path, up_to_timesteps: int) -> None:
         """Continue the evaluation history of ``path`` (an ``evaluations.npz`` of this callback),
         keeping the evaluations at ``<= up_to_timesteps`` (those of a resumed checkpoint)."""
-        with np.load(path) as log:
-            keep = log["timesteps"] <= up_to_timesteps
-            self.evaluations = defaultdict(list, {key: list(log[key][keep]) for key in log.files})
+        log = read_evaluations(path)
+        keep = log["timesteps"] <= up_to_timesteps
+        self.evaluations = defaultdict(list, {key: list(values[keep]) for key, values in log.items()})
         if self.evaluations["results"]:
             self.best_mean_reward = max(float(np.mean(results)) for results in self.evaluations["results"])
 
     def evaluate(self) -> dict[str, float]:
         """Run one evaluation now; returns its summary."""
-        records = evaluation_records(
+        protocols = protocol_records(
             model_policy(self.model, self.deterministic), self.env_id, self.n_eval_episodes, self.seed, self.config
         )
-        summary = summarize(records)
-        row = {
-            "timesteps": self.num_timesteps,
-            "results": [r.episode_return for r in records],
-            "ep_lengths": [r.length for r in records],
-            **{metric: summary[metric] for metric in self.METRICS},
-        }
+        row: dict[str, Any] = {"timesteps": self.num_timesteps}
+        for name, prefix in (("on", ""), ("off", self.OFF)):
+            records = protocols[name]
+            summary = summarize(records)
+            row[f"{prefix}results"] = [r.episode_return for r in records]
+            row[f"{prefix}ep_lengths"] = [r.length for r in records]
+            row.update({f"{prefix}{metric}": summary[metric] for metric in self.METRICS})
+            for metric in ("return_mean", "return_std", "length_mean", *self.METRICS):
+                folder = "eval/" if name == "on" else "eval/supervisor_off/"
+                key = {"return_mean": "mean_reward", "return_std": "std_reward", "length_mean": "mean_ep_length"}.get(metric, metric)
+                self.logger.record(folder + key, summary[metric])
+        off = summarize(protocols["off"])
+        summary = {**summarize(protocols["on"]), "supervisor_off": off}
         for key, value in row.items():
             self.evaluations[key].append(value)
         if self.log_path is not None:
             with replaced_atomically(self.log_path / "evaluations.npz") as temporary:
                 np.savez(temporary, **{key: np.array(values) for key, values in self.evaluations.items()})
 
-        self.logger.record("eval/mean_reward", summary["return_mean"])
-        self.logger.record("eval/std_reward", summary["return_std"])
-        self.logger.record("eval/mean_ep_length", summary["length_mean"])
-        for metric in self.METRICS:
-            self.logger.record(f"eval/{metric}", summary[metric])
         if self.verbose >= 1:
             print(
                 f"Eval num_timesteps={self.num_timesteps}, episode_return={summary['return_mean']:.2f} "
-                f"+/- {summary['return_std']:.2f}, collision_rate={summary['collision_rate']:.2f}"
+                f"+/- {summary['return_std']:.2f}, collision_rate={summary['collision_rate']:.2f}; supervisor off: "
+                f"episode_return={off['return_mean']:.2f}, collision_rate={off['collision_rate']:.2f}"
             )
         if summary["return_mean"] > self.best_mean_reward:
             self.best_mean_reward = summary["return_mean"]

@@ -42,20 +42,23 @@ EXIT_INTERRUPTED = {signal.SIGINT: 130, signal.SIGTERM: 143}
 
 
 class StoreHyperparams(argparse.Action):
-    """rl-zoo's ``-params key:value ...``: each value is a Python expression (``n_steps:20``,
-    ``env_config:"dict(comfort=False)"``); one that does not evaluate is kept as a string
-    (``reward_mode:global``)."""
+    """rl-zoo's ``-params key:value ...``: each value is a literal, never evaluated as code
+    (:func:`sb3_marl.loading.parse_literal`: ``n_steps:20``, ``env_config:"dict(comfort=False)"``,
+    ``policy_kwargs:"dict(activation_fn=nn.Tanh)"``); a bare word stays a string
+    (``reward_mode:global``); anything else (a call, an operator) exits 2 naming the key."""
 
     def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any, option_string: Any = None) -> None:
+        from sb3_marl.loading import parse_literal
+
         parsed = {}
         for item in values:
             key, sep, expression = item.partition(":")
             if not sep or not key:
                 parser.error(f"argument {option_string}: expected key:value, got {item!r}")
             try:
-                parsed[key] = eval(expression)  # as rl_zoo3's StoreDict
-            except Exception:
-                parsed[key] = expression
+                parsed[key] = parse_literal(expression, key)
+            except ValueError as error:
+                parser.error(f"argument {option_string}: {error}")
         setattr(namespace, self.dest, parsed)
 
 
@@ -106,8 +109,29 @@ def _check_device(device: str) -> None:
 
 
 def _check_folder(flag: str, path: str | None) -> None:
-    if path and os.path.exists(path) and not os.path.isdir(path):
+    """A folder the command may write into: not a file, no over-long name, and its nearest existing
+    folder writable (checked before anything is created)."""
+    if not path:
+        return
+    if os.path.exists(path) and not os.path.isdir(path):
         raise UsageError(f"{flag}: {path!r} is a file, expected a folder.")
+    too_long = [part for part in Path(path).parts if len(os.fsencode(part)) > 255]
+    if too_long or len(os.fsencode(os.path.abspath(path))) > 4000:
+        raise UsageError(f"{flag}: {path!r} is too long a path (at most 255 bytes per folder name).")
+    existing = Path(os.path.abspath(path))
+    while not existing.exists():
+        existing = existing.parent
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise UsageError(f"{flag}: {path!r} cannot be written: {str(existing)!r} is not writable.")
+
+
+#: Seeds numpy and the scenario accept: 0 <= seed < 2**32 (episode seeds add 10,000 for evaluation).
+MAX_SEED = 2**32 - 1 - 100_000
+
+
+def _check_seed(seed: int) -> None:
+    if not 0 <= seed <= MAX_SEED:
+        raise UsageError(f"--seed: invalid seed {seed}: expected an integer in [0, {MAX_SEED}].")
 
 
 def _add_run_selection(parser: argparse.ArgumentParser) -> None:
@@ -124,7 +148,14 @@ def _add_run_selection(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--deterministic", action="store_true",
                         help="argmax actions (default: sampled from the policy, the authors' evaluation protocol)")
     parser.add_argument("--device", default="auto", help="torch device (default: auto)")
+    _add_trust_remote_code(parser)
     _add_num_threads(parser)
+
+
+def _add_trust_remote_code(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--trust-remote-code", action="store_true",
+                        help="load a model zip from another tool that needs unpickling (it can run code: only for "
+                             "files you trust); default: models are read as data and such a zip is refused")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -154,6 +185,7 @@ def build_parser() -> argparse.ArgumentParser:
                        help="overrides the config's reward_mode")
     train.add_argument("--progress", action="store_true", help="progress bar (tqdm + rich)")
     train.add_argument("--device", default="auto", help="torch device (default: auto)")
+    _add_trust_remote_code(train)
     _add_num_threads(train)
     train.add_argument("--log-interval", type=_positive_or_default, default=-1,
                        help="SB3 log_interval (>= 1); -1: the algorithm's default")
@@ -222,8 +254,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     benchmark = commands.add_parser("benchmark", help="the paper's experiment grid as Ray Tune trials; "
                                     "`benchmark report` writes its table and figures")
-    benchmark.add_argument("action", nargs="?", choices=["run", "report", "status"], default="run",
-                           help="run the grid (default), report on it, or list where its trials stand")
+    benchmark.add_argument("action", nargs="?", choices=["run", "report", "status", "evaluate"], default="run",
+                           help="run the grid (default), report on it, list where its trials stand, or evaluate "
+                                "its finished trials under both supervisor protocols where they lack one")
     benchmark.add_argument("--grid", default="paper", choices=list(GRIDS),
                            help="paper (the five experiments of the paper and our intervention-penalty one) or one "
                                 "experiment (default: paper)")
@@ -280,8 +313,11 @@ class _StopTraining:
 
 def _check_train_args(args: argparse.Namespace) -> None:
     """Everything about ``train``'s flags that can be checked before any work or folder."""
+    from sb3_marl.algos import get_algo
+    from sb3_marl.loading import safe_custom_objects
     from sb3_marl.runs import check_model_file
 
+    _check_seed(args.seed)
     _check_folder("-f/--log-folder", args.log_folder)
     _check_folder("-tb/--tensorboard-log", args.tensorboard_log)
     _check_device(args.device)
@@ -300,7 +336,9 @@ def _check_train_args(args: argparse.Namespace) -> None:
         if not (args.trained_agent.endswith(".zip") and os.path.isfile(args.trained_agent)):
             raise UsageError(f"-i/--trained-agent: {args.trained_agent!r} is not an existing .zip model file.")
         try:
-            check_model_file(args.trained_agent, args.algo)
+            check_model_file(args.trained_agent, args.algo, args.trust_remote_code)
+            if not args.trust_remote_code:
+                safe_custom_objects(get_algo(args.algo), args.trained_agent)  # refused here, before any folder
         except ValueError as error:
             raise UsageError(f"-i/--trained-agent: {error}") from None
 
@@ -317,7 +355,7 @@ def train(args: argparse.Namespace) -> int:
         tensorboard_log=tensorboard_log, n_timesteps=args.n_timesteps, eval_freq=args.eval_freq,
         n_eval_episodes=args.eval_episodes, save_freq=args.save_freq, hyperparams=args.hyperparams,
         trained_agent=args.trained_agent, seed=args.seed, log_interval=args.log_interval, verbose=args.verbose,
-        device=args.device, show_progress=args.progress,
+        device=args.device, show_progress=args.progress, trust_remote_code=args.trust_remote_code,
         optimize_hyperparameters=args.optimize_hyperparameters, n_trials=args.n_trials, n_jobs=args.n_jobs,
         sampler=args.sampler, pruner=args.pruner, n_startup_trials=args.n_startup_trials,
         n_evaluations=args.n_evaluations, storage=args.storage, study_name=args.study_name,
@@ -336,8 +374,14 @@ def train(args: argparse.Namespace) -> int:
     with _StopTraining() as stop:
         try:
             manager.learn(model)
+        except OSError as error:  # a full disk, a folder removed under us: saving would likely fail too
+            raise CommandFailed(_write_failure(manager, model, error)) from None
         except Exception as error:  # a dead worker, a NaN, ...: keep what was learnt, then report
-            manager.save_trained_model(model)
+            try:
+                manager.save_trained_model(model)
+            except OSError as save_error:
+                raise CommandFailed(f"training stopped by {type(error).__name__}: {error}\n"
+                                    + _write_failure(manager, model, save_error)) from None
             cause = error.__cause__  # a worker's own traceback (see wrappers.parameter_sharing.WorkerCopies)
             worker = f"\n{cause}" if isinstance(cause, RuntimeError) and str(cause).startswith("in the worker") else ""
             raise CommandFailed(
@@ -345,7 +389,10 @@ def train(args: argparse.Namespace) -> int:
                 f"The model at {model.num_timesteps} timesteps was saved; continue with "
                 f"-i {manager.save_path}/{manager.env_name}.zip"
             ) from error
-    manager.save_trained_model(model)
+    try:
+        manager.save_trained_model(model)
+    except OSError as error:
+        raise CommandFailed(_write_failure(manager, model, error)) from None
     print(f"Training wall time: {time.perf_counter() - start:.1f} s, {model.num_timesteps} timesteps (AV-steps)")
     if tensorboard_log:
         print(f"TensorBoard: tensorboard --logdir {tensorboard_log}")
@@ -356,16 +403,29 @@ def train(args: argparse.Namespace) -> int:
     return 0
 
 
+def _write_failure(manager: Any, model: Any, error: OSError) -> str:
+    """One message for a file training could not write (e.g. a full disk): what, and how to resume."""
+    from sb3_marl.runs import latest_checkpoint
+
+    where = f" ({error.filename})" if error.filename else ""
+    checkpoint = latest_checkpoint(manager.save_path)
+    resume = (f"The last complete checkpoint is {checkpoint}: free some space, then continue with -i {checkpoint}."
+              if checkpoint else "No checkpoint was written (--save-freq saves them); free some space and train again.")
+    return (f"could not write{where} at {model.num_timesteps} timesteps: {error.strerror or error}. "
+            f"The model of this moment could not be saved. {resume}")
+
+
 # ---- evaluate, record-video, plot, baselines ----------------------------------------------------
 
 
 def _find_run(args: argparse.Namespace) -> Any:
     from sb3_marl.runs import find_run
 
+    _check_seed(args.seed)
     try:
         return find_run(args.folder, args.algo, args.env, args.exp_id, args.load_best, args.load_checkpoint,
                         args.load_last_checkpoint)
-    except FileNotFoundError as error:
+    except (FileNotFoundError, ValueError) as error:
         raise UsageError(str(error)) from None
 
 
@@ -374,13 +434,13 @@ def _load_model(run: Any, args: argparse.Namespace) -> Any:
     _check_device(args.device)
     _set_num_threads(args)
     try:
-        return run.load_model(args.device)
+        return run.load_model(args.device, args.trust_remote_code)
     except ValueError as error:
         raise UsageError(str(error)) from None
 
 
 def evaluate(args: argparse.Namespace) -> int:
-    from sb3_marl.evaluation import evaluation_records, markdown_table, summarize
+    from sb3_marl.evaluation import evaluate_protocols, markdown_table, protocol_rows
     from sb3_marl.experiment import EVAL_SEED_OFFSET
 
     run = _find_run(args)
@@ -388,17 +448,17 @@ def evaluate(args: argparse.Namespace) -> int:
     seed = args.seed + EVAL_SEED_OFFSET
     start = time.perf_counter()
     result = {"model": str(run.model_path), **run.evaluate(model, args.eval_episodes, seed, args.deterministic)}
-    rows = [({"policy": args.algo, "timesteps": model.num_timesteps}, result)]
+    rows = protocol_rows({"policy": args.algo, "timesteps": model.num_timesteps}, result)
     if args.with_baselines:
         from sb3_marl.baselines import BASELINES
 
         result["baselines"] = {}
         for name, policy_class in BASELINES.items():
-            baseline = summarize(evaluation_records(policy_class(), args.env, args.eval_episodes, seed, run.env_config))
+            baseline = evaluate_protocols(policy_class(), args.env, args.eval_episodes, seed, run.env_config)
             result["baselines"][name] = baseline
-            rows.append(({"policy": name, "timesteps": "-"}, baseline))
+            rows += protocol_rows({"policy": name, "timesteps": "-"}, baseline)
     heading = (f"{args.env}: {args.eval_episodes} episodes, seeds {seed}..{seed + args.eval_episodes - 1}, "
-               f"{result['protocol']}; model {run.model_path}")
+               f"{result['protocol']} (on: the authors' protocol; off: the policy alone); model {run.model_path}")
     table = markdown_table(rows)
     print(heading + "\n")
     print(table)
@@ -418,8 +478,14 @@ def record_video_command(args: argparse.Namespace) -> int:
     run = _find_run(args)
     model = _load_model(run, args)
     output = Path(args.output) if args.output else run.log_path / "videos" / f"{run.model_path.stem}.mp4"
-    info = record_video(model_policy(model, args.deterministic), args.env, output, args.n_episodes,
-                        args.seed + EVAL_SEED_OFFSET, run.env_config)
+    _check_folder("-o/--output", str(output.parent))
+    try:
+        info = record_video(model_policy(model, args.deterministic), args.env, output, args.n_episodes,
+                            args.seed + EVAL_SEED_OFFSET, run.env_config)
+    except (OSError, RuntimeError) as error:  # ffmpeg missing, broken or refusing the file
+        raise CommandFailed(f"could not write the video {output} with ffmpeg ({type(error).__name__}: "
+                            f"{str(error).strip().splitlines()[-1] if str(error).strip() else error}); check the "
+                            "ffmpeg that imageio-ffmpeg uses (IMAGEIO_FFMPEG_EXE).") from None
     print(f"wrote {info['path']}: {info['episodes']} episode(s), {info['frames']} frames at {info['fps']} fps")
     return 0
 
@@ -485,7 +551,10 @@ def plot(args: argparse.Namespace) -> int:
                 runs[f"{algo} run {run_id(folder)}" + (f" ({overrides})" if overrides else "")] = folder
     if not runs:
         raise UsageError(f"No runs of {args.algos} on {args.env} under {args.folder}/ (exp ids: {args.exp_ids or 'all'}).")
-    written = plot_runs(runs, args.output or os.path.join(args.folder, "plots"), args.episode_window)
+    try:
+        written = plot_runs(runs, args.output or os.path.join(args.folder, "plots"), args.episode_window)
+    except ValueError as error:
+        raise UsageError(str(error)) from None
     for path in written:
         print(f"wrote {path}")
     return 0
@@ -496,7 +565,10 @@ def summary(args: argparse.Namespace) -> int:
 
     if not os.path.isdir(args.folder):
         raise UsageError(f"-f/--folder: {args.folder!r} is not a folder.")
-    table = summary_table(args.folder)
+    try:
+        table = summary_table(args.folder)
+    except ValueError as error:  # an unreadable (or unsafe) evaluation.json / args.yml: named
+        raise UsageError(str(error)) from None
     if table.count("\n") < 2:
         raise UsageError(f"No evaluated run under {args.folder}/ (run `sb3-marl evaluate` on a run first).")
     output = Path(args.output) if args.output else Path(args.folder) / "summary.md"
@@ -547,6 +619,9 @@ def benchmark(args: argparse.Namespace) -> int:
     if args.action == "status":
         return _benchmark_status(args)
 
+    if args.action == "evaluate":
+        return _benchmark_evaluate(args)
+
     from sb3_marl.benchmark.runner import run_benchmark
 
     try:
@@ -572,6 +647,21 @@ def benchmark(args: argparse.Namespace) -> int:
     return 0
 
 
+def _benchmark_evaluate(args: argparse.Namespace) -> int:
+    """Re-evaluate every finished trial under ``-f`` that lacks the policy-alone protocol (progress bar)."""
+    from tqdm import tqdm
+
+    from sb3_marl.benchmark.trial import RESULT, reevaluate_trial
+
+    results = sorted(Path(args.log_folder).glob(f"trials/*/{RESULT}"))
+    if not results:
+        raise UsageError(f"-f/--log-folder: no finished trial (trials/*/{RESULT}) under {args.log_folder!r}.")
+    _set_num_threads(argparse.Namespace(num_threads=1))
+    done = [path.parent.name for path in tqdm(results, desc="trials", unit="trial") if reevaluate_trial(path.parent)]
+    print(f"re-evaluated {len(done)} of {len(results)} finished trials under both supervisor protocols")
+    return 0
+
+
 def _benchmark_status(args: argparse.Namespace) -> int:
     """Print each trial of ``--grid`` in ``-f``: state, AV-steps of the budget, final return, wall time."""
     from sb3_marl.benchmark.runner import grid_status
@@ -580,9 +670,11 @@ def _benchmark_status(args: argparse.Namespace) -> int:
         statuses = grid_status(args.grid, args.log_folder, args.seeds, tuple(args.densities))
     except FileNotFoundError as error:
         raise UsageError(str(error)) from None
-    counts = {state: sum(s.state == state for s in statuses) for state in ("finished", "unfinished", "not started")}
+    counts = {state: sum(s.state == state for s in statuses)
+              for state in ("finished", "unfinished", "not started", "unreadable")}
     print(f"Benchmark grid {args.grid!r} in {args.log_folder}: {counts['finished']} of {len(statuses)} trials finished, "
-          f"{counts['unfinished']} unfinished (continue from their checkpoint), {counts['not started']} not started\n")
+          f"{counts['unfinished']} unfinished (continue from their checkpoint), {counts['not started']} not started"
+          + (f", {counts['unreadable']} with an unreadable result" if counts["unreadable"] else "") + "\n")
     width = max(len(s.trial_id) for s in statuses)
     print(f"{'trial':<{width}}  {'state':<11}  {'AV-steps done':>25}  {'return':>7}  {'wall time':>9}")
     for s in statuses:
@@ -590,7 +682,10 @@ def _benchmark_status(args: argparse.Namespace) -> int:
         returns = f"{s.return_mean:.2f}" if s.return_mean is not None else "-"
         wall = f"{s.wall_time_s:.0f} s" if s.wall_time_s is not None else "-"
         print(f"{s.trial_id:<{width}}  {s.state:<11}  {done:>25}  {returns:>7}  {wall:>9}")
-    return 0
+    for s in statuses:
+        if s.problem:
+            print(f"unreadable: {s.problem}", file=sys.stderr)
+    return 1 if counts["unreadable"] else 0
 
 
 class UsageError(Exception):

@@ -1,7 +1,11 @@
 """Episode metrics of the paper, computed from the scenario env's info.
 
 The episode return is the paper's metric: the sum over the episode's steps of the mean reward
-of the AVs. Driving metrics are averaged over AV-steps of AVs still on the road.
+of the AVs. Driving metrics are averaged over AV-steps of AVs still on the road. Cooperation is
+counted as lane changes and *yields* per episode (:meth:`EpisodeTrace.yields`).
+
+Every evaluation scores a policy under both :data:`SUPERVISOR_PROTOCOLS`: with the safety
+supervisor (the authors' protocol) and without it (the policy alone).
 """
 
 from __future__ import annotations
@@ -17,10 +21,79 @@ import torch as th
 
 from sb3_marl.algos.masking import uses_action_masks
 from sb3_marl.envs import av_counts
-from sb3_marl.envs.lane_change_env import LaneChangeEnv
+from sb3_marl.envs.lane_change_env import ACTION_INDEX, LaneChangeEnv
 from sb3_marl.policies import unchecked_distributions
 
 Policy = Callable[[LaneChangeEnv, np.ndarray], np.ndarray]
+
+#: The two evaluation protocols of every evaluation: name -> the scenario's ``safety_supervisor``.
+#: ``on``: the proposals pass the safety supervisor (the authors' protocol); ``off``: the policy alone.
+SUPERVISOR_PROTOCOLS: dict[str, bool] = {"on": True, "off": False}
+
+#: Policy steps (5 Hz) before a lane change in which the follower must have executed SLOWER to yield.
+YIELD_WINDOW_STEPS = 5
+#: [m] the largest gap from the follower (behind, in the target lane) to the lane-changing AV.
+YIELD_GAP_M = 40.0
+#: Policy steps after the lane change starts at which the follower's speed drop is measured.
+AFTER_STEPS = 5
+
+
+@dataclass(frozen=True)
+class CooperativeLaneChange:
+    """AV ``changer`` starts a lane change at ``step`` of the episode with seed ``episode_seed``
+    (``n_avs`` AVs); AV ``yielder``, behind it in the target lane, slowed by ``speed_drop`` m/s."""
+
+    episode_seed: int
+    n_avs: int
+    step: int
+    changer: int
+    yielder: int
+    speed_drop: float  # [m/s] yielder's speed before the window minus its speed after the change
+
+
+@dataclass
+class EpisodeTrace:
+    """Per step of one episode, per AV: x [m], lane index, target lane index, speed [m/s],
+    executed action, lane-change start; the input of the yield detector."""
+
+    seed: int
+    n_avs: int
+    x: list[np.ndarray] = field(default_factory=list)
+    lane: list[np.ndarray] = field(default_factory=list)
+    target_lane: list[np.ndarray] = field(default_factory=list)
+    speed: list[np.ndarray] = field(default_factory=list)
+    executed: list[np.ndarray] = field(default_factory=list)
+    lane_change: list[np.ndarray] = field(default_factory=list)
+
+    def record(self, env: LaneChangeEnv, info: dict) -> None:
+        self.x.append(np.array([av.position[0] for av in env.avs]))
+        self.lane.append(np.array([av.lane_index[2] for av in env.avs]))
+        self.target_lane.append(np.array([av.target_lane_index[2] for av in env.avs]))
+        self.speed.append(np.array([av.speed for av in env.avs]))
+        self.executed.append(np.asarray(info.get("executed_action", np.full(env.n_avs, -1))))
+        self.lane_change.append(np.asarray(info.get("lane_change", np.zeros(env.n_avs, dtype=bool))))
+
+    def yields(self) -> list[CooperativeLaneChange]:
+        """Every lane change of this episode that an AV behind in the target lane yielded to: in
+        the :data:`YIELD_WINDOW_STEPS` steps up to the lane change's start, the follower (at most
+        :data:`YIELD_GAP_M` m behind, in the target lane) executed SLOWER, and
+        :data:`AFTER_STEPS` steps after the start it drives slower than before the window."""
+        slower = ACTION_INDEX["SLOWER"]
+        found = []
+        for step in range(1, len(self.x) - AFTER_STEPS):
+            for changer in np.flatnonzero(self.lane_change[step]):
+                target = self.target_lane[step][changer]
+                for follower in range(self.n_avs):
+                    gap = self.x[step][changer] - self.x[step][follower]
+                    if follower == changer or self.lane[step][follower] != target or not 0 < gap <= YIELD_GAP_M:
+                        continue
+                    first = max(1, step - YIELD_WINDOW_STEPS + 1)
+                    if not any(self.executed[s][follower] == slower for s in range(first, step + 1)):
+                        continue
+                    drop = float(self.speed[first - 1][follower] - self.speed[step + AFTER_STEPS][follower])
+                    if drop > 0:
+                        found.append(CooperativeLaneChange(self.seed, self.n_avs, step, int(changer), follower, drop))
+        return found
 
 
 @dataclass
@@ -34,6 +107,7 @@ class EpisodeRecord:
     headways: list[float] = field(default_factory=list)  # [m]
     accelerations: list[float] = field(default_factory=list)  # [m/s²]
     lane_changes: int = 0
+    yields: int = 0  # lane changes an AV behind yielded to (:meth:`EpisodeTrace.yields`)
     interventions: int = 0  # AV-steps whose action the safety supervisor replaced
     av_steps: int = 0  # AV-steps on the road
 
@@ -81,6 +155,7 @@ def summarize(records: list[EpisodeRecord]) -> dict[str, float]:
         "headway_mean": float(pooled("headways").mean()),
         "acceleration_std": float(pooled("accelerations").std()),
         "lane_changes_per_episode": float(np.mean([r.lane_changes for r in records])),
+        "yields_per_episode": float(np.mean([r.yields for r in records])),
         "intervention_rate": float(sum(r.interventions for r in records) / max(sum(r.av_steps for r in records), 1)),
     }
 
@@ -94,6 +169,7 @@ TABLE_COLUMNS: tuple[tuple[str, Callable[[dict[str, float]], str]], ...] = (
     ("mean headway [m]", lambda s: f"{s['headway_mean']:.1f}"),
     ("accel. std [m/s²]", lambda s: f"{s['acceleration_std']:.3f}"),
     ("lane changes/ep", lambda s: f"{s['lane_changes_per_episode']:.2f}"),
+    ("yields/ep", lambda s: f"{s.get('yields_per_episode', float('nan')):.2f}"),
     ("supervisor interventions", lambda s: f"{s.get('intervention_rate', 0.0):.3f}"),
     ("steps/ep", lambda s: f"{s['length_mean']:.1f}"),
 )
@@ -144,15 +220,19 @@ def run_episodes(
     for episode in range(n_episodes):
         with _seeded_global_generators(seed + episode):
             obs, info = env.reset(seed=seed + episode)
+            trace = EpisodeTrace(seed + episode, env.n_avs)
+            trace.record(env, info)
             if on_step is not None:
                 on_step(env, info)
             record, done = EpisodeRecord(), False
             while not done:
                 obs, reward, terminated, truncated, info = env.step(policy(env, obs))
                 record.add_step(reward, info)
+                trace.record(env, info)
                 if on_step is not None:
                     on_step(env, info)
                 done = terminated or truncated
+        record.yields = len(trace.yields())
         records.append(record)
     return records
 
@@ -164,15 +244,18 @@ PROTOCOLS = {
 }
 
 
-def protocol_label(deterministic: bool, model: Any = None, config: dict | None = None) -> str:
-    """How an evaluation acted: sampled or argmax, with action masks or not, safety supervisor on
-    or off (the scenario ``config``'s), for tables and model cards."""
+def protocol_label(deterministic: bool, model: Any = None) -> str:
+    """How an evaluation acted: sampled or argmax, with action masks or not, for tables and model
+    cards (each evaluation reports both supervisor protocols, :data:`SUPERVISOR_PROTOCOLS`)."""
     label = PROTOCOLS[bool(deterministic)]
     if model is not None:
         label += ", action masks" if uses_action_masks(model) else ", no action masks"
-    if config is not None:
-        label += ", safety supervisor " + ("on" if config.get("safety_supervisor") else "off")
-    return label
+    return label + "; safety supervisor on and off"
+
+
+def with_supervisor(config: dict | None, protocol: str) -> dict:
+    """``config`` with the safety supervisor of ``protocol`` (a key of :data:`SUPERVISOR_PROTOCOLS`)."""
+    return {**(config or {}), "safety_supervisor": SUPERVISOR_PROTOCOLS[protocol]}
 
 
 def model_policy(model: Any, deterministic: bool = False) -> Policy:
@@ -216,4 +299,34 @@ def evaluate_on_density(
     return summarize(evaluation_records(policy, env_id, n_episodes, seed, config))
 
 
-__all__ = ["PROTOCOLS", "EpisodeRecord", "Policy", "protocol_label", "StepHook", "evaluate_on_density", "evaluation_records", "markdown_table", "model_policy", "run_episodes", "summarize"]
+def protocol_records(
+    policy: Policy, env_id: str, n_episodes: int, seed: int = 0, config: dict | None = None
+) -> dict[str, list[EpisodeRecord]]:
+    """The same seeded episodes under each of :data:`SUPERVISOR_PROTOCOLS`: ``{"on": ..., "off": ...}``."""
+    return {name: evaluation_records(policy, env_id, n_episodes, seed, with_supervisor(config, name))
+            for name in SUPERVISOR_PROTOCOLS}
+
+
+def evaluate_protocols(
+    policy: Policy, env_id: str, n_episodes: int, seed: int = 0, config: dict | None = None
+) -> dict[str, Any]:
+    """The summary with the supervisor (the authors' protocol) at the top level, each episode's
+    return in ``returns``, and the same under ``supervisor_off`` for the policy alone."""
+    records = protocol_records(policy, env_id, n_episodes, seed, config)
+    return {**protocol_result(records["on"]), "supervisor_off": protocol_result(records["off"])}
+
+
+def protocol_result(records: list[EpisodeRecord]) -> dict[str, Any]:
+    """:func:`summarize` plus each episode's return (``returns``)."""
+    return {**summarize(records), "returns": [r.episode_return for r in records]}
+
+
+def protocol_rows(label: dict[str, Any], result: dict[str, Any]) -> list[tuple[dict[str, Any], dict[str, Any]]]:
+    """Two table rows of one :func:`evaluate_protocols` result: ``label`` plus ``supervisor`` on / off."""
+    return [({**label, "supervisor": "on"}, result), ({**label, "supervisor": "off"}, result["supervisor_off"])]
+
+
+__all__ = ["PROTOCOLS", "SUPERVISOR_PROTOCOLS", "CooperativeLaneChange", "EpisodeRecord", "EpisodeTrace", "Policy",
+           "StepHook", "evaluate_on_density", "evaluate_protocols", "evaluation_records", "markdown_table",
+           "model_policy", "protocol_label", "protocol_records", "protocol_result", "protocol_rows", "run_episodes",
+           "summarize", "with_supervisor"]

@@ -43,6 +43,7 @@ from sb3_marl.hyperparams import (
     config_file,
     load_hyperparams,
     merge_hyperparams,
+    parse_string_values,
     policy_kwargs_for,
     validate_hyperparams,
 )
@@ -78,6 +79,11 @@ class MARLExperimentManager(ExperimentManager):
     :param monitor_file: name of the training episodes' monitor file in the run folder
     :param callback_after_eval: called after each evaluation, as SB3's ``EvalCallback(callback_after_eval=...)``
     :param evaluate_at_end: evaluate the final model too (if the last evaluation was not at the last step)
+    :param trust_remote_code: continue training (``-i``) from a zip that needs unpickling, and load
+        the ``replay_buffer.pkl`` beside it (a pickle); off: the zip is read as data
+        (:mod:`sb3_marl.loading`) and a replay buffer beside it is not loaded
+    :param own_checkpoint: ``-i`` is a checkpoint this machine wrote (the benchmark's resume): its
+        replay buffer is loaded
     """
 
     def __init__(
@@ -95,6 +101,8 @@ class MARLExperimentManager(ExperimentManager):
         monitor_file: str = "monitor.csv",
         callback_after_eval: BaseCallback | None = None,
         evaluate_at_end: bool = False,
+        trust_remote_code: bool = False,
+        own_checkpoint: bool = False,
         **kwargs: Any,
     ) -> None:
         # rl_zoo3 builds and loads models through its ALGOS table: our learners join it under their
@@ -112,6 +120,8 @@ class MARLExperimentManager(ExperimentManager):
         self.monitor_file = monitor_file
         self.callback_after_eval = callback_after_eval
         self.evaluate_at_end = evaluate_at_end
+        self.trust_remote_code = trust_remote_code
+        self.own_checkpoint = own_checkpoint
         self.scenario: dict[str, Any] = {}
         self.interrupted = False
         self.best_config_path: str | None = None  # written by hyperparameters_optimization
@@ -120,7 +130,7 @@ class MARLExperimentManager(ExperimentManager):
 
     def read_hyperparameters(self) -> tuple[dict[str, Any], dict[str, Any]]:
         hyperparams = load_hyperparams(self.algo, self.env_name.gym_id, path=self.config)
-        hyperparams = merge_hyperparams(hyperparams, self.custom_hyperparams)
+        hyperparams = parse_string_values(merge_hyperparams(hyperparams, self.custom_hyperparams))
         hyperparams.update(self.cli_overrides)
         validate_hyperparams(self.algo, hyperparams, self.env_name.gym_id)
         self.config_hyperparams = dict(hyperparams)
@@ -142,6 +152,24 @@ class MARLExperimentManager(ExperimentManager):
         return hyperparams, env_wrapper, callbacks, vec_env_wrapper
 
     # ---- env, callbacks, model ----------------------------------------------------------------
+
+    def _load_pretrained_agent(self, hyperparams: dict[str, Any], env: VecEnv) -> BaseAlgorithm:
+        """rl_zoo3's continue-training load (``-i``), through the safe loader; the replay buffer
+        beside the zip (a pickle) only from an own checkpoint or with ``trust_remote_code``."""
+        print("Loading pretrained agent")
+        hyperparams = {key: value for key, value in hyperparams.items() if key not in ("policy", "policy_kwargs")}
+        model = ALGOS[self.algo].load(
+            self.trained_agent, env=env, seed=self.seed, tensorboard_log=self.tensorboard_log, verbose=self.verbose,
+            device=self.device, trust_remote_code=self.trust_remote_code, **hyperparams,
+        )
+        replay_buffer = os.path.join(os.path.dirname(self.trained_agent), "replay_buffer.pkl")
+        if os.path.exists(replay_buffer) and hasattr(model, "load_replay_buffer"):
+            if self.trust_remote_code or self.own_checkpoint:
+                model.load_replay_buffer(replay_buffer)
+            else:
+                print(f"Not loading {replay_buffer}: a replay buffer is a pickle, which can run code; training "
+                      "continues with an empty buffer (pass --trust-remote-code to load it).")
+        return model
 
     def create_log_folder(self) -> None:
         if not self.optimize_hyperparameters:  # a search writes its report, not a run folder

@@ -6,6 +6,9 @@ import os
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
+
+import numpy as np
 
 
 @contextmanager
@@ -25,3 +28,13 @@ def replaced_atomically(path: str | Path) -> Iterator[Path]:
     except BaseException:
         temporary.unlink(missing_ok=True)
         raise
+
+
+def read_evaluations(path: str | Path) -> dict[str, Any]:
+    """The arrays of an ``evaluations.npz``; a ValueError naming the file if it is unreadable
+    (truncated, not an npz, pickled objects: never unpickled)."""
+    try:
+        with np.load(path, allow_pickle=False) as log:
+            return {key: log[key] for key in log.files}
+    except Exception as error:  # zipfile.BadZipFile, OSError, ValueError, EOFError alike
+        raise ValueError(f"{path} is not a readable evaluations.npz ({type(error).__name__}: {error}).") from None

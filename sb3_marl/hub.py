@@ -50,6 +50,20 @@ CARD_METRICS = {
 }
 
 
+#: Rows of the card's evaluation table: title -> its cell from a summary.
+CARD_ROWS = (
+    ("episode return (sum over steps of the mean AV reward)", lambda s: f"{s['return_mean']:.2f} ± {s['return_std']:.2f}"),
+    ("collision rate", lambda s: f"{s['collision_rate']:.2f}"),
+    ("success rate (no crash)", lambda s: f"{s['success_rate']:.2f}"),
+    ("mean speed [m/s]", lambda s: f"{s['speed_mean']:.2f}"),
+    ("mean headway [m]", lambda s: f"{s['headway_mean']:.1f}"),
+    ("acceleration std [m/s²]", lambda s: f"{s['acceleration_std']:.3f}"),
+    ("lane changes per episode", lambda s: f"{s['lane_changes_per_episode']:.2f}"),
+    ("yields per episode (an AV slowing for another's lane change)", lambda s: f"{s.get('yields_per_episode', 0):.2f}"),
+    ("safety-supervisor interventions (share of AV-steps)", lambda s: f"{s['intervention_rate']:.3f}"),
+)
+
+
 class HubError(RuntimeError):
     """Uploading or downloading failed: no token, network or Hub error (the message says which)."""
 
@@ -86,6 +100,15 @@ def model_card(results: dict[str, Any], repo_id: str) -> ModelCard:
                                metric_value=f"{results['return_mean']:.2f} +/- {results['return_std']:.2f}")]
     eval_results += [EvalResult(**evaluation, metric_type=name, metric_name=name, metric_value=round(results[key], 4))
                      for key, name in CARD_METRICS.items()]
+    alone = results.get("supervisor_off")
+    if alone:  # the policy without the safety supervisor
+        eval_results += [
+            EvalResult(**evaluation, metric_type="mean_reward_supervisor_off", metric_name="mean_reward_supervisor_off",
+                       metric_value=f"{alone['return_mean']:.2f} +/- {alone['return_std']:.2f}"),
+            EvalResult(**evaluation, metric_type="collision_rate_supervisor_off",
+                       metric_name="collision_rate_supervisor_off", metric_value=round(alone["collision_rate"], 4)),
+        ]
+    rows = "\n".join(f"| {title} | {cell(results)} | {cell(alone) if alone else '—'} |" for title, cell in CARD_ROWS)
     data = ModelCardData(
         library_name="stable-baselines3", model_name=f"{algo.upper()}-{env_id}", eval_results=eval_results,
         tags=[env_id, "reinforcement-learning", "deep-reinforcement-learning", "stable-baselines3",
@@ -102,17 +125,12 @@ sb3-marl (`{algo}`: {get_algo(algo).__name__} with one policy shared by all AVs)
 ## Evaluation
 
 {results['episodes']} seeded episodes (seeds {results['seeds'][0]}..{results['seeds'][1]}), {results['protocol']}:
+with the priority-based safety supervisor (the authors' protocol) and without it (the policy alone),
+on the same episodes.
 
-| metric | value |
-|---|---|
-| episode return (sum over steps of the mean AV reward) | {results['return_mean']:.2f} ± {results['return_std']:.2f} |
-| collision rate | {results['collision_rate']:.2f} |
-| success rate (no crash) | {results['success_rate']:.2f} |
-| mean speed [m/s] | {results['speed_mean']:.2f} |
-| mean headway [m] | {results['headway_mean']:.1f} |
-| acceleration std [m/s²] | {results['acceleration_std']:.3f} |
-| lane changes per episode | {results['lane_changes_per_episode']:.2f} |
-| safety-supervisor interventions (share of AV-steps) | {results['intervention_rate']:.3f} |
+| metric | supervisor on | supervisor off (policy alone) |
+|---|---|---|
+{rows}
 
 ## Usage
 
@@ -188,11 +206,21 @@ def load_from_hub(repo_id: str, log_folder: str | Path, token: str | None = None
 
 def _place_run(repo_id: str, snapshot: Path, log_folder: Path) -> Path:
     """Copy a downloaded model folder into a new run folder of the log layout."""
+    from sb3_marl.algos import ALGO_NAMES
+    from sb3_marl.envs import ENV_IDS
+
     results_path = snapshot / "results.json"
     if not results_path.is_file():
         raise HubError(f"{repo_id} is not an sb3-marl model: it has no results.json.")
-    results = json.loads(results_path.read_text())
-    algo, env_id = results["algo"], results["env_id"]
+    try:
+        results = json.loads(results_path.read_text())
+    except (ValueError, UnicodeDecodeError) as error:
+        raise HubError(f"{repo_id}: its results.json is not JSON ({error}).") from None
+    algo, env_id = (results.get(key) if isinstance(results, dict) else None for key in ("algo", "env_id"))
+    if algo not in ALGO_NAMES:
+        raise HubError(f"{repo_id}: its results.json names the algorithm {algo!r}, not one of {list(ALGO_NAMES)}.")
+    if env_id not in ENV_IDS.values():
+        raise HubError(f"{repo_id}: its results.json names the env {env_id!r}, not one of {list(ENV_IDS.values())}.")
     model_path = snapshot / model_file_name(algo, env_id)
     if not model_path.is_file():
         raise HubError(f"{repo_id} has no model file {model_path.name}.")

@@ -14,6 +14,11 @@ an entry may set the scenario and the wrapper:
 
 - ``stored_actions``: ``proposed`` (default, the authors') or ``executed``: which action the
   learner stores where the safety supervisor replaced the policy's
+- ``supervisor_dropout``: probability in [0, 1] that a training episode runs without the safety
+  supervisor (default 0); evaluation is unaffected
+
+and ``safety_loss_coef`` (``ma2c``, ``mappo``, ``madqn``): weight of the loss that teaches the
+policy the safety supervisor's replacements (default 0, see :mod:`sb3_marl.algos.masking`);
 
 and the maskable learners (``ma2c``, ``mappo``, ``maacktr``, ``madqn``) take ``action_masking``
 (true in every zoo config, the authors' choice; false for the unmasked ablation).
@@ -38,7 +43,7 @@ CONFIG_DIR = Path(__file__).resolve().parent.parent / "zoo_configs"
 #: Algorithms registered under two names share one file: ``acktr`` reads ``maacktr.yml``.
 CONFIG_FILES = {"acktr": "maacktr"}
 SCENARIO_KEYS = ("reward_mode", "n_copies", "env_config", "reward_scale", "intervention_penalty", "architecture",
-                 "stored_actions")
+                 "stored_actions", "supervisor_dropout")
 #: What the learner stores when the safety supervisor replaced an action: the policy's proposal
 #: (the authors' choice) or the action executed.
 STORED_ACTIONS = ("proposed", "executed")
@@ -61,7 +66,9 @@ def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> 
         raise ValueError(f"{path} must map env ids to hyperparameters, got a {type(entries).__name__}.")
     if env_id not in entries:
         raise ValueError(f"{path} has no entry for env {env_id!r}: it has {sorted(entries)}.")
-    hyperparams = dict(entries[env_id])
+    if not isinstance(entries[env_id], dict):
+        raise ValueError(f"{path}: the entry of {env_id!r} must map hyperparameters to values, got {entries[env_id]!r}.")
+    hyperparams = parse_string_values(entries[env_id])
     validate_hyperparams(algo, hyperparams, env_id)
     return hyperparams
 
@@ -132,6 +139,8 @@ VALUE_RANGES: dict[str, tuple[str, float | None, float | None, tuple]] = {
     "kl_clip": ("float", 0, None, ()),
     "reward_scale": ("float", 0, None, ()),
     "intervention_penalty": ("float", 0, None, ()),
+    "supervisor_dropout": ("float", 0, 1, ()),
+    "safety_loss_coef": ("float", 0, None, ()),
 }
 
 
@@ -166,9 +175,32 @@ def _number_or_none(text: str) -> float | str:
         return f"lin_{text}"
 
 
+#: Keys whose value rl-zoo accepts as a Python string (``policy_kwargs: "dict(net_arch=[64])"``):
+#: parsed as literals here (:func:`sb3_marl.loading.parse_literal`), never evaluated.
+LITERAL_KEYS = ("policy_kwargs", "replay_buffer_kwargs", "rollout_buffer_kwargs", "env_config")
+
+
+def parse_string_values(hyperparams: dict[str, Any]) -> dict[str, Any]:
+    """``hyperparams`` with the strings of :data:`LITERAL_KEYS` parsed as literals; a ValueError
+    naming the key for code or for a value that is not a mapping."""
+    from sb3_marl.loading import parse_literal
+
+    parsed = dict(hyperparams)
+    for key in LITERAL_KEYS:
+        if isinstance(parsed.get(key), str):
+            parsed[key] = parse_literal(parsed[key], key)
+    for key in (*LITERAL_KEYS, "replay_buffer_class", "rollout_buffer_class"):
+        if key in parsed and isinstance(parsed[key], str):
+            raise ValueError(f"Invalid {key}={parsed[key]!r}: expected a mapping" +
+                             (" of scenario config keys." if key == "env_config" else
+                              " (YAML or dict(...))." if key in LITERAL_KEYS else "; a class cannot be given as a string."))
+    return parsed
+
+
 def validate_hyperparams(algo: str, hyperparams: dict[str, Any], env_id: str | None = None) -> None:
     """Unknown keys, an architecture or policy the algorithm cannot use, or (with ``env_id``) bad
-    scenario keys: a ValueError naming the bad item and the valid ones."""
+    scenario keys and ``policy_kwargs`` the policy does not take: a ValueError naming the bad item
+    and the valid ones."""
     allowed = algorithm_arguments(algo)
     valid = sorted({*allowed, *SCENARIO_KEYS, *ZOO_KEYS})
     unknown = sorted(set(hyperparams) - set(valid))
@@ -193,6 +225,30 @@ def validate_hyperparams(algo: str, hyperparams: dict[str, Any], env_id: str | N
         raise ValueError(f"Invalid policy {policy!r} for {algo!r}: expected one of {aliases}.")
     if env_id is not None:
         validate_scenario(hyperparams, env_id)
+        check_policy_kwargs(algo, hyperparams, env_id)
+
+
+def check_policy_kwargs(algo: str, hyperparams: dict[str, Any], env_id: str) -> None:
+    """``policy_kwargs`` (with the architecture's preset) must build the policy on the scenario's
+    per-AV spaces: a ValueError naming ``policy_kwargs`` otherwise (before any folder or env)."""
+    from gymnasium import spaces
+
+    from sb3_marl.envs.observation import observation_space
+
+    kwargs = hyperparams.get("policy_kwargs")
+    if kwargs is not None and not isinstance(kwargs, dict):
+        raise ValueError(f"Invalid policy_kwargs={kwargs!r}: expected a mapping, e.g. dict(net_arch=[64, 64]).")
+    density = (gym.spec(env_id).kwargs or {}).get("density", 1)
+    config = {**default_config(), "density": density, **(hyperparams.get("env_config") or {}), "n_avs": 1}
+    per_av = observation_space(1, config)
+    obs_space = spaces.Box(per_av.low[0], per_av.high[0], dtype=per_av.dtype)
+    algo_class = get_algo(algo)
+    policy_class = algo_class.policy_aliases.get(hyperparams.get("policy", "MlpPolicy"))
+    try:
+        policy_class(obs_space, spaces.Discrete(5), lambda _: 1e-3, **policy_kwargs_for(algo, hyperparams))
+    except Exception as error:  # TypeError (unknown keyword), RuntimeError / ValueError (bad sizes), ...
+        raise ValueError(f"Invalid policy_kwargs={kwargs!r} for {algo!r}: the policy cannot be built with it "
+                         f"({type(error).__name__}: {error}).") from None
 
 
 def validate_scenario(hyperparams: dict[str, Any], env_id: str) -> None:
@@ -202,7 +258,7 @@ def validate_scenario(hyperparams: dict[str, Any], env_id: str) -> None:
     stored = hyperparams.get("stored_actions", "proposed")
     if stored not in STORED_ACTIONS:
         raise ValueError(f"Invalid stored_actions={stored!r}: expected one of {list(STORED_ACTIONS)}.")
-    env_config = hyperparams.get("env_config") or {}
+    env_config = hyperparams.get("env_config", {})
     if not isinstance(env_config, dict):
         raise ValueError(f"Invalid env_config={env_config!r}: expected a mapping of scenario config keys.")
     density = (gym.spec(env_id).kwargs or {}).get("density", 1)

@@ -1,7 +1,8 @@
 """The paper's policy interpretation (its experiment 6): a cooperative lane change by trained AVs.
 
 An AV *yields* when, in the second before another AV starts a lane change into its lane just
-ahead of it, it executes SLOWER and then drives slower than before. :func:`find_cooperative_lane_change`
+ahead of it, it executes SLOWER and then drives slower than before
+(:meth:`~sb3_marl.evaluation.EpisodeTrace.yields`). :func:`find_cooperative_lane_change`
 plays the evaluation episodes (the paper's protocol, :func:`~sb3_marl.evaluation.evaluation_records`)
 and returns the yield with the largest speed drop; :func:`plot_cooperative_lane_change` replays
 that episode with the scenario's renderer and draws road snapshots at three moments and the AVs'
@@ -10,7 +11,7 @@ speed traces.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -18,84 +19,31 @@ import gymnasium as gym
 import numpy as np
 from matplotlib.figure import Figure
 
-from sb3_marl.envs.lane_change_env import ACTION_INDEX, LaneChangeEnv
-from sb3_marl.evaluation import Policy, evaluation_records, run_episodes
+from sb3_marl.envs.lane_change_env import LaneChangeEnv
+from sb3_marl.evaluation import (
+    AFTER_STEPS,
+    YIELD_WINDOW_STEPS,
+    CooperativeLaneChange,
+    EpisodeTrace,
+    Policy,
+    evaluation_records,
+    run_episodes,
+)
 from sb3_marl.plotting import with_default_style
 
-#: Policy steps (5 Hz) before the lane change in which the follower must have executed SLOWER.
-YIELD_WINDOW_STEPS = 5
-#: [m] the largest gap from the follower (behind, in the target lane) to the lane-changing AV.
-YIELD_GAP_M = 40.0
-#: Policy steps after the lane change starts at which the follower's speed drop is measured, and
-#: the three moments of the figure: before, at the start and after the lane change.
-AFTER_STEPS = 5
+#: The three moments of the figure: before, at the start and after the lane change.
 SNAPSHOT_OFFSETS = (-YIELD_WINDOW_STEPS, 0, 2 * AFTER_STEPS)
 #: Renderer settings of the snapshots (drawing only): 7 px/m, a 171 m x 21 m view centred on the
 #: lane-changing AV.
 SNAPSHOT_VIEW = {"scaling": 7.0, "screen_width": 1200, "screen_height": 150, "centering_position": [0.5, 0.5]}
 
 
-@dataclass(frozen=True)
-class CooperativeLaneChange:
-    """AV ``changer`` starts a lane change at ``step`` of the episode with seed ``episode_seed``
-    (``n_avs`` AVs); AV ``yielder``, behind it in the target lane, slowed by ``speed_drop`` m/s."""
-
-    episode_seed: int
-    n_avs: int
-    step: int
-    changer: int
-    yielder: int
-    speed_drop: float  # [m/s] yielder's speed before the window minus its speed after the change
-
-
-@dataclass
-class _Trace:
-    """Per step of one episode, per AV: x [m], lane index, target lane index, speed [m/s],
-    executed action, lane-change start."""
-
-    seed: int
-    n_avs: int
-    x: list[np.ndarray] = field(default_factory=list)
-    lane: list[np.ndarray] = field(default_factory=list)
-    target_lane: list[np.ndarray] = field(default_factory=list)
-    speed: list[np.ndarray] = field(default_factory=list)
-    executed: list[np.ndarray] = field(default_factory=list)
-    lane_change: list[np.ndarray] = field(default_factory=list)
-
-    def record(self, env: LaneChangeEnv, info: dict) -> None:
-        self.x.append(np.array([av.position[0] for av in env.avs]))
-        self.lane.append(np.array([av.lane_index[2] for av in env.avs]))
-        self.target_lane.append(np.array([av.target_lane_index[2] for av in env.avs]))
-        self.speed.append(np.array([av.speed for av in env.avs]))
-        self.executed.append(np.asarray(info.get("executed_action", np.full(env.n_avs, -1))))
-        self.lane_change.append(np.asarray(info.get("lane_change", np.zeros(env.n_avs, dtype=bool))))
-
-    def yields(self) -> list[CooperativeLaneChange]:
-        """Every lane change of this episode that an AV behind in the target lane yielded to."""
-        slower = ACTION_INDEX["SLOWER"]
-        found = []
-        for step in range(1, len(self.x) - AFTER_STEPS):
-            for changer in np.flatnonzero(self.lane_change[step]):
-                target = self.target_lane[step][changer]
-                for follower in range(self.n_avs):
-                    gap = self.x[step][changer] - self.x[step][follower]
-                    if follower == changer or self.lane[step][follower] != target or not 0 < gap <= YIELD_GAP_M:
-                        continue
-                    first = max(1, step - YIELD_WINDOW_STEPS + 1)
-                    if not any(self.executed[s][follower] == slower for s in range(first, step + 1)):
-                        continue
-                    drop = float(self.speed[first - 1][follower] - self.speed[step + AFTER_STEPS][follower])
-                    if drop > 0:
-                        found.append(CooperativeLaneChange(self.seed, self.n_avs, step, int(changer), follower, drop))
-        return found
-
-
-def _traces(policy: Policy, env_id: str, n_episodes: int, seed: int, config: dict | None) -> list[_Trace]:
-    traces: list[_Trace] = []
+def _traces(policy: Policy, env_id: str, n_episodes: int, seed: int, config: dict | None) -> list[EpisodeTrace]:
+    traces: list[EpisodeTrace] = []
 
     def record(env: LaneChangeEnv, info: dict) -> None:
         if info["step"] == 0:
-            traces.append(_Trace(seed + len(traces), env.n_avs))
+            traces.append(EpisodeTrace(seed + len(traces), env.n_avs))
         traces[-1].record(env, info)
 
     evaluation_records(policy, env_id, n_episodes, seed, config, on_step=record)
@@ -127,7 +75,7 @@ def plot_cooperative_lane_change(
                                  render_mode="rgb_array").unwrapped
     moments = [event.step + offset for offset in SNAPSHOT_OFFSETS]
     frames: dict[int, np.ndarray] = {}
-    trace = _Trace(event.episode_seed, event.n_avs)
+    trace = EpisodeTrace(event.episode_seed, event.n_avs)
 
     def record(env: LaneChangeEnv, info: dict) -> None:
         trace.record(env, info)

@@ -19,6 +19,8 @@ from matplotlib.figure import Figure  # no pyplot: no global backend, works head
 from stable_baselines3.common.monitor import LoadMonitorResultsError, load_results
 from stable_baselines3.common.results_plotter import X_TIMESTEPS, ts2xy, window_func
 
+from sb3_marl.files import read_evaluations
+
 #: file name -> (y label, what is plotted)
 FIGURES = {
     "train_return.png": "Training episode return per AV (rolling mean)",
@@ -45,7 +47,10 @@ def with_default_style(function: F) -> F:
 @with_default_style
 def plot_runs(runs: dict[str, Path], out_dir: str | Path, window: int = 100) -> list[Path]:
     """Write the :data:`FIGURES` for ``runs`` (label -> run folder) into ``out_dir``; returns the
-    files written. Runs without the needed log file are left out of that figure."""
+    files written. Runs without the needed log file are left out of that figure; an unreadable
+    ``evaluations.npz`` raises a ValueError naming it before any file is written."""
+    evaluations = {folder: read_evaluations(Path(folder) / "evaluations.npz")
+                   for folder in runs.values() if (Path(folder) / "evaluations.npz").is_file()}
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
@@ -54,7 +59,7 @@ def plot_runs(runs: dict[str, Path], out_dir: str | Path, window: int = 100) -> 
         ax = fig.subplots()
         plotted = 0
         for label, folder in runs.items():
-            plotted += _plot_one(ax, name, label, Path(folder), window)
+            plotted += _plot_one(ax, name, label, Path(folder), window, evaluations.get(folder))
         if plotted:
             ax.set_title(title)
             ax.set_xlabel("Timesteps (AV-steps)")
@@ -67,8 +72,9 @@ def plot_runs(runs: dict[str, Path], out_dir: str | Path, window: int = 100) -> 
     return written
 
 
-def _plot_one(ax: Axes, figure: str, label: str, folder: Path, window: int) -> int:
-    """Plot one run's curve of ``figure``; 1 if it had data, else 0."""
+def _plot_one(ax: Axes, figure: str, label: str, folder: Path, window: int, log: dict[str, Any] | None) -> int:
+    """Plot one run's curve of ``figure`` (``log``: its evaluations); 1 if it had data, else 0.
+    Where the run was evaluated without the safety supervisor too, that curve is drawn dashed."""
     if figure == "train_return.png":
         try:
             x, y = ts2xy(load_results(str(folder)), X_TIMESTEPS)
@@ -80,16 +86,23 @@ def _plot_one(ax: Axes, figure: str, label: str, folder: Path, window: int) -> i
             x, y = window_func(x, y, window, np.mean)
         ax.plot(x, y, label=label)
         return 1
-    path = folder / "evaluations.npz"
-    if not path.is_file():
+    if log is None:
         return 0
-    log = np.load(path)
+    off = "supervisor_off_"
+    alone = off + "results" in log and len(log[off + "results"]) == len(log["timesteps"])
     if figure == "eval_return.png":
         mean, std = log["results"].mean(axis=1), log["results"].std(axis=1)
-        ax.plot(log["timesteps"], mean, marker="o", label=label)
+        line = ax.plot(log["timesteps"], mean, marker="o", label=label + (", supervisor on" if alone else ""))[0]
         ax.fill_between(log["timesteps"], mean - std, mean + std, alpha=0.2)
+        if alone:
+            ax.plot(log["timesteps"], log[off + "results"].mean(axis=1), marker="x", linestyle="--",
+                    color=line.get_color(), label=label + ", supervisor off")
     else:
-        ax.plot(log["timesteps"], log["collision_rate"], marker="o", label=label)
+        line = ax.plot(log["timesteps"], log["collision_rate"], marker="o",
+                       label=label + (", supervisor on" if alone else ""))[0]
+        if alone:
+            ax.plot(log["timesteps"], log[off + "collision_rate"], marker="x", linestyle="--", color=line.get_color(),
+                    label=label + ", supervisor off")
         ax.set_ylim(-0.05, 1.05)
     return 1
 

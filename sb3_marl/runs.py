@@ -13,12 +13,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import yaml
 from rl_zoo3.utils import EnvironmentName, get_model_path
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 from sb3_marl.algos import get_algo
-from sb3_marl.evaluation import evaluation_records, model_policy, protocol_label, summarize
+from sb3_marl.evaluation import evaluate_protocols, model_policy, protocol_label
+from sb3_marl.loading import UnsafeModelError, read_model_data, read_run_yaml, saved_policy_class
 
 
 @dataclass
@@ -36,20 +36,28 @@ class Run:
         """The scenario overrides of the run (``env_config`` of its config)."""
         return dict(self.hyperparams.get("env_config") or {})
 
-    def load_model(self, device: str = "auto") -> BaseAlgorithm:
-        """The run's model; a ValueError naming the file if it is not a readable model of ``algo``."""
-        check_model_file(self.model_path, self.algo)
-        return get_algo(self.algo).load(self.model_path, device=device)
+    def load_model(self, device: str = "auto", trust_remote_code: bool = False) -> BaseAlgorithm:
+        """The run's model, loaded without unpickling anything (unless ``trust_remote_code``,
+        :mod:`sb3_marl.loading`); a ValueError naming the file if it is not a readable model of ``algo``."""
+        check_model_file(self.model_path, self.algo, trust_remote_code)
+        try:
+            return get_algo(self.algo).load(self.model_path, device=device, trust_remote_code=trust_remote_code)
+        except UnsafeModelError:
+            raise
+        except Exception as error:  # a truncated zip, tensors that do not fit the policy, ...
+            raise ValueError(f"{self.model_path} is not a readable {self.algo} model ({type(error).__name__}: "
+                             f"{error}).") from None
 
     def evaluate(self, model: BaseAlgorithm, n_episodes: int, seed: int, deterministic: bool = False) -> dict[str, Any]:
         """The paper's metrics of ``model`` on ``n_episodes`` seeded episodes of the run's scenario,
-        with what identifies the evaluation (algo, env, timesteps, seeds, env config, protocol:
-        sampled actions by default, the authors') and each return."""
-        records = evaluation_records(model_policy(model, deterministic), self.env_id, n_episodes, seed, self.env_config)
+        with the safety supervisor (top level, the authors' protocol) and without it
+        (``supervisor_off``), with what identifies the evaluation (algo, env, timesteps, seeds, env
+        config, protocol: sampled actions by default, the authors') and each return."""
         return {
             "algo": self.algo, "env_id": self.env_id, "num_timesteps": int(model.num_timesteps),
-            "deterministic": deterministic, "protocol": protocol_label(deterministic, model, self.env_config), "seeds": [seed, seed + n_episodes - 1], "env_config": self.env_config,
-            **summarize(records), "returns": [r.episode_return for r in records],
+            "deterministic": deterministic, "protocol": protocol_label(deterministic, model),
+            "seeds": [seed, seed + n_episodes - 1], "env_config": self.env_config,
+            **evaluate_protocols(model_policy(model, deterministic), self.env_id, n_episodes, seed, self.env_config),
         }
 
 
@@ -95,11 +103,16 @@ def find_run(
     else:
         model_path, log_path = model_of(exp_id)
     config_path = Path(log_path) / str(env_name) / "config.yml"
-    hyperparams: dict[str, Any] = {}
-    if config_path.is_file():
-        # rl_zoo3 writes config.yml with yaml.dump(OrderedDict), read back with the unsafe loader as rl_zoo3 does
-        hyperparams = dict(yaml.load(config_path.read_text(), Loader=yaml.UnsafeLoader) or {})
+    hyperparams = read_run_yaml(config_path) if config_path.is_file() else {}  # plain data only
     return Run(algo, env_id, Path(log_path), Path(model_path), hyperparams)
+
+
+def latest_checkpoint(run_folder: str | Path) -> Path | None:
+    """The run's checkpoint ``rl_model_<steps>_steps.zip`` with the most steps (None without one);
+    checkpoints are written atomically, so each one present is complete."""
+    checkpoints = list(Path(run_folder).glob("rl_model_*_steps.zip"))
+    steps = {path: int(path.stem.split("_")[2]) for path in checkpoints if path.stem.split("_")[2].isdigit()}
+    return max(steps, key=steps.__getitem__) if steps else None
 
 
 def run_id(run_folder: str | Path) -> int:
@@ -124,7 +137,7 @@ def run_folders(folder: str | Path, algo: str, env_id: str) -> list[Path]:
 def run_args(run_folder: str | Path, env_id: str) -> dict[str, Any]:
     """The command-line arguments a run was trained with (its ``<env>/args.yml``; {} if absent)."""
     path = Path(run_folder) / str(EnvironmentName(env_id)) / "args.yml"
-    return dict(yaml.load(path.read_text(), Loader=yaml.UnsafeLoader) or {}) if path.is_file() else {}
+    return read_run_yaml(path) if path.is_file() else {}
 
 
 def run_overrides(run_folder: str | Path, env_id: str) -> str:
@@ -140,10 +153,14 @@ def summary_table(folder: str | Path) -> str:
     reference policies' rows where it was evaluated ``--with-baselines``)."""
     from sb3_marl.evaluation import TABLE_COLUMNS
 
-    titles = ["algo", "env", "run", "seed", "overrides", "timesteps", "protocol", *(title for title, _ in TABLE_COLUMNS)]
+    titles = ["algo", "env", "run", "seed", "overrides", "timesteps", "protocol", "supervisor",
+              *(title for title, _ in TABLE_COLUMNS)]
     lines = ["| " + " | ".join(titles) + " |", "|" + "---|" * len(titles)]
     for evaluation_file in sorted(Path(folder).glob("*/*/evaluation.json"), key=lambda p: (p.parent.parent.name, p.parent.name.rpartition("_")[0], run_id(p.parent))):
-        result = json.loads(evaluation_file.read_text())
+        try:
+            result = json.loads(evaluation_file.read_text())
+        except ValueError as error:
+            raise ValueError(f"{evaluation_file} is not readable JSON ({error}).") from None
         run_folder = evaluation_file.parent
         args = run_args(run_folder, result["env_id"])
         label = [result["algo"], result["env_id"], str(run_id(run_folder)), str(args.get("seed", "-")),
@@ -152,32 +169,30 @@ def summary_table(folder: str | Path) -> str:
         for name, baseline in (result.get("baselines") or {}).items():
             rows.append(([name, result["env_id"], "-", "-", "-"], "-", "reference policy", baseline))
         for cells, timesteps, protocol, summary in rows:
-            values = [*cells, str(timesteps), protocol, *(fmt(summary) for _, fmt in TABLE_COLUMNS)]
-            lines.append("| " + " | ".join(values) + " |")
+            for supervisor, metrics in (("on", summary), ("off", summary.get("supervisor_off"))):
+                if metrics is None:  # an evaluation from before both protocols existed
+                    continue
+                values = [*cells, str(timesteps), protocol, supervisor, *(fmt(metrics) for _, fmt in TABLE_COLUMNS)]
+                lines.append("| " + " | ".join(values) + " |")
     return "\n".join(lines)
 
 
-def check_model_file(path: str | Path, algo: str) -> None:
+def check_model_file(path: str | Path, algo: str, trust_remote_code: bool = False) -> None:
     """``path`` must be a readable SB3 model zip saved by ``algo``'s class: a ValueError naming the
     file otherwise (corrupt or truncated zip, another algorithm's model)."""
-    from stable_baselines3.common.save_util import load_from_zip_file
-
     expected = get_algo(algo)
-    try:
-        data, _, _ = load_from_zip_file(path, device="cpu", load_data=True, print_system_info=False)
-    except Exception as error:  # zipfile, json, torch and pickle errors alike
-        raise ValueError(f"{path} is not a readable SB3 model file ({type(error).__name__}: {error}).") from None
-    if not data:
-        raise ValueError(f"{path} is not a readable SB3 model file (no data).")
+    data = read_model_data(path)  # the readable JSON only: nothing is unpickled
     saved = data.get("algorithm_class")
     if saved is not None and saved != expected.__name__:
         raise ValueError(f"{path} is a {saved} model, not a {algo} ({expected.__name__}) model.")
-    policy = data.get("policy_class")
-    if isinstance(policy, type) and policy not in expected.policy_aliases.values():
+    if not trust_remote_code and saved_policy_class(data, expected) is None:
+        entry = data.get("policy_class") or {}
         raise ValueError(
-            f"{path} holds a {policy.__name__} policy, which {algo} ({expected.__name__}) does not use: "
-            f"expected one of {sorted(p.__name__ for p in expected.policy_aliases.values())}."
+            f"{path}: its entry 'policy_class' is not a policy {algo} ({expected.__name__}) uses (module "
+            f"{entry.get('__module__', 'unknown')}; expected one of "
+            f"{sorted(p.__name__ for p in expected.policy_aliases.values())}). A model of another tool that you "
+            "trust loads with trust_remote_code=True (command line: --trust-remote-code)."
         )
 
 
-__all__ = ["Run", "check_model_file", "find_run", "run_args", "run_folders", "run_id", "run_overrides", "summary_table"]
+__all__ = ["Run", "check_model_file", "find_run", "latest_checkpoint", "run_args", "run_folders", "run_id", "run_overrides", "summary_table"]

@@ -38,6 +38,7 @@ def make_venv(
         vec_backend=vec_backend,
         seed=seed,
         config=hyperparams.get("env_config"),
+        supervisor_dropout=hyperparams.get("supervisor_dropout", 0.0),
     )
     if monitor_dir is not None:
         os.makedirs(monitor_dir, exist_ok=True)

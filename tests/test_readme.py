@@ -43,15 +43,22 @@ def test_the_command_line_section_runs_verbatim(tmp_path):
     assert (tmp_path / "logs" / "plots" / "eval_return.png").is_file()
 
 
-def test_the_quick_start_main_job_runs_verbatim():
-    """`make run`, as written (the other Quick start command, `make test`, is this suite)."""
+def test_the_quick_start_main_job_runs_verbatim(tmp_path):
+    """`make run`, as written (the other Quick start command, `make test`, is this suite), with its
+    log folder (the Makefile's RUN_LOGS) in a temporary folder: the test never writes into the
+    checkout's own logs/."""
     commands = section_commands("Quick start")
     assert commands == ["make run", "make test"]
-    completed = subprocess.run(shlex.split(commands[0]), cwd=REPO, capture_output=True, text=True, timeout=1800)
+    checkout_logs = sorted((REPO / "logs").rglob("*")) if (REPO / "logs").exists() else []
+    completed = subprocess.run([*shlex.split(commands[0]), f"RUN_LOGS={tmp_path / 'logs'}"], cwd=REPO,
+                               capture_output=True, text=True, timeout=1800)
     assert completed.returncode == 0, completed.stdout[-3000:] + completed.stderr[-3000:]
     out = completed.stdout
     assert "| ma2c |" in out and "| idm-mobil |" in out and "sampled actions (the authors' protocol)" in out
+    assert "| on |" in out and "| off |" in out  # both supervisor protocols
     assert "TensorBoard: " in out and "eval_return.png" in out
+    assert (tmp_path / "logs" / "ma2c" / "sb3_marl-LaneChange-density1-v0_1" / "evaluation.json").is_file()
+    assert (sorted((REPO / "logs").rglob("*")) if (REPO / "logs").exists() else []) == checkout_logs
 
 
 def test_the_hyperparameter_search_section_runs_verbatim(tmp_path):

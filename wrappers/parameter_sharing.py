@@ -57,6 +57,12 @@ def check_penalty(penalty: float, name: str = "penalty") -> None:
         raise ValueError(f"Invalid {name}={penalty!r}: expected a finite number >= 0.")
 
 
+def check_supervisor_dropout(dropout: float) -> None:
+    """A ValueError naming ``supervisor_dropout`` unless it is a probability in [0, 1]."""
+    if isinstance(dropout, bool) or not isinstance(dropout, (int, float)) or not 0 <= dropout <= 1:
+        raise ValueError(f"Invalid supervisor_dropout={dropout!r}: expected a probability in [0, 1] (0: off).")
+
+
 def check_reward_scale(scale: float, name: str = "scale") -> None:
     """A reward scale must be a number > 0; a ValueError naming ``name`` otherwise."""
     if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not scale > 0:
@@ -108,18 +114,35 @@ class CopyRunner:
     ``TimeLimit.truncated`` as SB3's ``DummyVecEnv`` sets them (without its per-step deep copy of
     the info, which cost more than 5 % of a step). It also applies the reward mode and splits the
     info per AV, so that worker processes do that work in parallel.
+
+    With ``supervisor_dropout`` p > 0 (and the scenario's safety supervisor on) each episode runs
+    without the supervisor with probability p, drawn at its reset from a generator seeded by the
+    copy's seeded reset (same seed, same episodes): training meets its own mistakes with their
+    crash cost, while most episodes keep the supervisor's safe exploration.
     """
 
-    def __init__(self, factory: Callable[[], gym.Env], copy: int, reward_mode: str) -> None:
+    def __init__(self, factory: Callable[[], gym.Env], copy: int, reward_mode: str, supervisor_dropout: float = 0.0) -> None:
         self.env = factory()
         self.copy = copy
         self.reward_mode = reward_mode
+        self.supervisor_dropout = supervisor_dropout
+        self._supervised = bool(self.env.unwrapped.config.get("safety_supervisor", False)) if supervisor_dropout else False
+        self._dropout_rng = np.random.default_rng()
+
+    def _draw_supervisor(self, seed: int | None) -> None:
+        """Switch the supervisor on or off for the episode about to start (``supervisor_dropout``)."""
+        if not self._supervised:
+            return
+        if seed is not None:
+            self._dropout_rng = np.random.default_rng([seed, self.copy])
+        self.env.unwrapped.config["safety_supervisor"] = bool(self._dropout_rng.random() >= self.supervisor_dropout)
 
     def spaces(self) -> tuple[spaces.Space, spaces.Space]:
         return self.env.observation_space, self.env.action_space
 
     def reset(self, seed: int | None, options: dict[str, Any]) -> tuple[np.ndarray, list[dict[str, Any]]]:
         """Observations (n_avs, ...) and per-AV reset infos."""
+        self._draw_supervisor(seed)
         obs, info = self.env.reset(seed=seed, **({"options": options} if options else {}))
         missing = [key for key in ("rewards", "neighbours") if key not in info]
         if missing:
@@ -138,6 +161,7 @@ class CopyRunner:
         if done:
             info["terminal_observation"] = obs
             info["TimeLimit.truncated"] = bool(truncated and not terminated)
+            self._draw_supervisor(None)
             obs, reset_info = self.env.reset()
             reset_infos = split_info(reset_info, self.copy)
         return obs, apply_reward_mode(info, self.reward_mode), done, split_info(info, self.copy), reset_infos
@@ -294,6 +318,8 @@ class ParameterSharingVecEnv(VecEnv):
         where available, as SB3's ``SubprocVecEnv``)
     :param worker_timeout: seconds a ``subproc`` worker may take to answer one call before the
         call fails with a ``TimeoutError`` naming its copies (a stopped worker never blocks)
+    :param supervisor_dropout: probability in [0, 1] that a training episode of a copy runs without
+        the scenario's safety supervisor (see :class:`CopyRunner`; 0: always as configured)
     """
 
     def __init__(
@@ -308,8 +334,10 @@ class ParameterSharingVecEnv(VecEnv):
         n_workers: int | None = None,
         start_method: str | None = None,
         worker_timeout: float = 120.0,
+        supervisor_dropout: float = 0.0,
     ) -> None:
         check_sharing_options(reward_mode, n_copies)
+        check_supervisor_dropout(supervisor_dropout)
         if vec_backend not in VEC_BACKENDS:
             raise ValueError(f"Invalid vec_backend={vec_backend!r}: expected one of {list(VEC_BACKENDS)}.")
         config = dict(config or {})
@@ -327,7 +355,8 @@ class ParameterSharingVecEnv(VecEnv):
         runners = []
         for k, n_avs in enumerate(copy_counts):
             copy_config = config if n_avs is None else {**config, "n_avs": n_avs}
-            runners.append(partial(CopyRunner, partial(_make_copy, env, k, copy_config, render_mode), k, reward_mode))
+            runners.append(partial(CopyRunner, partial(_make_copy, env, k, copy_config, render_mode), k, reward_mode,
+                                   float(supervisor_dropout)))
         #: copy k runs in group placement[k][0] at index placement[k][1]
         self.placement = [(k % n_workers, k // n_workers) for k in range(n_copies)]
         self.group_copies = [list(range(g, n_copies, n_workers)) for g in range(n_workers)]
@@ -395,6 +424,8 @@ class ParameterSharingVecEnv(VecEnv):
 
     def _submit(self, calls: dict[int, tuple[str, tuple]]) -> list[tuple[int, list[int]]]:
         """Send ``{copy: (method, args)}`` to the groups; returns what :meth:`_collect` needs."""
+        if getattr(self, "closed", False):
+            raise RuntimeError("This ParameterSharingVecEnv is closed: create a new one.")
         pending = []
         for group, copies in enumerate(self.group_copies):
             mine = [k for k in copies if k in calls]
@@ -547,6 +578,7 @@ class ParameterSharingVecEnv(VecEnv):
         return self.groups[0].runners[copy].env.unwrapped
 
     def close(self) -> None:
+        self.closed = True
         for group in getattr(self, "groups", []):
             try:
                 group.close()

@@ -16,7 +16,7 @@ ALGO_CLASSES: dict[str, str] = {
     "ma2c": "sb3_marl.algos.masking:MaskableA2C",
     "mappo": "sb3_marl.algos.masking:MaskedPPO",
     "madqn": "sb3_marl.algos.masking:MaskableDQN",
-    "matrpo": "sb3_contrib:TRPO",
+    "matrpo": "sb3_marl.algos.masking:SafeTRPO",
     "maacktr": "sb3_marl.algos.masking:MaskableACKTR",
     "acktr": "sb3_marl.algos.masking:MaskableACKTR",
 }

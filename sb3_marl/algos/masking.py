@@ -29,39 +29,150 @@ import numpy as np
 import torch as th
 import torch.nn.functional as F
 from gymnasium import spaces
-from sb3_contrib import MaskablePPO
+from sb3_contrib import TRPO, MaskablePPO
 from sb3_contrib.common.maskable.buffers import MaskableRolloutBuffer
 from sb3_contrib.common.maskable.utils import get_action_masks
 from stable_baselines3 import DQN
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.buffers import ReplayBuffer, RolloutBuffer
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
 
 from sb3_marl.algos.acktr import ACKTR
+from sb3_marl.loading import SafeLoading
 
 
-class MaskingLearner:
-    """What every learner of this module takes and saves: the ``action_masking`` switch, and its
-    class name (``algorithm_class`` in the zip's data, so that loading a model as another
+class MaskingLearner(SafeLoading):
+    """What every learner of this module takes and saves: the ``action_masking`` switch, the
+    ``safety_loss_coef`` of learning from the safety supervisor (see :class:`SupervisorTeacher`),
+    and its class name (``algorithm_class`` in the zip's data, so that loading a model as another
     algorithm is refused by name: :func:`sb3_marl.runs.check_model_file`). Loading a model
-    restores the saved values over these."""
+    restores the saved values over these, and never unpickles (:class:`~sb3_marl.loading.SafeLoading`)."""
 
-    def __init__(self, *args: Any, action_masking: bool = True, **kwargs: Any) -> None:
+    def __init__(self, *args: Any, action_masking: bool = True, safety_loss_coef: float = 0.0, **kwargs: Any) -> None:
         self.algorithm_class = type(self).__name__
         self.action_masking = bool(action_masking)
+        self.safety_loss_coef = check_safety_loss_coef(safety_loss_coef)
         super().__init__(*args, **kwargs)
 
 
-class ActionMaskingMixin(MaskingLearner):
+def check_safety_loss_coef(coef: Any) -> float:
+    """``safety_loss_coef`` as a float; a ValueError naming it unless a finite number >= 0."""
+    if isinstance(coef, bool) or not isinstance(coef, (int, float)) or not 0 <= coef < math.inf:
+        raise ValueError(f"Invalid safety_loss_coef={coef!r}: expected a finite number >= 0 (0: off).")
+    return float(coef)
+
+
+class InterventionRecorder(BaseCallback):
+    """Records, per rollout step and VecEnv slot, the action the safety supervisor executed where
+    it replaced the policy's proposal (``info["intervened"]``), -1 elsewhere: the labels of
+    :class:`SupervisorTeacher`'s loss. Arrays are ``(n_steps, n_envs)``, as the rollout buffer's."""
+
+    def __init__(self, n_steps: int, n_envs: int) -> None:
+        super().__init__()
+        self.executed = np.full((n_steps, n_envs), -1, dtype=np.int64)
+        self.position = 0
+
+    def _on_rollout_start(self) -> None:
+        self.executed[:] = -1
+        self.position = 0
+
+    def _on_step(self) -> bool:
+        if self.position < len(self.executed):
+            self.executed[self.position] = [
+                int(info["executed_action"]) if info.get("intervened", False) and not info.get("exited", False) else -1
+                for info in self.locals["infos"]
+            ]
+        self.position += 1
+        return True
+
+
+class _InitialisedCallbacks(CallbackList):
+    """A CallbackList of callbacks already initialised (initialising it does not redo theirs)."""
+
+    def _init_callback(self) -> None:
+        pass
+
+
+class SupervisorTeacher:
+    """The safety supervisor as a teacher of an on-policy maskable learner (``safety_loss_coef`` > 0).
+
+    After each update, one more optimiser step on the auxiliary loss
+    ``safety_loss_coef * mean(-log π(executed | s))`` over the rollout's steps where the supervisor
+    replaced the policy's proposal (the action it executed is the label): the policy learns to
+    propose what the supervisor would have done, so that it stays safe without it. Steps without
+    an intervention contribute nothing; a rollout without any leaves the policy unchanged.
+    Logged as ``train/safety_loss`` and ``train/intervened_share``.
+    """
+
+    safety_loss_coef: float = 0.0
+    _recorder: InterventionRecorder | None = None
+
+    def _excluded_save_params(self) -> list[str]:
+        return [*super()._excluded_save_params(), "_recorder"]  # type: ignore[misc]
+
+    def with_recorder(self, callback: Any, n_rollout_steps: int, n_envs: int) -> Any:
+        """``callback`` plus the intervention recorder when the teacher is on."""
+        if self.safety_loss_coef <= 0:
+            return callback
+        if self._recorder is None or self._recorder.executed.shape != (n_rollout_steps, n_envs):
+            self._recorder = InterventionRecorder(n_rollout_steps, n_envs)
+            self._recorder.init_callback(self)  # type: ignore[arg-type]
+        together = _InitialisedCallbacks([callback, self._recorder])
+        together.init_callback(self)  # type: ignore[arg-type]
+        return together
+
+    def train(self) -> None:
+        super().train()  # type: ignore[misc]
+        if self.safety_loss_coef > 0 and self._recorder is not None:
+            self.safety_step(self._recorder.executed)
+
+    def safety_loss(self, observations: th.Tensor, action_masks: np.ndarray | None, executed: th.Tensor) -> th.Tensor:
+        """``-log π(executed | s)`` averaged over the given (intervened) samples."""
+        distribution = self.policy.get_distribution(observations, action_masks=action_masks)  # type: ignore[attr-defined]
+        return -distribution.log_prob(executed).mean()
+
+    def safety_step(self, executed: np.ndarray) -> float:
+        """One optimiser step on the auxiliary loss over the rollout buffer's samples whose entry
+        of ``executed`` ((n_steps, n_envs), -1: no intervention) names the supervisor's action;
+        returns the loss before the step (0 without intervened samples)."""
+        buffer = self.rollout_buffer  # type: ignore[attr-defined]
+        labels = executed.swapaxes(0, 1).reshape(-1) if buffer.generator_ready else executed.reshape(-1)
+        observations = buffer.observations.reshape(len(labels), *buffer.obs_shape)
+        masks = buffer.action_masks.reshape(len(labels), -1) if self.action_masking else None  # type: ignore[attr-defined]
+        chosen = np.flatnonzero(labels >= 0)
+        self.logger.record("train/intervened_share", chosen.size / max(len(labels), 1))  # type: ignore[attr-defined]
+        if chosen.size == 0:
+            self.logger.record("train/safety_loss", 0.0)  # type: ignore[attr-defined]
+            return 0.0
+        policy = self.policy  # type: ignore[attr-defined]
+        policy.set_training_mode(True)
+        loss = self.safety_loss(
+            th.as_tensor(observations[chosen], device=policy.device),
+            None if masks is None else masks[chosen],
+            th.as_tensor(labels[chosen], device=policy.device),
+        )
+        policy.optimizer.zero_grad()
+        (self.safety_loss_coef * loss).backward()
+        th.nn.utils.clip_grad_norm_(policy.parameters(), self.max_grad_norm)  # type: ignore[attr-defined]
+        policy.optimizer.step()
+        self.logger.record("train/safety_loss", float(loss.item()))  # type: ignore[attr-defined]
+        return float(loss.item())
+
+
+class ActionMaskingMixin(SupervisorTeacher, MaskingLearner):
     """``action_masking`` switch of a maskable on-policy learner: sb3-contrib's masked rollouts
-    and ``predict(..., action_masks=...)``, with masks only when ``action_masking`` is True."""
+    and ``predict(..., action_masks=...)``, with masks only when ``action_masking`` is True; and
+    the supervisor as a teacher (:class:`SupervisorTeacher`)."""
 
     action_masking: bool = True
 
     def collect_rollouts(self, env: Any, callback: Any, rollout_buffer: Any, n_rollout_steps: int,
                          use_masking: bool = True) -> bool:
-        """sb3-contrib's masked rollout collection (``MaskablePPO.collect_rollouts``)."""
+        """sb3-contrib's masked rollout collection (``MaskablePPO.collect_rollouts``), recording the
+        supervisor's interventions for the teacher's loss."""
+        callback = self.with_recorder(callback, n_rollout_steps, env.num_envs)
         return MaskablePPO.collect_rollouts(
             self, env, callback, rollout_buffer, n_rollout_steps, use_masking=use_masking and self.action_masking
         )
@@ -80,14 +191,15 @@ class ActionMaskingMixin(MaskingLearner):
         return self.policy.predict(observation, state, episode_start, deterministic, action_masks=masks)
 
 
-def _with_action_masking(cls: type, base: type) -> None:
-    """Give ``cls`` the constructor signature of ``base`` plus ``action_masking``, so that the zoo
-    configs' validation (which reads constructor signatures) sees every argument."""
+def _with_action_masking(cls: type, base: type, teacher: bool = True) -> None:
+    """Give ``cls`` the constructor signature of ``base`` plus ``action_masking`` (and, with
+    ``teacher``, ``safety_loss_coef``), so that the zoo configs' validation (which reads
+    constructor signatures) sees every argument."""
     signature = inspect.signature(base)
-    cls.__signature__ = signature.replace(parameters=[
-        *signature.parameters.values(),
-        inspect.Parameter("action_masking", inspect.Parameter.KEYWORD_ONLY, default=True, annotation=bool),
-    ])
+    extra = [inspect.Parameter("action_masking", inspect.Parameter.KEYWORD_ONLY, default=True, annotation=bool)]
+    if teacher:
+        extra.append(inspect.Parameter("safety_loss_coef", inspect.Parameter.KEYWORD_ONLY, default=0.0, annotation=float))
+    cls.__signature__ = signature.replace(parameters=[*signature.parameters.values(), *extra])
 
 
 class MaskedPPO(ActionMaskingMixin, MaskablePPO):
@@ -115,7 +227,8 @@ class MaskableACKTR(ActionMaskingMixin, ACKTR):
 
 
 class MaskedReplayBufferSamples(NamedTuple):
-    """SB3's ``ReplayBufferSamples`` plus the action mask of each next observation."""
+    """SB3's ``ReplayBufferSamples`` plus the action mask of each next observation and the action
+    the safety supervisor executed in place of the stored one (-1: it did not intervene)."""
 
     observations: th.Tensor
     actions: th.Tensor
@@ -123,13 +236,15 @@ class MaskedReplayBufferSamples(NamedTuple):
     dones: th.Tensor
     rewards: th.Tensor
     next_action_masks: th.Tensor
+    executed_actions: th.Tensor
     discounts: th.Tensor | None = None
 
 
 class MaskedReplayBuffer(ReplayBuffer):
     """SB3's ``ReplayBuffer`` that also keeps the action mask of every next observation, taken
     from the step infos' ``action_mask`` (the scenario reports the mask of the observation it
-    returns; after an episode end, of the terminal observation). Without one: all available."""
+    returns; after an episode end, of the terminal observation; without one: all available), and
+    the action the safety supervisor executed where it replaced the stored one (-1 elsewhere)."""
 
     def __init__(self, buffer_size: int, observation_space: spaces.Space, action_space: spaces.Discrete,
                  device: th.device | str = "auto", n_envs: int = 1, optimize_memory_usage: bool = False,
@@ -138,10 +253,15 @@ class MaskedReplayBuffer(ReplayBuffer):
             raise ValueError("MaskedReplayBuffer does not support optimize_memory_usage=True.")
         super().__init__(buffer_size, observation_space, action_space, device, n_envs, False, handle_timeout_termination)
         self.next_action_masks = np.ones((self.buffer_size, self.n_envs, int(action_space.n)), dtype=bool)
+        self.executed_actions = np.full((self.buffer_size, self.n_envs), -1, dtype=np.int64)
 
     def add(self, obs: np.ndarray, next_obs: np.ndarray, action: np.ndarray, reward: np.ndarray,
             done: np.ndarray, infos: list[dict[str, Any]]) -> None:
         self.next_action_masks[self.pos] = [info.get("action_mask", True) for info in infos]
+        self.executed_actions[self.pos] = [
+            int(info["executed_action"]) if info.get("intervened", False) and not info.get("exited", False) else -1
+            for info in infos
+        ]
         super().add(obs, next_obs, action, reward, done, infos)
 
     def _get_samples(self, batch_inds: np.ndarray, env: Any = None) -> MaskedReplayBufferSamples:
@@ -154,6 +274,7 @@ class MaskedReplayBuffer(ReplayBuffer):
             (self.dones[batch_inds, env_indices] * (1 - self.timeouts[batch_inds, env_indices])).reshape(-1, 1),
             self._normalize_reward(self.rewards[batch_inds, env_indices].reshape(-1, 1), env),
             self.next_action_masks[batch_inds, env_indices, :],
+            self.executed_actions[batch_inds, env_indices],
         )
         return MaskedReplayBufferSamples(*tuple(map(self.to_torch, data)))
 
@@ -163,15 +284,36 @@ class MaskableDQN(MaskingLearner, DQN):
     from ε-greedy exploration (random actions among the available ones, also during warm-up) and
     from the bootstrap target ``max_a' Q_target(s', a')`` (over the actions available in s').
 
+    With ``safety_loss_coef`` > 0 the safety supervisor is a teacher (as :class:`SupervisorTeacher`
+    for the actor-critics): replayed transitions where it replaced the stored action add DQfD's
+    large-margin loss ``safety_loss_coef * (max_a [Q(s, a) + margin·(a ≠ a_E)] - Q(s, a_E))``
+    with a_E the executed action and margin :attr:`SAFETY_MARGIN`, so that the greedy action
+    becomes the supervisor's.
+
     :param action_masking: use the env's action masks (True) or SB3's DQN unchanged (False)
+    :param safety_loss_coef: weight of the supervisor's large-margin loss (0: off)
 
     Other parameters: as SB3's ``DQN`` (the replay buffer is :class:`MaskedReplayBuffer`).
     """
 
-    def __init__(self, policy: Any, env: GymEnv | str | None, *args: Any, action_masking: bool = True, **kwargs: Any):
-        if action_masking and kwargs.get("replay_buffer_class") is None:
+    #: DQfD's margin of the supervisor's action over the others (Hester et al. 2018: 0.8)
+    SAFETY_MARGIN = 0.8
+
+    def __init__(self, policy: Any, env: GymEnv | str | None, *args: Any, action_masking: bool = True,
+                 safety_loss_coef: float = 0.0, **kwargs: Any):
+        if (action_masking or safety_loss_coef) and kwargs.get("replay_buffer_class") is None:
             kwargs["replay_buffer_class"] = MaskedReplayBuffer
-        super().__init__(policy, env, *args, action_masking=action_masking, **kwargs)
+        super().__init__(policy, env, *args, action_masking=action_masking, safety_loss_coef=safety_loss_coef, **kwargs)
+
+    def safety_loss(self, q_values: th.Tensor, executed: th.Tensor) -> th.Tensor:
+        """DQfD's large-margin loss averaged over the rows whose ``executed`` action is >= 0
+        (0 without such rows): ``q_values`` (batch, n_actions), ``executed`` (batch,)."""
+        chosen = executed >= 0
+        if not bool(chosen.any()):
+            return q_values.new_zeros(())
+        q, labels = q_values[chosen], executed[chosen].long()
+        margins = th.full_like(q, self.SAFETY_MARGIN).scatter(1, labels[:, None], 0.0)
+        return ((q + margins).max(dim=1).values - q.gather(1, labels[:, None]).squeeze(1)).mean()
 
     def predict(
         self,
@@ -206,22 +348,28 @@ class MaskableDQN(MaskingLearner, DQN):
 
     def train(self, gradient_steps: int, batch_size: int = 100) -> None:
         """SB3's ``DQN.train`` with the bootstrap target's max over the available next actions."""
-        if not self.action_masking:
+        if not self.action_masking and not self.safety_loss_coef:
             return super().train(gradient_steps, batch_size)
         self.policy.set_training_mode(True)
         self._update_learning_rate(self.policy.optimizer)
-        losses = []
+        losses, safety_losses = [], []
         for _ in range(gradient_steps):
             replay_data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)
             discounts = replay_data.discounts if replay_data.discounts is not None else self.gamma
             with th.no_grad():
                 next_q_values = self.q_net_target(replay_data.next_observations)
-                next_q_values = next_q_values.masked_fill(~replay_data.next_action_masks, -th.inf)  # the change
+                if self.action_masking:
+                    next_q_values = next_q_values.masked_fill(~replay_data.next_action_masks, -th.inf)  # the change
                 next_q_values = next_q_values.max(dim=1).values.reshape(-1, 1)
                 target_q_values = replay_data.rewards + (1 - replay_data.dones) * discounts * next_q_values
-            current_q_values = th.gather(self.q_net(replay_data.observations), dim=1, index=replay_data.actions.long())
+            q_values = self.q_net(replay_data.observations)
+            current_q_values = th.gather(q_values, dim=1, index=replay_data.actions.long())
             loss = F.smooth_l1_loss(current_q_values, target_q_values)
             losses.append(loss.item())
+            if self.safety_loss_coef:
+                safety_loss = self.safety_loss(q_values, replay_data.executed_actions)
+                safety_losses.append(safety_loss.item())
+                loss = loss + self.safety_loss_coef * safety_loss
             self.policy.optimizer.zero_grad()
             loss.backward()
             th.nn.utils.clip_grad_norm_(self.policy.parameters(), self.max_grad_norm)
@@ -229,6 +377,8 @@ class MaskableDQN(MaskingLearner, DQN):
         self._n_updates += gradient_steps
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
         self.logger.record("train/loss", np.mean(losses))
+        if safety_losses:
+            self.logger.record("train/safety_loss", np.mean(safety_losses))
 
 
 def _random_available(masks: np.ndarray) -> np.ndarray:
@@ -239,7 +389,7 @@ def _random_available(masks: np.ndarray) -> np.ndarray:
 
 
 _with_action_masking(MaskedPPO, MaskablePPO)
-_with_action_masking(MaskableACKTR, ACKTR)
+_with_action_masking(MaskableACKTR, ACKTR, teacher=False)  # K-FAC steps only on its own loss
 _with_action_masking(MaskableDQN, DQN)
 
 
@@ -261,6 +411,7 @@ class MaskableA2C(ActionMaskingMixin, MaskablePPO):
     :param action_masking: sample only available meta-actions (the authors' MA2C) or all of them
     :param rms_prop_eps: RMSprop epsilon (with ``use_rms_prop``; RMSprop alpha 0.99 as SB3's A2C)
     :param use_rms_prop: RMSprop (A2C's original optimiser) rather than Adam
+    :param safety_loss_coef: weight of the safety supervisor's teaching loss (:class:`SupervisorTeacher`; 0: off)
     :param per_agent_updates: one optimiser step per AV slot on that slot's ``n_steps`` transitions
         (the authors' cadence: as many steps per rollout as slots; each later step's loss is the
         unclipped importance-weighted policy gradient, its ratio stays close to 1) instead of
@@ -284,6 +435,7 @@ class MaskableA2C(ActionMaskingMixin, MaskablePPO):
         use_rms_prop: bool = True,
         normalize_advantage: bool = False,
         action_masking: bool = True,
+        safety_loss_coef: float = 0.0,
         per_agent_updates: bool = False,
         rollout_buffer_class: type[RolloutBuffer] | None = None,
         rollout_buffer_kwargs: dict[str, Any] | None = None,
@@ -326,6 +478,7 @@ class MaskableA2C(ActionMaskingMixin, MaskablePPO):
             device=device,
             _init_setup_model=_init_setup_model,
             action_masking=action_masking,
+            safety_loss_coef=safety_loss_coef,
         )
 
     def learn(self, total_timesteps: int, callback: Any = None, log_interval: int = 10, tb_log_name: str = "MA2C",
@@ -341,6 +494,10 @@ class MaskableA2C(ActionMaskingMixin, MaskablePPO):
         self.logger.record("train/advantage_mean", float(advantages.mean()))
         self.logger.record("train/advantage_std", float(advantages.std()))
         super().train()
+
+
+class SafeTRPO(SafeLoading, TRPO):
+    """sb3-contrib's ``TRPO`` (``matrpo``) whose ``load`` never unpickles (:class:`~sb3_marl.loading.SafeLoading`)."""
 
 
 def uses_action_masks(model: BaseAlgorithm) -> bool:

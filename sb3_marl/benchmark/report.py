@@ -3,8 +3,9 @@
 - ``paper_table.md``: per experiment, per curve and density, the final evaluation over seeds
   (the paper's: 30 seeded episodes of each trained model, :meth:`TrialLog.final`; mean ± std of
   the seeds' final evaluation returns; the interquartile mean of all the seeds' episode returns
-  with a 95 % stratified-bootstrap confidence interval, :func:`iqm_with_ci`; collision rate, lane
-  changes per episode, mean speed [m/s], acceleration std [m/s²] and supervisor intervention rate
+  with a 95 % stratified-bootstrap confidence interval, :func:`iqm_with_ci`; collision rate, the
+  return and collision rate of the policy alone (supervisor off, same episodes), lane changes and
+  yields per episode, mean speed [m/s], acceleration std [m/s²] and supervisor intervention rate
   averaged over seeds) beside the paper's numbers and claims, each claim checked per density (returns
   by their IQM CIs, acceleration std by its range over seeds), and the hand-written reference
   policies (IDM/MOBIL, cruise, random) on the same episodes, with the learners against IDM/MOBIL;
@@ -39,6 +40,7 @@ from sb3_marl.benchmark.grid import EPISODE_STEPS, EXPERIMENTS, TrialSpec
 from sb3_marl.benchmark.runner import SETTINGS_FILE
 from sb3_marl.benchmark.trial import RESULT, TRIAL, final_evaluation
 from sb3_marl.evaluation import PROTOCOLS
+from sb3_marl.files import read_evaluations
 from sb3_marl.plotting import with_default_style
 
 #: Table 5 of the paper: mean evaluation episode reward ± std, per algorithm and density.
@@ -100,18 +102,27 @@ class TrialLog:
         return final_evaluation(self.result)
 
 
-def load_trials(log_folder: str | Path) -> list[TrialLog]:
-    """Every trial under ``<log_folder>/trials/`` that has evaluated at least once."""
+def load_trials(log_folder: str | Path, problems: list[str] | None = None) -> list[TrialLog]:
+    """Every trial under ``<log_folder>/trials/`` that has evaluated at least once. A trial whose
+    files cannot be read (truncated, edited) is left out, its file and error appended to ``problems``."""
     trials = []
     for info_path in sorted(Path(log_folder).glob(f"trials/*/{TRIAL}")):
-        spec = TrialSpec(**json.loads(info_path.read_text())["trial"])
-        npz = sorted(info_path.parent.glob(f"{spec.algo}/*_1/evaluations.npz"))
-        if not npz:
+        try:
+            spec = TrialSpec(**json.loads(info_path.read_text())["trial"])
+            npz = sorted(info_path.parent.glob(f"{spec.algo}/*_1/evaluations.npz"))
+            if not npz:
+                continue
+            evaluations = read_evaluations(npz[0])
+            result_path = info_path.parent / RESULT
+            try:
+                result = json.loads(result_path.read_text()) if result_path.is_file() else None
+            except ValueError as error:
+                raise ValueError(f"{result_path}: {error}") from None
+        except (ValueError, KeyError, TypeError) as error:
+            if problems is None:
+                raise
+            problems.append(f"{info_path.parent.name}: {error}")
             continue
-        with np.load(npz[0]) as log:
-            evaluations = {key: log[key] for key in log.files}
-        result_path = info_path.parent / RESULT
-        result = json.loads(result_path.read_text()) if result_path.is_file() else None
         trials.append(TrialLog(spec, evaluations, result))
     return trials
 
@@ -169,6 +180,14 @@ def final_over_seeds(trials: list[TrialLog]) -> dict[str, float] | None:
     accelerations = [f["acceleration_std"] for f in finals]
     summary.update(acceleration_std_min=float(min(accelerations)), acceleration_std_max=float(max(accelerations)))
     summary["env_steps"] = int(np.mean([t.result["env_steps"] for t in finished]))
+    alone = [f.get("supervisor_off") for f in finals]
+    if all(alone):  # the policy alone, where every seed was evaluated without the supervisor
+        returns = np.array([a["return_mean"] for a in alone])
+        summary["supervisor_off"] = {
+            "return_mean": float(returns.mean()), "return_std": float(returns.std()),
+            **{metric: float(np.mean([a[metric] for a in alone])) for metric in ("collision_rate", "yields_per_episode")},
+        }
+        summary["yields_per_episode"] = float(np.mean([f["yields_per_episode"] for f in finals]))
     return summary
 
 
@@ -188,7 +207,7 @@ def reference_summaries(trials: list[TrialLog], log_folder: str | Path, seed: in
     is the episodes'), where the learners' resamples seeds."""
     from sb3_marl.baselines import BASELINES
     from sb3_marl.benchmark.trial import FINAL_EVAL_EPISODES
-    from sb3_marl.evaluation import evaluation_records, summarize
+    from sb3_marl.evaluation import protocol_records, summarize
     from sb3_marl.runs import find_run
 
     summaries = {}
@@ -199,10 +218,13 @@ def reference_summaries(trials: list[TrialLog], log_folder: str | Path, seed: in
         spec = finished[0].spec
         config = find_run(Path(log_folder) / "trials" / spec.trial_id, spec.algo, spec.env_id).env_config
         for name, policy_class in BASELINES.items():
-            records = evaluation_records(policy_class(), spec.env_id, FINAL_EVAL_EPISODES, seed, config)
+            protocols = protocol_records(policy_class(), spec.env_id, FINAL_EVAL_EPISODES, seed, config)
+            records = protocols["on"]
             summary = summarize(records)
+            alone = summarize(protocols["off"])
+            alone["return_std"] = 0.0  # a std over seeds: one fixed policy, like the learners' cells
             iqm, low, high = iqm_with_ci(np.array([[r.episode_return] for r in records]))
-            summaries[name, density] = {**summary, "iqm": iqm, "iqm_low": low, "iqm_high": high}
+            summaries[name, density] = {**summary, "iqm": iqm, "iqm_low": low, "iqm_high": high, "supervisor_off": alone}
     return summaries
 
 
@@ -224,7 +246,8 @@ def paper_table(trials: list[TrialLog], settings: dict[str, Any] | None = None,
                   "seeded); the other columns: mean over seeds of the final evaluation. Supervisor interventions: "
                   "share of AV-steps whose action the safety supervisor replaced.", ""]
     lines += [f"Evaluation protocol: {PROTOCOLS[False]}; action masks for the learners that have them; the safety "
-              "supervisor as in each learner's zoo config (on in all of them).", ""]
+              "supervisor on (the authors' protocol) and, in the supervisor-off columns, off: the policy alone on the "
+              "same episodes. Yields: lane changes an AV behind slowed down for (`EpisodeTrace.yields`).", ""]
     finished = sum(t.result is not None for t in trials)
     lines += [f"Trials: {finished} finished, {len(trials) - finished} unfinished (not in the table).", ""]
     summaries = curve_summaries(trials) if summaries is None else summaries
@@ -242,8 +265,8 @@ def paper_table(trials: list[TrialLog], settings: dict[str, Any] | None = None,
                 rows.append(
                     f"| {label} | {density} | {summary['seeds']} | {summary['env_steps']:,} | "
                     f"{summary['return_mean']:.2f} ± {summary['return_std']:.2f} | {_iqm_cell(summary)} | {paper_return} | "
-                    f"{summary['collision_rate']:.2f} | {summary['lane_changes_per_episode']:.1f} | "
-                    f"{summary['speed_mean']:.2f} | {summary['acceleration_std']:.3f}"
+                    f"{summary['collision_rate']:.2f} | {_alone_cells(summary)} | {summary['lane_changes_per_episode']:.1f} | "
+                    f"{_yields_cell(summary)} | {summary['speed_mean']:.2f} | {summary['acceleration_std']:.3f}"
                     + (f" (paper {paper_accel})" if paper_accel else "") + f" | {summary['intervention_rate']:.3f} |"
                 )
         if not rows:
@@ -251,12 +274,24 @@ def paper_table(trials: list[TrialLog], settings: dict[str, Any] | None = None,
         note = [EXPERIMENT_NOTES[experiment], ""] if experiment in EXPERIMENT_NOTES else []
         lines += [f"## {title}", "", f"The paper: {finding}.", "", *note,
                   ("| curve | density | seeds | env steps | return: mean ± std over seeds | return: IQM [95 % CI] "
-                   "| return (paper) | collision rate | lane changes / ep. | mean speed [m/s] | accel. std [m/s²] "
-                   "| supervisor interventions |"),
-                  "|---|---|---|---|---|---|---|---|---|---|---|---|", *rows, "", *_findings(experiment, summaries), ""]
+                   "| return (paper) | collision rate | supervisor off: return | supervisor off: collision rate "
+                   "| lane changes / ep. | yields / ep. | mean speed [m/s] | accel. std [m/s²] | supervisor interventions |"),
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|", *rows, "", *_findings(experiment, summaries), ""]
     if references:
         lines += _reference_section(references, summaries)
     return "\n".join(lines)
+
+
+def _alone_cells(summary: dict[str, Any]) -> str:
+    """The two supervisor-off cells (return mean ± std, collision rate); dashes where not evaluated."""
+    alone = summary.get("supervisor_off")
+    if not alone:
+        return "— | —"
+    return f"{alone['return_mean']:.2f} ± {alone['return_std']:.2f} | {alone['collision_rate']:.2f}"
+
+
+def _yields_cell(summary: dict[str, Any]) -> str:
+    return f"{summary['yields_per_episode']:.2f}" if "yields_per_episode" in summary else "—"
 
 
 def _iqm_cell(summary: dict[str, float]) -> str:
@@ -268,17 +303,19 @@ def _reference_section(references: dict[tuple[str, int], dict[str, float]],
     """The hand-written policies' rows (:func:`reference_summaries`) and, per density, the
     learners of experiment 5 against IDM/MOBIL."""
     rows = [f"| {name} | {density} | {s['episodes']} | {s['return_mean']:.2f} ± {s['return_std']:.2f} | "
-            f"{_iqm_cell(s)} | {s['collision_rate']:.2f} | {s['lane_changes_per_episode']:.1f} | "
+            f"{_iqm_cell(s)} | {s['collision_rate']:.2f} | {s['supervisor_off']['return_mean']:.2f} | "
+            f"{s['supervisor_off']['collision_rate']:.2f} | {s['lane_changes_per_episode']:.1f} | {_yields_cell(s)} | "
             f"{s['speed_mean']:.2f} | {s['acceleration_std']:.3f} | {s['intervention_rate']:.3f} |"
             for (name, density), s in sorted(references.items(), key=lambda item: item[0][1])]
     lines = ["## Beyond the paper: hand-written reference policies", "",
              "Not learned (`sb3_marl/baselines.py`): IDM/MOBIL picks the meta-action a human driver of the scenario "
              "would; cruise always IDLE; random uniform. The same 30 episodes as the final evaluations, in the "
-             "default MA2C trial's scenario config (safety supervisor on). Return: mean ± std over the episodes; "
-             "the IQM's CI resamples episodes (the learners' resample seeds).", "",
+             "default MA2C trial's scenario config, with the safety supervisor and without it. Return: mean ± std "
+             "over the episodes; the IQM's CI resamples episodes (the learners' resample seeds).", "",
              "| policy | density | episodes | return: mean ± std over episodes | return: IQM [95 % CI] | collision rate "
-             "| lane changes / ep. | mean speed [m/s] | accel. std [m/s²] | supervisor interventions |",
-             "|---|---|---|---|---|---|---|---|---|---|", *rows, ""]
+             "| supervisor off: return | supervisor off: collision rate | lane changes / ep. | yields / ep. "
+             "| mean speed [m/s] | accel. std [m/s²] | supervisor interventions |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|", *rows, ""]
     for density in (1, 2, 3):
         reference = references.get(("idm-mobil", density))
         learners = {label: summaries[algo, variant, density]
@@ -516,7 +553,10 @@ def write_report(log_folder: str | Path, out_dir: str | Path = "results", seed: 
 
     :raises FileNotFoundError: if ``log_folder`` has no evaluated trial
     """
-    trials = load_trials(log_folder)
+    problems: list[str] = []
+    trials = load_trials(log_folder, problems)
+    for problem in problems:
+        print(f"left out of the report (unreadable): {problem}")
     if not trials:
         raise FileNotFoundError(f"No evaluated benchmark trial under {Path(log_folder) / 'trials'}/ "
                                 "(run `sb3-marl benchmark` with this --log-folder first).")

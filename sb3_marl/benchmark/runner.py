@@ -173,6 +173,7 @@ class TrialStatus:
     n_timesteps: int
     return_mean: float | None = None
     wall_time_s: float | None = None
+    problem: str | None = None  # why an "unreadable" trial's result could not be read
 
 
 def grid_status(grid: str, log_folder: str | Path, seeds: int = PAPER_SEEDS,
@@ -193,10 +194,14 @@ def grid_status(grid: str, log_folder: str | Path, seeds: int = PAPER_SEEDS,
         folder = trial_folder(log_folder, spec)
         status = TrialStatus(spec.trial_id, "not started", 0, spec.n_timesteps(budget))
         if (folder / RESULT).is_file():
-            result = json.loads((folder / RESULT).read_text())
-            final = final_evaluation(result)
-            status.state, status.timesteps = "finished", result["num_timesteps"]
-            status.return_mean, status.wall_time_s = final["return_mean"], result.get("wall_time_s")
+            try:
+                result = json.loads((folder / RESULT).read_text())
+                final = final_evaluation(result)
+                status.state, status.timesteps = "finished", result["num_timesteps"]
+                status.return_mean, status.wall_time_s = final["return_mean"], result.get("wall_time_s")
+            except (ValueError, KeyError, TypeError) as error:  # a truncated or edited file: this trial only
+                status.state = "unreadable"
+                status.problem = f"{folder / RESULT}: {type(error).__name__}: {error}"
         elif (folder / CHECKPOINT / "state.json").is_file():
             status.state = "unfinished"
             status.timesteps = checkpoint_timesteps(folder / CHECKPOINT)

@@ -120,7 +120,7 @@ def run_trial(config: dict[str, Any]) -> None:
     from ray import tune
 
     from sb3_marl.callbacks import ScenarioEvalCallback
-    from sb3_marl.evaluation import evaluation_records, model_policy, protocol_label, summarize
+    from sb3_marl.evaluation import evaluate_protocols, model_policy, protocol_label
     from sb3_marl.experiment import EVAL_SEED_OFFSET, MARLExperimentManager
 
     torch.set_num_threads(1)  # one core per trial: Ray schedules trials by CPU
@@ -155,7 +155,7 @@ def run_trial(config: dict[str, Any]) -> None:
         tensorboard_log=str(folder / "tensorboard"), n_timesteps=spec.n_timesteps(config["budget"]),
         eval_freq=spec.eval_freq(config["eval_every_episodes"]), n_eval_episodes=config["eval_episodes"],
         save_freq=-1, hyperparams=spec.hyperparams, trained_agent=str(checkpoint / "model.zip") if resumed_at else "",
-        seed=spec.seed, log_interval=-1, verbose=0, device="cpu",
+        seed=spec.seed, log_interval=-1, verbose=0, device="cpu", own_checkpoint=True,
     )
     model, _ = manager.setup_experiment()
     evaluation = next(c for c in manager.callbacks if isinstance(c, ScenarioEvalCallback))
@@ -167,20 +167,47 @@ def run_trial(config: dict[str, Any]) -> None:
         raise KeyboardInterrupt(f"trial {spec.trial_id} interrupted")
     manager.save_trained_model(model)
     wall_time = round(time.perf_counter() - start, 1)
-    records = evaluation_records(model_policy(model), spec.env_id, FINAL_EVAL_EPISODES, EVAL_SEED_OFFSET,
-                                 manager.scenario.get("env_config"))
+    final = evaluate_protocols(model_policy(model), spec.env_id, FINAL_EVAL_EPISODES, EVAL_SEED_OFFSET,
+                               manager.scenario.get("env_config"))
     result = {
         **info, "num_timesteps": int(model.num_timesteps), "env_steps": int(spec.env_steps(model.num_timesteps)),
         "final_evaluation": evaluation.final_summary(),
         "final_returns": [float(r) for r in evaluation.evaluations["results"][-1]],
         "paper_evaluation": {
             "episodes": FINAL_EVAL_EPISODES, "seeds": [EVAL_SEED_OFFSET, EVAL_SEED_OFFSET + FINAL_EVAL_EPISODES - 1],
-            "protocol": protocol_label(False, model, manager.scenario.get("env_config")),
-            **summarize(records), "returns": [r.episode_return for r in records],
+            "protocol": protocol_label(False, model), **final,
         },
         "wall_time_s": wall_time, "machine": f"{platform.node()} ({os.cpu_count()} cores)",
     }
     write_json(folder / RESULT, result)
 
 
-__all__ = ["CHECKPOINT", "RESULT", "SETTINGS", "TRIAL", "run_trial", "trial_folder"]
+def reevaluate_trial(folder: Path) -> bool:
+    """Replace a finished trial's final evaluation (``paper_evaluation`` of its ``result.json``) by
+    one under both supervisor protocols (same model, seeds and episodes) where it lacks the
+    policy-alone protocol or the yields; the supervisor-on return of an earlier evaluation is kept
+    in ``note`` if it differs. Returns whether the trial was re-evaluated."""
+    from sb3_marl.evaluation import evaluate_protocols, model_policy, protocol_label
+    from sb3_marl.experiment import EVAL_SEED_OFFSET
+    from sb3_marl.runs import find_run
+
+    result = json.loads((folder / RESULT).read_text())
+    earlier = result.get("paper_evaluation") or {}
+    if "yields_per_episode" in earlier.get("supervisor_off", {}):
+        return False
+    spec = TrialSpec(**result["trial"])
+    run = find_run(folder, spec.algo, spec.env_id, RUN_ID)
+    model = run.load_model("cpu")
+    final = evaluate_protocols(model_policy(model), spec.env_id, FINAL_EVAL_EPISODES, EVAL_SEED_OFFSET, run.env_config)
+    evaluation = {"episodes": FINAL_EVAL_EPISODES, "seeds": [EVAL_SEED_OFFSET, EVAL_SEED_OFFSET + FINAL_EVAL_EPISODES - 1],
+                  "protocol": protocol_label(False, model), **final}
+    if "note" in earlier:
+        evaluation["note"] = earlier["note"]
+    if earlier and abs(earlier["return_mean"] - final["return_mean"]) > 1e-9:
+        evaluation["note"] = (evaluation.get("note", "") + f" Before the re-evaluation under both supervisor "
+                              f"protocols: return {earlier['return_mean']:.4f}.").strip()
+    write_json(folder / RESULT, {**result, "paper_evaluation": evaluation})
+    return True
+
+
+__all__ = ["CHECKPOINT", "RESULT", "SETTINGS", "TRIAL", "reevaluate_trial", "run_trial", "trial_folder"]

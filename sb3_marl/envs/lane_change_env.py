@@ -136,6 +136,8 @@ class LaneChangeEnv(AbstractEnv):
         """Apply one meta-action per AV for 1 / policy_frequency s of simulation."""
         if self.road is None:
             raise RuntimeError("Call reset() before step().")
+        if self.done:
+            raise RuntimeError("The episode is over (terminated or truncated): call reset() before step().")
         proposed = self._check_actions(action)
         actions = proposed
         if self.config["safety_supervisor"]:
@@ -154,6 +156,7 @@ class LaneChangeEnv(AbstractEnv):
 
         terminated = bool(crashed.any())
         truncated = not terminated and (self.steps_done >= self.max_steps or bool(self._exited.all()))
+        self.done = terminated or truncated
         if self.render_mode == "human":
             self.render()
         return observe(snapshot, self.config, self._target_speeds()), float(info["rewards"].mean()), terminated, truncated, info

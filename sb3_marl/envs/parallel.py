@@ -94,12 +94,7 @@ class LaneChangeParallelEnv(ParallelEnv):
     def step(self, actions: dict[str, int]) -> tuple[dict, dict, dict, dict, dict]:
         if not self.agents:
             raise RuntimeError("The episode is over: call reset() before step().")
-        missing = [agent for agent in self.agents if agent not in actions]
-        if missing:
-            raise ValueError(f"Invalid actions: no action for agent(s) {missing}; expected one per agent in {self.agents}.")
-        obs, _, terminated, truncated, info = self.env.step(
-            np.array([int(actions[agent]) for agent in self.possible_agents], dtype=np.int64)
-        )
+        obs, _, terminated, truncated, info = self.env.step(self._action_array(actions))
         self._last_obs = obs
         rewards = apply_reward_mode(info, self.reward_mode)
         result = (
@@ -112,6 +107,23 @@ class LaneChangeParallelEnv(ParallelEnv):
         if terminated or truncated:
             self.agents = []
         return result
+
+    def _action_array(self, actions: Any) -> np.ndarray:
+        """One int meta-action per agent from a ``{agent: action}`` dict; a ValueError naming the
+        bad agent or action (a float, a string, None, an unknown agent name)."""
+        if not isinstance(actions, dict):
+            raise ValueError(f"Invalid actions {actions!r}: expected a dict {{agent: meta-action}} for {self.agents}.")
+        unknown = sorted(set(actions) - set(self.agents), key=str)
+        missing = [agent for agent in self.agents if agent not in actions]
+        if unknown or missing:
+            raise ValueError(f"Invalid actions: unknown agent(s) {unknown}, no action for agent(s) {missing}; "
+                             f"expected one per agent in {self.agents}.")
+        for agent, action in actions.items():
+            if isinstance(action, (bool, np.bool_)) or not isinstance(action, (int, np.integer)) or \
+                    not 0 <= action < len(ACTIONS):
+                raise ValueError(f"Invalid action {action!r} for {agent}: expected an integer meta-action in "
+                                 f"{dict(ACTIONS)}.")
+        return np.array([int(actions[agent]) for agent in self.possible_agents], dtype=np.int64)
 
     def state(self) -> np.ndarray:
         """All AVs' observations, flattened: (n_avs * obs_vehicles_count * 5,)."""

@@ -1,0 +1,316 @@
+"""Loading what others share as data, never as code: model zips, run-folder YAML, ``-params`` values.
+
+- **Model zips.** SB3 stores some entries of a model's ``data`` with cloudpickle; unpickling a
+  zip from the internet runs whatever code it carries. :func:`safe_custom_objects` rebuilds every
+  serialized entry from its readable fields and what the project knows (the algorithm's policy
+  and buffer classes, gymnasium spaces, SB3 schedules, an allow-list of torch classes) and hands
+  them to SB3's loader as ``custom_objects``, which then unpickles nothing; tensors are read with
+  ``torch.load(weights_only=True)`` (SB3's default). An entry that cannot be rebuilt refuses the
+  load with a :class:`UnsafeModelError` naming it. ``trust_remote_code=True`` (the Hugging Face
+  convention) loads a zip from another tool the way SB3 does, unpickling it, with a warning.
+- **Run-folder YAML** (``config.yml``, ``args.yml``): :func:`read_run_yaml` with a safe loader
+  that accepts only what rl-zoo writes: plain YAML and its ``OrderedDict`` layout.
+- **Strings of hyperparameters** (``-params`` values, a YAML ``policy_kwargs: "dict(...)"``):
+  :func:`parse_literal` accepts numbers, strings, lists, tuples, dicts, ``dict(key=...)`` and the
+  names of :data:`ALLOWED_NAMES` (activation functions, optimisers); anything else is refused.
+"""
+
+from __future__ import annotations
+
+import ast
+import inspect
+import json
+import re
+import warnings
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from gymnasium import spaces
+from stable_baselines3.common.utils import ConstantSchedule, FloatSchedule, LinearSchedule
+from torch import nn, optim
+
+
+class UnsafeModelError(ValueError):
+    """A model zip has a serialized entry that cannot be rebuilt without running its code."""
+
+
+#: Names a hyperparameter string may use (``policy_kwargs: "dict(activation_fn=nn.Tanh)"``),
+#: under the spellings rl-zoo's configs use.
+ALLOWED_NAMES: dict[str, Any] = {
+    **{f"{prefix}{name}": getattr(nn, name) for prefix in ("nn.", "th.nn.", "torch.nn.", "")
+       for name in ("ReLU", "Tanh", "ELU", "LeakyReLU", "SiLU", "GELU", "Sigmoid", "Identity")},
+    **{f"{prefix}{name}": getattr(optim, name) for prefix in ("optim.", "th.optim.", "torch.optim.", "")
+       for name in ("Adam", "AdamW", "RMSprop", "SGD")},
+    "True": True, "False": False, "None": None, "inf": float("inf"),
+}
+#: rl-zoo's schedule strings, kept as strings for its schedule parser: ``lin_5e-4``.
+SCHEDULE = re.compile(r"^lin_[0-9.eE+-]+$")
+
+
+def parse_literal(text: str, key: str) -> Any:
+    """The value of ``key:text`` (a ``-params`` item or a YAML string meant as Python).
+
+    Numbers, strings, lists, tuples, dicts, ``dict(key=value, ...)`` and :data:`ALLOWED_NAMES`;
+    a schedule ``lin_<x>`` or a bare word (``global``, ``local``) stays a string. Anything else
+    (calls, attributes, operators) is refused: a ValueError naming ``key``.
+    """
+    text = text.strip()
+    if SCHEDULE.match(text):
+        return text
+    try:
+        tree = ast.parse(text, mode="eval").body
+    except SyntaxError:
+        if re.fullmatch(r"[\w.\-/]*", text):
+            return text  # a bare word rl-zoo would keep as a string (e.g. a Python keyword: global)
+        raise ValueError(f"Invalid value for {key}: {text!r} is not a literal (numbers, strings, lists, dicts, "
+                         "dict(...)).") from None
+    if isinstance(tree, ast.Name) and tree.id not in ALLOWED_NAMES:
+        return text  # a bare word (reward_mode:local)
+    try:
+        return _literal(tree)
+    except ValueError as error:
+        raise ValueError(f"Invalid value for {key}: {text!r}: {error}. Allowed: numbers, strings, lists, tuples, "
+                         f"dicts, dict(key=value, ...) and the names {sorted(n for n in ALLOWED_NAMES if '.' in n)}.") from None
+
+
+def _literal(node: ast.AST) -> Any:
+    if isinstance(node, ast.Constant):
+        return node.value
+    if isinstance(node, ast.UnaryOp) and isinstance(node.op, (ast.USub, ast.UAdd)) and isinstance(node.operand, ast.Constant) \
+            and isinstance(node.operand.value, (int, float)) and not isinstance(node.operand.value, bool):
+        return -node.operand.value if isinstance(node.op, ast.USub) else node.operand.value
+    if isinstance(node, ast.List):
+        return [_literal(e) for e in node.elts]
+    if isinstance(node, ast.Tuple):
+        return tuple(_literal(e) for e in node.elts)
+    if isinstance(node, ast.Dict):
+        if any(k is None for k in node.keys):
+            raise ValueError("** unpacking is not a literal")
+        return {_literal(k): _literal(v) for k, v in zip(node.keys, node.values)}  # type: ignore[arg-type]
+    if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "dict" and not node.args \
+            and all(k.arg is not None for k in node.keywords):
+        return {k.arg: _literal(k.value) for k in node.keywords}
+    name = ast.unparse(node)
+    if isinstance(node, (ast.Name, ast.Attribute)) and name in ALLOWED_NAMES:
+        return ALLOWED_NAMES[name]
+    raise ValueError(f"{name!r} is not allowed")
+
+
+# ---- run-folder YAML ---------------------------------------------------------------------------
+
+
+class RunFileLoader(yaml.SafeLoader):
+    """yaml's SafeLoader plus rl-zoo's ``!!python/object/apply:collections.OrderedDict`` (a list of
+    [key, value] pairs, read as a dict); every other Python tag is refused."""
+
+
+def _ordered_dict(loader: yaml.SafeLoader, node: yaml.Node) -> dict:
+    (pairs,) = loader.construct_sequence(node, deep=True)
+    return {key: value for key, value in pairs}
+
+
+RunFileLoader.add_constructor("tag:yaml.org,2002:python/object/apply:collections.OrderedDict", _ordered_dict)
+RunFileLoader.add_constructor("tag:yaml.org,2002:python/tuple",
+                              lambda loader, node: tuple(loader.construct_sequence(node, deep=True)))
+
+
+def read_run_yaml(path: str | Path) -> dict[str, Any]:
+    """A run folder's ``config.yml`` / ``args.yml`` as a dict; a ValueError naming the file for
+    YAML that is not plain data (e.g. a ``!!python/object/apply:os.system`` tag) or not a mapping."""
+    try:
+        data = yaml.load(Path(path).read_text(), Loader=RunFileLoader)
+    except yaml.YAMLError as error:
+        raise ValueError(f"{path} is not a plain-data YAML file of a run ({str(error).splitlines()[0]}); "
+                         "it is not read (it could run code).") from None
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise ValueError(f"{path} must be a mapping of keys to values, got a {type(data).__name__}.")
+    return data
+
+
+# ---- model zips --------------------------------------------------------------------------------
+
+
+def read_model_data(path: str | Path) -> dict[str, Any]:
+    """The ``data`` JSON of an SB3 model zip as written (serialized entries unread); a ValueError
+    naming the file if it is not a readable SB3 zip."""
+    try:
+        with zipfile.ZipFile(path) as archive:
+            data = json.loads(archive.read("data"))
+    except (OSError, KeyError, zipfile.BadZipFile, json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise ValueError(f"{path} is not a readable SB3 model file ({type(error).__name__}: {error}).") from None
+    if not isinstance(data, dict) or not data:
+        raise ValueError(f"{path} is not a readable SB3 model file (no data).")
+    return data
+
+
+def is_serialized(entry: Any) -> bool:
+    return isinstance(entry, dict) and ":serialized:" in entry
+
+
+#: Serialized entries that hold training state only; loading starts them afresh (SB3's ``learn``
+#: resets the env and the episode buffers when they are None).
+TRANSIENT = ("_last_obs", "_last_episode_starts", "_last_original_obs", "ep_info_buffer", "ep_success_buffer")
+
+
+def safe_custom_objects(algo_class: type, path: str | Path) -> dict[str, Any]:
+    """Every serialized entry of the zip's data rebuilt without unpickling (see module doc).
+
+    :raises UnsafeModelError: naming the first entry that cannot be rebuilt
+    """
+    data = read_model_data(path)
+    rebuilt: dict[str, Any] = {}
+    for key, entry in data.items():
+        if is_serialized(entry):
+            try:
+                rebuilt[key] = _rebuild(key, entry, algo_class)
+            except (ValueError, KeyError, TypeError) as error:
+                raise UnsafeModelError(
+                    f"{path}: the entry {key!r} of its data is pickled code that sb3-marl cannot rebuild from "
+                    f"plain data ({error}); it was not loaded. If you trust this file and its source, load it with "
+                    "trust_remote_code=True (command line: --trust-remote-code)."
+                ) from None
+    return rebuilt
+
+
+def _class_name(text: str) -> str:
+    """``"<class 'a.b.C'>"`` -> ``"a.b.C"``."""
+    match = re.fullmatch(r"<class '([\w.]+)'>", text)
+    if match is None:
+        raise ValueError(f"{text!r} is not a class")
+    return match.group(1)
+
+
+def _rebuild(key: str, entry: dict[str, Any], algo_class: type) -> Any:
+    kind = _class_name(entry[":type:"])
+    if key in TRANSIENT:
+        return None
+    if kind.endswith(("utils.ConstantSchedule", "utils.FloatSchedule", "utils.LinearSchedule")):
+        return _schedule(kind.rpartition(".")[2], entry)
+    if kind == "gymnasium.spaces.box.Box":
+        shape = tuple(int(n) for n in entry["_shape"])
+        dtype = np.dtype(entry["dtype"])
+        low, high = (_numbers(entry[bound], shape).astype(dtype) for bound in ("low", "high"))
+        return spaces.Box(low, high, shape, dtype)
+    if kind == "gymnasium.spaces.discrete.Discrete":
+        return spaces.Discrete(int(entry["n"]), start=int(entry["start"]))
+    if kind == "dict" and key == "policy_kwargs":
+        return {name: _plain_value(f"policy_kwargs.{name}", text, algo_class) for name, text in entry.items()
+                if name not in (":type:", ":serialized:")}
+    if kind == "stable_baselines3.common.type_aliases.TrainFreq":
+        # not readable: the algorithm's default (continuing training passes the run's own value)
+        return inspect.signature(algo_class).parameters["train_freq"].default
+    if kind in ("abc.ABCMeta", "type"):
+        return _known_class(key, entry, algo_class)
+    raise ValueError(f"type {kind} is not one sb3-marl rebuilds")
+
+
+def _numbers(text: str, shape: tuple[int, ...]) -> np.ndarray:
+    """A numpy array printed as ``text`` (numbers, inf, nan), of ``shape``."""
+    values = re.findall(r"[-+]?(?:inf|nan|\d+\.?\d*(?:e[-+]?\d+)?)", text)
+    if "..." in text or len(values) != int(np.prod(shape)):
+        raise ValueError(f"the bounds {text[:40]!r} are not a readable array of shape {shape}")
+    return np.array([float(v) for v in values]).reshape(shape)
+
+
+def _schedule(kind: str, entry: dict[str, Any]) -> Any:
+    if kind == "ConstantSchedule":
+        return ConstantSchedule(float(entry["val"]))
+    if kind == "LinearSchedule":
+        return LinearSchedule(float(entry["start"]), float(entry["end"]), float(entry["end_fraction"]))
+    inner = re.fullmatch(r"(\w+)\((.*)\)", entry["value_schedule"])
+    if inner is None or inner.group(1) not in ("ConstantSchedule", "LinearSchedule"):
+        raise ValueError(f"schedule {entry['value_schedule']!r} is not a constant or linear one")
+    fields = dict(item.split("=") for item in inner.group(2).split(", "))
+    return FloatSchedule(_schedule(inner.group(1), fields))
+
+
+def _known_classes(algo_class: type) -> dict[str, type]:
+    """Classes a model of ``algo_class`` may name: its policies, the buffers and feature extractors."""
+    from sb3_contrib.common.maskable.buffers import MaskableRolloutBuffer
+    from stable_baselines3.common.buffers import ReplayBuffer, RolloutBuffer
+
+    from sb3_marl.algos.masking import MaskedReplayBuffer, PerAgentRolloutBuffer
+    from sb3_marl.policies import MA2CFeaturesExtractor
+
+    classes = [*algo_class.policy_aliases.values(), MaskableRolloutBuffer, RolloutBuffer, ReplayBuffer,
+               MaskedReplayBuffer, PerAgentRolloutBuffer, MA2CFeaturesExtractor]
+    return {f"{c.__module__}.{c.__qualname__}": c for c in classes}
+
+
+def saved_policy_class(data: dict[str, Any], algo_class: type) -> type | None:
+    """The policy class a model's ``data`` names, among ``algo_class``'s; None if it names none
+    of them (a model of another algorithm or tool)."""
+    entry = data.get("policy_class")
+    try:
+        return _known_class("policy_class", entry, algo_class) if is_serialized(entry) else None
+    except (ValueError, KeyError):
+        return None
+
+
+def _known_class(key: str, entry: dict[str, Any], algo_class: type) -> type:
+    """A class entry (``policy_class``, ``rollout_buffer_class``, ...) from its module and the name
+    its methods carry (``<function NAME.method at ...>``), among :func:`_known_classes`."""
+    names = {m.group(1) for text in entry.values() if isinstance(text, str)
+             for m in [re.match(r"<function (\w+)\.", text)] if m}
+    known = _known_classes(algo_class)
+    matches = [known[f"{entry['__module__']}.{name}"] for name in names if f"{entry['__module__']}.{name}" in known]
+    if len(matches) != 1:
+        raise ValueError(f"class {entry.get('__module__')}.{'/'.join(sorted(names)) or '?'} is not one of "
+                         f"{sorted(known)}")
+    return matches[0]
+
+
+def _plain_value(key: str, text: Any, algo_class: type) -> Any:
+    """One readable value of a serialized dict: a JSON value, a known class, or a literal."""
+    if not isinstance(text, str):
+        return text
+    if text.startswith("<class "):
+        name = _class_name(text)
+        classes = {**{f"{c.__module__}.{c.__qualname__}": c for c in ALLOWED_NAMES.values() if isinstance(c, type)},
+                   **_known_classes(algo_class)}
+        if name not in classes:
+            raise ValueError(f"{key} is the class {name}, not one of {sorted(classes)}")
+        return classes[name]
+    try:
+        return ast.literal_eval(text)
+    except (ValueError, SyntaxError):
+        raise ValueError(f"{key}={text!r} is not a literal") from None
+
+
+def load_model(algo_class: Any, path: str | Path, *, trust_remote_code: bool = False,
+               custom_objects: dict[str, Any] | None = None, **kwargs: Any) -> Any:
+    """``algo_class.load(path, ...)`` (SB3's own loader) with every serialized entry rebuilt as
+    data (:func:`safe_custom_objects`); with ``trust_remote_code`` the zip is unpickled as SB3
+    does, after a warning naming the file."""
+    if trust_remote_code:
+        warnings.warn(f"Loading {path} with trust_remote_code=True: its pickled entries are unpickled and may run "
+                      "code.", stacklevel=3)
+        objects = dict(custom_objects or {})
+    else:
+        objects = {**safe_custom_objects(algo_class, path), **(custom_objects or {})}
+    return algo_class.sb3_load(path, custom_objects=objects, **kwargs)
+
+
+class SafeLoading:
+    """Mixin of the registered learners: ``load`` goes through :func:`load_model` (no unpickling
+    unless ``trust_remote_code=True``); ``sb3_load`` is SB3's own ``load``."""
+
+    @classmethod
+    def load(cls, path: Any, env: Any = None, device: Any = "auto", custom_objects: dict[str, Any] | None = None,
+             print_system_info: bool = False, force_reset: bool = True, trust_remote_code: bool = False,
+             **kwargs: Any) -> Any:
+        return load_model(cls, path, trust_remote_code=trust_remote_code, custom_objects=custom_objects, env=env,
+                          device=device, print_system_info=print_system_info, force_reset=force_reset, **kwargs)
+
+    @classmethod
+    def sb3_load(cls, path: Any, **kwargs: Any) -> Any:
+        return super().load(path, **kwargs)  # type: ignore[misc]
+
+
+__all__ = ["ALLOWED_NAMES", "RunFileLoader", "SafeLoading", "UnsafeModelError", "load_model", "parse_literal",
+           "read_model_data", "read_run_yaml", "safe_custom_objects", "saved_policy_class"]

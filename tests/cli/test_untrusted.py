@@ -1,0 +1,279 @@
+"""Files and strings a stranger could hand a user never run code, and every bad input gets one
+clear message (issue: loading what others share). Each payload below is real: it writes a marker
+file when unpickled or evaluated, as the tests with ``trust_remote_code`` show."""
+
+import base64
+import json
+import os
+import re
+import resource
+import signal
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import cloudpickle
+import numpy as np
+import pytest
+
+from sb3_marl.algos import get_algo
+from sb3_marl.cli import main
+from sb3_marl.loading import UnsafeModelError, parse_literal, read_run_yaml
+
+ENV = "sb3_marl/LaneChange-density1-v0"
+ENV_NAME = "sb3_marl-LaneChange-density1-v0"
+TINY = ["-n", "600", "--eval-freq", "300", "--eval-episodes", "1", "-params", "n_steps:20"]
+SB3_MARL = str(Path(sys.executable).parent / "sb3-marl")
+
+
+class Payload:
+    """Unpickling this object creates ``marker`` (what a malicious zip would do instead)."""
+
+    def __init__(self, marker: Path) -> None:
+        self.marker = marker
+
+    def __reduce__(self):
+        return (Path.touch, (self.marker,))
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory) -> Path:
+    """One tiny MA2C run folder."""
+    folder = tmp_path_factory.mktemp("logs")
+    assert main(["train", "-f", str(folder), *TINY]) == 0
+    return folder
+
+
+def poisoned_copy(run: Path, tmp_path: Path, entry: str = "policy_class") -> tuple[Path, Path]:
+    """A copy of the run whose model zip's ``entry`` is a cloudpickle payload; (logs, marker)."""
+    logs = tmp_path / "logs"
+    subprocess.run(["cp", "-r", str(run), str(logs)], check=True)
+    marker = tmp_path / "marker"
+    model = logs / "ma2c" / f"{ENV_NAME}_1" / f"{ENV_NAME}.zip"
+    with zipfile.ZipFile(model) as archive:
+        files = {name: archive.read(name) for name in archive.namelist()}
+    data = json.loads(files["data"])
+    data[entry] = {":type:": "<class 'abc.ABCMeta'>",
+                   ":serialized:": base64.b64encode(cloudpickle.dumps(Payload(marker))).decode()}
+    files["data"] = json.dumps(data).encode()
+    with zipfile.ZipFile(model, "w") as archive:
+        for name, content in files.items():
+            archive.writestr(name, content)
+    return logs, marker
+
+
+@pytest.mark.parametrize("entry", ["policy_class", "observation_space", "lr_schedule"])
+def test_a_poisoned_model_zip_is_refused_by_every_command(run, tmp_path, capsys, entry):
+    logs, marker = poisoned_copy(run, tmp_path, entry)
+    model = logs / "ma2c" / f"{ENV_NAME}_1" / f"{ENV_NAME}.zip"
+    for argv in (["evaluate", "-f", str(logs), "--eval-episodes", "1"],
+                 ["record-video", "-f", str(logs), "-o", str(tmp_path / "v.mp4")],
+                 ["train", "-f", str(tmp_path / "resumed"), "-i", str(model), *TINY]):
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert f"'{entry}'" in err and "trust_remote_code" in err, err
+        assert not marker.exists()
+    assert not (tmp_path / "resumed").exists()
+    with pytest.raises(UnsafeModelError, match=entry):
+        get_algo("ma2c").load(model)
+    assert not marker.exists()
+    # the payload is real: trusting the file runs it (with a warning naming the file)
+    with pytest.warns(UserWarning, match="trust_remote_code=True"):
+        try:
+            get_algo("ma2c").load(model, trust_remote_code=True)
+        except Exception:
+            pass  # the payload is no policy class; what matters is that it ran
+    assert marker.exists()
+
+
+def test_clean_models_load_without_unpickling_anything(run, monkeypatch):
+    """Every committed learner's zip loads with cloudpickle disabled."""
+    def refuse(*args, **kwargs):
+        raise AssertionError("cloudpickle.loads called")
+
+    monkeypatch.setattr(cloudpickle, "loads", refuse)
+    monkeypatch.setattr("pickle.loads", refuse)
+    model = get_algo("ma2c").load(run / "ma2c" / f"{ENV_NAME}_1" / f"{ENV_NAME}.zip")
+    assert model.num_timesteps >= 600 and model.lr_schedule(1.0) > 0
+    grid = Path(__file__).resolve().parents[2] / "results" / "paper-grid" / "trials"
+    for algo in ("ma2c", "mappo", "madqn", "maacktr"):
+        (zip_path,) = (grid / f"{algo}_density1_default_seed0" / algo).glob("*_1/*.zip")
+        assert get_algo(algo).load(zip_path, device="cpu").num_timesteps > 0
+
+
+@pytest.mark.parametrize("name", ["config.yml", "args.yml"])
+def test_run_yaml_with_a_python_tag_is_refused(run, tmp_path, capsys, name):
+    logs = tmp_path / "logs"
+    subprocess.run(["cp", "-r", str(run), str(logs)], check=True)
+    marker = tmp_path / "marker"
+    path = logs / "ma2c" / f"{ENV_NAME}_1" / ENV_NAME / name
+    path.write_text(f"!!python/object/apply:os.system ['touch {marker}']\n")
+    command = ["evaluate", "-f", str(logs), "--eval-episodes", "1"] if name == "config.yml" else ["summary", "-f", str(logs)]
+    if name == "args.yml":
+        assert main(["evaluate", "-f", str(logs), "--eval-episodes", "1"]) == 0  # an evaluation to summarise
+    assert main(command) == 2
+    assert name in capsys.readouterr().err and not marker.exists()
+    with pytest.raises(ValueError, match="plain-data YAML"):
+        read_run_yaml(path)
+
+
+def test_rl_zoo_run_yaml_still_reads(run):
+    config = read_run_yaml(run / "ma2c" / f"{ENV_NAME}_1" / ENV_NAME / "config.yml")
+    assert config["env_config"] == {"safety_supervisor": True} and config["n_steps"] == 20
+
+
+@pytest.mark.parametrize("text", ["__import__('os').system('touch MARKER')", "open('MARKER', 'w')",
+                                  "dict(a=__import__('os'))", "[x for x in ()]", "1 + 1", "nn.Module.__subclasses__()"])
+def test_hyperparameter_strings_are_never_evaluated(text, tmp_path, capsys):
+    text = text.replace("MARKER", str(tmp_path / "marker"))
+    with pytest.raises(ValueError, match="Invalid value for policy_kwargs"):
+        parse_literal(text, "policy_kwargs")
+    with pytest.raises(SystemExit) as exit_info:
+        main(["train", "-f", str(tmp_path / "logs"), "-params", f"policy_kwargs:{text}"])
+    assert exit_info.value.code == 2 and "policy_kwargs" in capsys.readouterr().err
+    conf = tmp_path / "conf.yml"
+    conf.write_text(f"{ENV}:\n  policy: MlpPolicy\n  policy_kwargs: \"{text}\"\n")
+    assert main(["train", "-f", str(tmp_path / "logs"), "-c", str(conf), "-n", "100"]) == 2
+    assert "policy_kwargs" in capsys.readouterr().err
+    assert not (tmp_path / "marker").exists() and not (tmp_path / "logs").exists()
+
+
+def test_literals_parse():
+    from torch import nn
+
+    assert parse_literal("dict(net_arch=[64, 64], activation_fn=nn.Tanh)", "k") == {
+        "net_arch": [64, 64], "activation_fn": nn.Tanh}
+    assert parse_literal("{'comfort': False, 'hdv_politeness': -1.5}", "k") == {"comfort": False, "hdv_politeness": -1.5}
+    assert parse_literal("lin_5e-4", "k") == "lin_5e-4" and parse_literal("global", "k") == "global"
+    assert parse_literal("local", "k") == "local" and parse_literal("3e-4", "k") == 3e-4
+
+
+@pytest.mark.parametrize(
+    ("params", "message"),
+    [
+        ("env_config:0", "Invalid env_config=0: expected a mapping"),
+        ("env_config:None", "Invalid env_config=None: expected a mapping"),
+        ('env_config:""', "Invalid env_config='': expected a mapping"),
+        ("policy_kwargs:dict(net_arch=[-1])", "Invalid policy_kwargs={'net_arch': [-1]}"),
+        ("policy_kwargs:dict(bogus=1)", "unexpected keyword argument 'bogus'"),
+        ("policy_kwargs:5", "Invalid policy_kwargs=5: expected a mapping"),
+    ],
+)
+def test_bad_overrides_exit_2_before_any_folder(params, message, tmp_path, capsys):
+    assert main(["train", "-f", str(tmp_path / "logs"), "-n", "100", "-params", params]) == 2
+    assert message in capsys.readouterr().err and not (tmp_path / "logs").exists()
+
+
+@pytest.mark.parametrize("seed", ["-1", "1099511627776"])
+def test_bad_seeds_exit_2_before_any_folder(seed, tmp_path, capsys):
+    assert main(["train", "-f", str(tmp_path / "logs"), "-n", "100", "--seed", seed]) == 2
+    assert "--seed" in capsys.readouterr().err and not (tmp_path / "logs").exists()
+
+
+def test_unwritable_and_overlong_log_folders_exit_2(tmp_path, capsys):
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    locked.chmod(0o500)
+    try:
+        if not os.access(locked, os.W_OK):  # root writes everywhere: nothing to check then
+            assert main(["train", "-f", str(locked / "logs"), "-n", "100"]) == 2
+            assert "not writable" in capsys.readouterr().err
+    finally:
+        locked.chmod(0o700)
+    assert main(["train", "-f", str(tmp_path / ("x" * 300)), "-n", "100"]) == 2
+    assert "too long" in capsys.readouterr().err
+
+
+def _no_large_files() -> None:
+    """In the child: files over 64 KB cannot be written (the OS refuses the write, EFBIG), as on
+    a full disk; SIGXFSZ ignored so that the write fails instead of killing the process."""
+    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    resource.setrlimit(resource.RLIMIT_FSIZE, (64_000, 64_000))
+
+
+def test_a_write_the_os_refuses_gives_one_message(tmp_path):
+    completed = subprocess.run([SB3_MARL, "train", "-f", str(tmp_path / "logs"), "-n", "600", "--eval-freq", "-1",
+                                "-params", "n_steps:20", "--verbose", "0"], capture_output=True, text=True,
+                               preexec_fn=_no_large_files, timeout=300)
+    assert completed.returncode == 1, completed.stderr
+    assert "Traceback" not in completed.stderr
+    assert "could not write" in completed.stderr and "free some space" in completed.stderr, completed.stderr
+
+
+def test_one_unreadable_trial_is_named_and_the_rest_listed(tmp_path, capsys):
+    grid = Path(__file__).resolve().parents[2] / "results" / "paper-grid"
+    copy = tmp_path / "grid"
+    (copy / "trials").mkdir(parents=True)
+    (copy / "benchmark.json").write_text((grid / "benchmark.json").read_text())
+    for trial in ("ma2c_density1_default_seed0", "ma2c_density1_default_seed1"):
+        subprocess.run(["cp", "-r", str(grid / "trials" / trial), str(copy / "trials" / trial)], check=True)
+    broken = copy / "trials" / "ma2c_density1_default_seed1" / "result.json"
+    broken.write_text(broken.read_text()[:100])
+    assert main(["benchmark", "status", "--grid", "reward", "--seeds", "2", "--densities", "1",
+                 "-f", str(copy)]) == 1
+    captured = capsys.readouterr()
+    assert re.search(r"ma2c_density1_default_seed0 +finished", captured.out) and str(broken) in captured.err
+    assert re.search(r"ma2c_density1_default_seed1 +unreadable", captured.out)
+    npz = next((copy / "trials" / "ma2c_density1_default_seed0").glob("ma2c/*_1/evaluations.npz"))
+    npz.write_bytes(npz.read_bytes()[:200])
+    from sb3_marl.benchmark.report import load_trials
+
+    problems: list[str] = []
+    assert load_trials(copy, problems) == [] and any(str(npz) in p for p in problems)
+    plots = tmp_path / "plots"
+    assert main(["plot", "-f", str(npz.parents[2]), "-o", str(plots)]) == 2
+    assert str(npz) in capsys.readouterr().err and not list(plots.glob("*.png"))
+
+
+def test_a_broken_ffmpeg_is_one_message(run, tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("IMAGEIO_FFMPEG_EXE", "/bin/false")
+    assert main(["record-video", "-f", str(run), "-o", str(tmp_path / "v.mp4")]) == 1
+    assert "with ffmpeg" in capsys.readouterr().err and not (tmp_path / "v.mp4").exists()
+
+
+@pytest.mark.parametrize("results", ["not json", json.dumps({"env_id": ENV}), json.dumps({"algo": "a/b", "env_id": ENV}),
+                                     json.dumps({"algo": "ma2c", "env_id": "../../x"})])
+def test_a_hub_repo_with_bad_results_is_one_message(results, tmp_path):
+    from sb3_marl.hub import HubError, _place_run
+
+    snapshot = tmp_path / "snapshot"
+    snapshot.mkdir()
+    (snapshot / "results.json").write_text(results)
+    with pytest.raises(HubError, match="results.json"):
+        _place_run("org/name", snapshot, tmp_path / "logs")
+    assert not (tmp_path / "logs").exists()
+
+
+@pytest.mark.parametrize(("action", "match"), [(3.9, "Invalid action 3.9"), ("2", "Invalid action '2'"),
+                                               (None, "Invalid action None"), (7, "Invalid action 7")])
+def test_pettingzoo_step_rejects_bad_actions(action, match):
+    from sb3_marl.envs.parallel import parallel_env
+
+    env = parallel_env(density=1, n_avs=2)
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=match):
+        env.step({"av_0": action, "av_1": 1})
+    with pytest.raises(ValueError, match="unknown agent"):
+        env.step({"av_0": 1, "av_1": 1, "av_9": 1})
+
+
+def test_stepping_after_the_end_raises():
+    import gymnasium as gym
+
+    from wrappers import ParameterSharingVecEnv
+
+    env = gym.make(ENV, config={"n_avs": 1, "duration": 1}).unwrapped
+    env.reset(seed=0)
+    done = False
+    while not done:
+        _, _, terminated, truncated, _ = env.step(np.array([1]))
+        done = terminated or truncated
+    with pytest.raises(RuntimeError, match="call reset"):
+        env.step(np.array([1]))
+    for backend in ("dummy", "subproc"):
+        venv = ParameterSharingVecEnv(ENV, vec_backend=backend, seed=0)
+        venv.reset()
+        venv.close()
+        with pytest.raises(RuntimeError, match="closed"):
+            venv.step(np.ones(venv.num_envs, dtype=np.int64))
