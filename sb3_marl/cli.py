@@ -212,8 +212,10 @@ def build_parser() -> argparse.ArgumentParser:
         _add_run_selection(evaluate)
         evaluate.add_argument("--eval-episodes", type=_positive(), default=30, help="episodes (default: 30)")
         evaluate.add_argument("-o", "--output", default=None, help="JSON file (default: <run>/evaluation.json)")
-        evaluate.add_argument("--with-baselines", action="store_true",
-                              help="add the reference policies (random, IDM/MOBIL) on the same seeds to the table")
+        evaluate.add_argument("--with-baselines", nargs="*", default=None, metavar="POLICY",
+                              choices=["random", "cruise", "idm-mobil"],
+                              help="add reference policies on the same seeds to the table: the ones named, or all of "
+                                   "them (random, cruise, idm-mobil) without a name")
 
     plot = commands.add_parser("plot", help="learning-curve PNGs of one or several runs")
     plot.add_argument("--algo", "--algos", dest="algos", nargs="+", default=["ma2c"], choices=ALGO_NAMES)
@@ -449,11 +451,13 @@ def evaluate(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     result = {"model": str(run.model_path), **run.evaluate(model, args.eval_episodes, seed, args.deterministic)}
     rows = protocol_rows({"policy": args.algo, "timesteps": model.num_timesteps}, result)
-    if args.with_baselines:
+    if args.with_baselines is not None:
         from sb3_marl.baselines import BASELINES
 
         result["baselines"] = {}
         for name, policy_class in BASELINES.items():
+            if args.with_baselines and name not in args.with_baselines:
+                continue
             baseline = evaluate_protocols(policy_class(), args.env, args.eval_episodes, seed, run.env_config)
             result["baselines"][name] = baseline
             rows += protocol_rows({"policy": name, "timesteps": "-"}, baseline)

@@ -6,13 +6,8 @@ import numpy as np
 import pytest
 
 from sb3_marl.envs.lane_change_env import ACTION_INDEX
-from sb3_marl.evaluation import model_policy
-from sb3_marl.interpretation import (
-    YIELD_GAP_M,
-    _Trace,
-    find_cooperative_lane_change,
-    plot_cooperative_lane_change,
-)
+from sb3_marl.evaluation import YIELD_GAP_M, EpisodeTrace, model_policy
+from sb3_marl.interpretation import find_cooperative_lane_change, plot_cooperative_lane_change
 from sb3_marl.runs import find_run
 
 #: A committed full-budget MA2C model at density 3 trained without the intervention penalty (it
@@ -21,10 +16,10 @@ TRIAL = Path(__file__).resolve().parent.parent / "results" / "paper-grid" / "tri
 ENV_ID = "sb3_marl/LaneChange-density3-v0"
 
 
-def _trace(follower_actions: list[str], follower_offset: float = -20.0, steps: int = 14, change_at: int = 6) -> _Trace:
+def _trace(follower_actions: list[str], follower_offset: float = -20.0, steps: int = 14, change_at: int = 6) -> EpisodeTrace:
     """AV 0 drives in lane 0 and starts a lane change into lane 1 at ``change_at``; AV 1 drives in
     lane 1, ``follower_offset`` m from AV 0, braking from 25 m/s once it executes SLOWER."""
-    trace = _Trace(seed=7, n_avs=2)
+    trace = EpisodeTrace(seed=7, n_avs=2)
     speed = 25.0
     for step in range(steps):
         action = follower_actions[step] if step < len(follower_actions) else "IDLE"

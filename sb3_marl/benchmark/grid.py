@@ -31,6 +31,9 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "no-comfort": {"env_config": {"comfort": False}},
     "politeness-1": {"env_config": {"hdv_politeness": 1.0}},
     "no-intervention-penalty": {"intervention_penalty": 0.0},
+    # training that makes the policy safe on its own (README "Safety without the supervisor"): half
+    # the training episodes without the supervisor, actor and critic on their own networks
+    "safety-training": {"architecture": "separate", "supervisor_dropout": 0.5},
 }
 
 #: Experiment -> its curves: label -> (algorithm, variant). In the order of the paper's sections.
@@ -50,10 +53,17 @@ EXPERIMENTS: dict[str, dict[str, tuple[str, str]]] = {
         "intervention penalty (ours)": ("ma2c", "default"),
         "no penalty (the authors' reward)": ("ma2c", "no-intervention-penalty"),
     },
+    # beyond the paper: training that makes the policy safe without the supervisor
+    "safety": {
+        "behind the supervisor (default)": ("ma2c", "default"),
+        "safety training": ("ma2c", "safety-training"),
+    },
 }
 
 #: Grid name -> the experiments it runs.
-GRIDS: dict[str, tuple[str, ...]] = {"paper": tuple(EXPERIMENTS), **{name: (name,) for name in EXPERIMENTS}}
+#: The "paper" grid: the paper's five experiments and our intervention-penalty one (81 trials with 3 seeds).
+GRIDS: dict[str, tuple[str, ...]] = {"paper": tuple(e for e in EXPERIMENTS if e != "safety"),
+                                     **{name: (name,) for name in EXPERIMENTS}}
 
 
 @dataclass(frozen=True)

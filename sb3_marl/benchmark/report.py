@@ -61,6 +61,8 @@ PAPER_FINDINGS = {
     "baselines": ("Experiment 5: baselines", "best mean return in its Table 5: MA2C at density 1, MADQN at densities 2 and 3"),
     "penalty": ("Beyond the paper: MA2C's intervention penalty on vs off",
                 "not studied (the authors train on the paper's reward alone)"),
+    "safety": ("Beyond the paper: MA2C trained behind the supervisor (default) vs with safety training",
+               "not studied (the authors train and evaluate behind the supervisor only)"),
 }
 
 #: Experiment -> what a reader must know to compare its curves' returns.
@@ -324,6 +326,13 @@ def _reference_section(references: dict[tuple[str, int], dict[str, float]],
             continue
         lines.append(f"- Here, density {density}: against IDM/MOBIL ({reference['iqm']:.2f}), " + ", ".join(
             f"{label} {s['iqm']:.2f} ({_ci_verdict(s, reference)})" for label, s in learners.items() if "iqm" in s) + ".")
+        alone = {label: s["supervisor_off"] for label, s in learners.items() if s.get("supervisor_off")}
+        if alone:
+            idm = reference["supervisor_off"]
+            lines.append(f"- Here, density {density}, the policy alone (supervisor off): IDM/MOBIL {idm['return_mean']:.2f} "
+                         f"(collision {idm['collision_rate']:.2f}); " + ", ".join(
+                             f"{label} {a['return_mean']:.2f} (collision {a['collision_rate']:.2f})"
+                             for label, a in alone.items()) + ".")
     return [*lines, ""]
 
 
@@ -359,7 +368,7 @@ def _findings(experiment: str, summaries: dict[tuple[str, str, int], dict[str, f
         if any(summary is None for summary in finals.values()):
             continue
         (first, a), (second, b) = list(finals.items())[:2]
-        if experiment in ("reward", "sharing", "penalty"):
+        if experiment in ("reward", "sharing", "penalty", "safety"):
             finding = (f"{first} vs {second}: return {_compare(a['return_mean'], b['return_mean'], 'higher', 'lower')}"
                        f" ({_ci_verdict(a, b)}), "
                        f"std over seeds {_compare(a['return_std'], b['return_std'], 'higher', 'lower')}")
@@ -378,6 +387,11 @@ def _findings(experiment: str, summaries: dict[tuple[str, str, int], dict[str, f
             others = [label for label in finals if label != best]
             finding = f"best final return: {best}; its IQM against " + ", ".join(
                 f"{label}: {_ci_verdict(finals[best], finals[label])}" for label in others)
+        if experiment == "safety" and a.get("supervisor_off") and b.get("supervisor_off"):
+            off_a, off_b = a["supervisor_off"], b["supervisor_off"]
+            finding += (f"; the policy alone (supervisor off): return {off_a['return_mean']:.2f} vs "
+                        f"{off_b['return_mean']:.2f}, collision rate {off_a['collision_rate']:.2f} vs "
+                        f"{off_b['collision_rate']:.2f}")
         lines.append(f"- Here, density {density}: {finding}.")
     return lines
 
@@ -452,7 +466,7 @@ def plot_final_returns(summaries: dict[tuple[str, str, int], dict[str, float] | 
                     iqm.append(summary["iqm"])
                     low.append(summary["iqm"] - summary["iqm_low"])
                     high.append(summary["iqm_high"] - summary["iqm"])
-                if variant == "default" and (algo, density) in PAPER_RETURNS:
+                if (algo, variant) in EXPERIMENTS["baselines"].values() and (algo, density) in PAPER_RETURNS:
                     paper.append((position, PAPER_RETURNS[algo, density][0]))
             ax.bar(x, iqm, width, yerr=[low, high], capsize=3, color=f"C{k}")
             legend[label if x else f"{label}: no finished trial"] = Patch(color=f"C{k}", alpha=1.0 if x else 0.3)

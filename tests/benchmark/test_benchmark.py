@@ -16,6 +16,7 @@ import pytest
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from sb3_marl.benchmark import GRIDS, make_grid
+from sb3_marl.benchmark.grid import VARIANTS
 from sb3_marl.benchmark.report import acceleration_traces, load_trials, write_report
 from sb3_marl.benchmark.runner import run_benchmark
 from sb3_marl.cli import main
@@ -49,7 +50,10 @@ def test_grids_hold_each_trial_once():
     # the paper grid shares the default MA2C trials between experiments: 4 algos + 5 MA2C variants
     paper = make_grid("paper")
     assert len(paper) == (4 + 5) * 3 * 2 == len({spec.trial_id for spec in paper})
-    assert set(GRIDS) == {"paper", "baselines", "reward", "sharing", "comfort", "politeness", "penalty"}
+    assert set(GRIDS) == {"paper", "baselines", "reward", "sharing", "comfort", "politeness", "penalty", "safety"}
+    safety = make_grid("safety", seeds=1)
+    assert [spec.variant for spec in safety] == ["default", "safety-training"] * 3
+    assert safety[1].hyperparams == VARIANTS["safety-training"] and safety[1].hyperparams["supervisor_dropout"] > 0
     assert make_grid("penalty", seeds=1)[-1].hyperparams == {"intervention_penalty": 0.0}
     spec = make_grid("comfort", densities=(2,), seeds=1)[1]
     assert spec.hyperparams == {"env_config": {"comfort": False}}
