@@ -17,7 +17,11 @@ puts the same :class:`~sb3_marl.envs.lane_change_env.LaneChangeEnv` behind it:
   headway [m], crash flag and, with the safety supervisor on, its proposed and executed action;
 - ``state()``: the global view, all AVs' observations stacked (``state_space``, shape
   (n_avs * obs_vehicles_count * 5,)), for centralised critics;
-- ``render()``: highway-env's renderer (``render_mode="rgb_array"`` works headless).
+- ``render()``: highway-env's renderer (``render_mode="rgb_array"`` works headless);
+- for other libraries' conventions: ``flatten_observations=True`` gives each agent a 1-D Box
+  (``obs_vehicles_count * 5``,) (RLlib's and BenchMARL's default models take 1-D inputs), and
+  ``action_mask_in_observation=True`` PettingZoo's masked-env convention, a Dict observation
+  ``{"observation": ..., "action_mask": int8 (5,)}`` that RLlib's and TorchRL's masking read.
 
 Unlike :class:`~wrappers.parameter_sharing.ParameterSharingVecEnv`, which feeds AV counts that
 vary between copies to one SB3 learner with no padding, a ParallelEnv has a fixed set of possible
@@ -48,12 +52,15 @@ class LaneChangeParallelEnv(ParallelEnv):
     metadata = {"name": "sb3_marl_lane_change_v0", "render_modes": ["human", "rgb_array"], "is_parallelizable": True}
 
     def __init__(
-        self, density: int = 1, reward_mode: str = "local", render_mode: str | None = None, **config: Any
+        self, density: int = 1, reward_mode: str = "local", render_mode: str | None = None,
+        flatten_observations: bool = False, action_mask_in_observation: bool = False, **config: Any
     ) -> None:
         """
         :param density: traffic density, 1, 2 or 3
         :param reward_mode: ``"local"``, ``"global"`` or ``"individual"``
         :param render_mode: None, ``"rgb_array"`` or ``"human"``
+        :param flatten_observations: each agent's observation as a 1-D vector
+        :param action_mask_in_observation: each agent's observation as a Dict with its action mask
         :param config: scenario config overrides (``n_avs``, ``safety_supervisor``, ...; see
             :mod:`sb3_marl.envs.config`)
         """
@@ -61,24 +68,34 @@ class LaneChangeParallelEnv(ParallelEnv):
             raise ValueError(f"Invalid density={density!r}: expected one of {sorted(ENV_IDS)}.")
         if reward_mode not in REWARD_MODES:
             raise ValueError(f"Invalid reward_mode={reward_mode!r}: expected one of {list(REWARD_MODES)}.")
+        for name, flag in (("flatten_observations", flatten_observations),
+                           ("action_mask_in_observation", action_mask_in_observation)):
+            if not isinstance(flag, bool):
+                raise ValueError(f"Invalid {name}={flag!r}: expected True or False.")
+        self.flatten_observations = flatten_observations
+        self.action_mask_in_observation = action_mask_in_observation
         self.env: LaneChangeEnv = gym.make(ENV_IDS[density], config=config, render_mode=render_mode).unwrapped
         self.reward_mode = reward_mode
         self.render_mode = render_mode
         self.possible_agents = [f"av_{i}" for i in range(self.env.n_avs)]
         self.agents: list[str] = []
         per_agent = self.env.observation_space
-        self._observation_space = spaces.Box(
-            low=per_agent.low[0], high=per_agent.high[0], shape=per_agent.shape[1:], dtype=per_agent.dtype
-        )
+        low, high = per_agent.low[0], per_agent.high[0]
+        if flatten_observations:
+            low, high = low.reshape(-1), high.reshape(-1)
+        self._observation_space = spaces.Box(low=low, high=high, dtype=per_agent.dtype)
         self.state_space = spaces.Box(low=-1.0, high=1.0, shape=(int(np.prod(per_agent.shape)),), dtype=per_agent.dtype)
         self._last_obs: np.ndarray | None = None
 
     @functools.lru_cache(maxsize=None)
-    def observation_space(self, agent: str) -> spaces.Box:
-        """The AV's kinematic observation: (obs_vehicles_count, 5) in [-1, 1]."""
-        return spaces.Box(
-            low=self._observation_space.low, high=self._observation_space.high, dtype=self._observation_space.dtype
-        )
+    def observation_space(self, agent: str) -> spaces.Space:
+        """The AV's kinematic observation: (obs_vehicles_count, 5) in [-1, 1] (flattened with
+        ``flatten_observations``; in a Dict beside ``action_mask`` with ``action_mask_in_observation``)."""
+        box = spaces.Box(low=self._observation_space.low, high=self._observation_space.high,
+                         dtype=self._observation_space.dtype)
+        if not self.action_mask_in_observation:
+            return box
+        return spaces.Dict({"observation": box, "action_mask": spaces.Box(0, 1, (len(ACTIONS),), dtype=np.int8)})
 
     @functools.lru_cache(maxsize=None)
     def action_space(self, agent: str) -> spaces.Discrete:
@@ -89,7 +106,7 @@ class LaneChangeParallelEnv(ParallelEnv):
         obs, info = self.env.reset(seed=seed, options=options)
         self.agents = list(self.possible_agents)
         self._last_obs = obs
-        return self._per_agent(obs), self._infos(info)
+        return self._per_agent(obs, info), self._infos(info)
 
     def step(self, actions: dict[str, int]) -> tuple[dict, dict, dict, dict, dict]:
         if not self.agents:
@@ -98,7 +115,7 @@ class LaneChangeParallelEnv(ParallelEnv):
         self._last_obs = obs
         rewards = apply_reward_mode(info, self.reward_mode)
         result = (
-            self._per_agent(obs),
+            self._per_agent(obs, info),
             {agent: float(rewards[i]) for i, agent in enumerate(self.possible_agents)},
             {agent: bool(terminated) for agent in self.possible_agents},
             {agent: bool(truncated) for agent in self.possible_agents},
@@ -137,8 +154,12 @@ class LaneChangeParallelEnv(ParallelEnv):
     def close(self) -> None:
         self.env.close()
 
-    def _per_agent(self, obs: np.ndarray) -> dict[str, np.ndarray]:
-        return {agent: obs[i] for i, agent in enumerate(self.possible_agents)}
+    def _per_agent(self, obs: np.ndarray, info: dict[str, Any]) -> dict[str, Any]:
+        rows = obs.reshape(len(self.possible_agents), -1) if self.flatten_observations else obs
+        if not self.action_mask_in_observation:
+            return {agent: rows[i] for i, agent in enumerate(self.possible_agents)}
+        masks = info["action_mask"].astype(np.int8)
+        return {agent: {"observation": rows[i], "action_mask": masks[i]} for i, agent in enumerate(self.possible_agents)}
 
     def _infos(self, info: dict[str, Any]) -> dict[str, dict[str, Any]]:
         masks = info["action_mask"].astype(np.int8)
@@ -148,9 +169,11 @@ class LaneChangeParallelEnv(ParallelEnv):
         }
 
 
-def parallel_env(density: int = 1, reward_mode: str = "local", render_mode: str | None = None, **config: Any) -> LaneChangeParallelEnv:
-    """The lane-change scenario as a PettingZoo ``ParallelEnv`` (PettingZoo's constructor name)."""
-    return LaneChangeParallelEnv(density=density, reward_mode=reward_mode, render_mode=render_mode, **config)
+def parallel_env(density: int = 1, reward_mode: str = "local", render_mode: str | None = None,
+                 **kwargs: Any) -> LaneChangeParallelEnv:
+    """The lane-change scenario as a PettingZoo ``ParallelEnv`` (PettingZoo's constructor name);
+    ``kwargs``: ``flatten_observations``, ``action_mask_in_observation`` and scenario config keys."""
+    return LaneChangeParallelEnv(density=density, reward_mode=reward_mode, render_mode=render_mode, **kwargs)
 
 
 __all__ = ["LaneChangeParallelEnv", "parallel_env"]

@@ -52,8 +52,8 @@ def test_grids_hold_each_trial_once():
     assert len(paper) == (4 + 5) * 3 * 2 == len({spec.trial_id for spec in paper})
     assert set(GRIDS) == {"paper", "baselines", "reward", "sharing", "comfort", "politeness", "penalty", "safety"}
     safety = make_grid("safety", seeds=1)
-    assert [spec.variant for spec in safety] == ["default", "safety-training"] * 3
-    assert safety[1].hyperparams == VARIANTS["safety-training"] and safety[1].hyperparams["supervisor_dropout"] > 0
+    assert [spec.variant for spec in safety] == ["default"] * 3 + ["safety-training"] * 3
+    assert safety[-1].hyperparams == VARIANTS["safety-training"] and safety[-1].hyperparams["supervisor_dropout"] > 0
     assert make_grid("penalty", seeds=1)[-1].hyperparams == {"intervention_penalty": 0.0}
     spec = make_grid("comfort", densities=(2,), seeds=1)[1]
     assert spec.hyperparams == {"env_config": {"comfort": False}}

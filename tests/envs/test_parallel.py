@@ -104,3 +104,22 @@ def test_the_readme_pettingzoo_example_runs_verbatim(capsys):
     code = re.search(r"```python\n(.*?)```", section, re.S).group(1)
     exec(compile(code, "README.md", "exec"), {})
     assert re.search(r"MA2C episode return \(local rewards\): -?\d+\.\d\d", capsys.readouterr().out)
+
+
+@pytest.mark.parametrize("options", [{"flatten_observations": True}, {"action_mask_in_observation": True},
+                                     {"flatten_observations": True, "action_mask_in_observation": True}])
+def test_other_libraries_conventions_pass_pettingzoos_tests(options):
+    parallel_api_test(parallel_env(density=1, safety_supervisor=True, **options), num_cycles=100)
+    env = parallel_env(density=3, **options)
+    observations, infos = env.reset(seed=0)
+    first = observations["av_0"]
+    if options.get("action_mask_in_observation"):
+        assert np.array_equal(first["action_mask"], infos["av_0"]["action_mask"])
+        first = first["observation"]
+    assert first.ndim == (1 if options.get("flatten_observations") else 2)
+    assert env.observation_space("av_0").contains(observations["av_0"])
+
+
+def test_bad_convention_flags_name_the_field():
+    with pytest.raises(ValueError, match="flatten_observations"):
+        parallel_env(flatten_observations="yes")
