@@ -137,7 +137,6 @@ VALUE_RANGES: dict[str, tuple[str, float | None, float | None, tuple]] = {
     "stat_decay": ("float", 0, 1, ()),
     "damping": ("float", 0, None, ()),
     "kl_clip": ("float", 0, None, ()),
-    "reward_scale": ("float", 0, None, ()),
     "intervention_penalty": ("float", 0, None, ()),
     "supervisor_dropout": ("float", 0, 1, ()),
     "safety_loss_coef": ("float", 0, None, ()),

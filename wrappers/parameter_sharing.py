@@ -29,8 +29,8 @@ from sb3_marl.envs import (  # importing sb3_marl.envs registers the scenario id
     av_counts,
     copy_av_counts,
 )
+from sb3_marl.envs.reward import REWARD_MODES, apply_reward_mode
 
-REWARD_MODES = ("local", "global", "individual")
 VEC_BACKENDS = ("dummy", "subproc")
 #: Copy methods whose result has one row per AV; ``env_method`` hands each slot its own row.
 PER_AGENT_METHODS = ("action_masks",)
@@ -74,17 +74,6 @@ def _make_copy(env: str | EnvFactory, index: int, config: dict[str, Any], render
     if callable(env):
         return env(index)
     return gym.make(env, config=config, render_mode=render_mode)
-
-
-def apply_reward_mode(info: dict[str, Any], reward_mode: str) -> np.ndarray:
-    """(n_avs,) rewards of one copy's AVs in a reward mode, from the copy's step info."""
-    own = np.asarray(info["rewards"], dtype=np.float64)
-    if reward_mode == "individual":
-        return own
-    if reward_mode == "global":
-        return np.full_like(own, own.mean())
-    neighbours = np.asarray(info["neighbours"], dtype=np.float64)
-    return neighbours @ own / neighbours.sum(axis=1)
 
 
 def split_info(info: dict[str, Any], copy: int) -> list[dict[str, Any]]:

@@ -40,7 +40,7 @@ from pettingzoo import ParallelEnv
 
 from sb3_marl.envs import ENV_IDS
 from sb3_marl.envs.lane_change_env import ACTIONS, LaneChangeEnv
-from wrappers.parameter_sharing import REWARD_MODES, apply_reward_mode
+from sb3_marl.envs.reward import REWARD_MODES, apply_reward_mode
 
 #: Per-AV step info copied into each agent's ``infos`` entry.
 AGENT_INFO = ("speed", "headway", "crashed", "exited", "lane_change", "proposed_action", "executed_action", "intervened")

@@ -119,3 +119,20 @@ def _neighbour_matrix(x: np.ndarray, lane: np.ndarray, visible: np.ndarray, n: i
                 if nearest[side, ahead] >= 0:
                     neighbours[i, nearest[side, ahead]] = True
     return neighbours
+
+
+#: How an AV's training reward is formed from the per-AV rewards of its scenario copy.
+REWARD_MODES = ("local", "global", "individual")
+
+
+def apply_reward_mode(info: dict[str, Any], reward_mode: str) -> np.ndarray:
+    """(n_avs,) rewards of one copy's AVs in a reward mode, from the copy's step info: ``local``
+    (the paper's) is the mean of the per-AV rewards over the AV's neighbour set
+    (:func:`neighbour_matrix`), ``global`` the mean over all AVs, ``individual`` the AV's own."""
+    own = np.asarray(info["rewards"], dtype=np.float64)
+    if reward_mode == "individual":
+        return own
+    if reward_mode == "global":
+        return np.full_like(own, own.mean())
+    neighbours = np.asarray(info["neighbours"], dtype=np.float64)
+    return neighbours @ own / neighbours.sum(axis=1)

@@ -10,7 +10,7 @@ from pettingzoo.test import parallel_api_test, parallel_seed_test
 from stable_baselines3 import PPO
 
 from sb3_marl.envs import parallel_env
-from wrappers.parameter_sharing import apply_reward_mode
+from sb3_marl.envs.reward import apply_reward_mode
 
 
 @pytest.mark.parametrize("density", [1, 3])
