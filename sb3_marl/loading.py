@@ -44,7 +44,7 @@ ALLOWED_NAMES: dict[str, Any] = {
        for name in ("ReLU", "Tanh", "ELU", "LeakyReLU", "SiLU", "GELU", "Sigmoid", "Identity")},
     **{f"{prefix}{name}": getattr(optim, name) for prefix in ("optim.", "th.optim.", "torch.optim.", "")
        for name in ("Adam", "AdamW", "RMSprop", "SGD")},
-    "True": True, "False": False, "None": None, "inf": float("inf"),
+    "True": True, "False": False, "None": None, "inf": float("inf"), "nan": float("nan"),
 }
 #: rl-zoo's schedule strings, kept as strings for its schedule parser: ``lin_5e-4``.
 SCHEDULE = re.compile(r"^lin_[0-9.eE+-]+$")
@@ -72,8 +72,9 @@ def parse_literal(text: str, key: str) -> Any:
     try:
         return _literal(tree)
     except ValueError as error:
-        raise ValueError(f"Invalid value for {key}: {text!r}: {error}. Allowed: numbers, strings, lists, tuples, "
-                         f"dicts, dict(key=value, ...) and the names {sorted(n for n in ALLOWED_NAMES if '.' in n)}.") from None
+        raise ValueError(f"Invalid value for {key}: {text!r}: {error} (it would run code). Allowed: numbers, strings, "
+                         "lists, tuples, dicts, dict(key=value, ...) and the names "
+                         f"{sorted(n for n in ALLOWED_NAMES if n.startswith(('nn.', 'th.optim.')))}.") from None
 
 
 def _literal(node: ast.AST) -> Any:
@@ -96,7 +97,9 @@ def _literal(node: ast.AST) -> Any:
     name = ast.unparse(node)
     if isinstance(node, (ast.Name, ast.Attribute)) and name in ALLOWED_NAMES:
         return ALLOWED_NAMES[name]
-    raise ValueError(f"{name!r} is not allowed")
+    kind = "a call" if isinstance(node, ast.Call) else "an operator" if isinstance(node, (ast.BinOp, ast.BoolOp)) \
+        else "a name" if isinstance(node, (ast.Name, ast.Attribute)) else "an expression"
+    raise ValueError(f"{kind} ({name}) is not a literal")
 
 
 # ---- run-folder YAML ---------------------------------------------------------------------------
