@@ -171,3 +171,24 @@ def test_status_piped_into_head_stops_quietly():
     piped = subprocess.run(f"'{executable}' benchmark status --seeds 3 -f '{PAPER_GRID}' | head -n 1", shell=True,
                            capture_output=True, text=True, timeout=120)
     assert piped.stdout.startswith("Benchmark grid 'paper' in ") and piped.stderr == ""
+
+
+#: A row of the READMEs' policy-alone table -> its curve or policy label in paper_table.md.
+POLICY_ALONE_ROWS = {"MADQN": "MADQN", "MA2C (paper's method)": "MA2C", "MAACKTR": "MAACKTR", "MAPPO": "MAPPO",
+                     "MA2C, separate actor and critic (experiment 2)": "separate actor and critic",
+                     "MA2C, safety training": "safety training", "IDM/MOBIL (not learned)": "idm-mobil"}
+
+
+@pytest.mark.parametrize("readme", [RESULTS.parent / "README.md", RESULTS / "README.md"], ids=["README", "results"])
+def test_the_readmes_policy_alone_table_is_the_committed_table(readme, committed_rows):
+    """The hand-copied supervisor-off table of each README gives, per row and density, the
+    supervisor-off return and collision rate of results/paper_table.md."""
+    rows = _readme_table(readme, ["policy alone (supervisor off)", *DENSITIES])
+    assert [row["policy alone (supervisor off)"] for row in rows] == list(POLICY_ALONE_ROWS)
+    for row in rows:
+        for density, column in enumerate(DENSITIES, start=1):
+            committed = committed_rows[POLICY_ALONE_ROWS[row["policy alone (supervisor off)"]], density]
+            ret, collision = committed["supervisor off: return"], committed["supervisor off: collision rate"]
+            if row["policy alone (supervisor off)"].startswith("IDM"):  # one policy: no std over seeds
+                ret = ret.split(" ±")[0]
+            assert row[column] == f"{ret} / {collision}", (row, density)
