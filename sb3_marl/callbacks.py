@@ -237,18 +237,17 @@ class ScenarioEvalCallback(BaseCallback):
             model_policy(self.model, self.deterministic), self.env_id, self.n_eval_episodes, self.seed, self.config
         )
         row: dict[str, Any] = {"timesteps": self.num_timesteps}
-        for name, prefix in (("on", ""), ("off", self.OFF)):
-            records = protocols[name]
-            summary = summarize(records)
+        summaries = {name: summarize(records) for name, records in protocols.items()}
+        for name, prefix, folder in (("on", "", "eval/"), ("off", self.OFF, "eval/supervisor_off/")):
+            records, protocol_summary = protocols[name], summaries[name]
             row[f"{prefix}results"] = [r.episode_return for r in records]
             row[f"{prefix}ep_lengths"] = [r.length for r in records]
-            row.update({f"{prefix}{metric}": summary[metric] for metric in self.METRICS})
+            row.update({f"{prefix}{metric}": protocol_summary[metric] for metric in self.METRICS})
             for metric in ("return_mean", "return_std", "length_mean", *self.METRICS):
-                folder = "eval/" if name == "on" else "eval/supervisor_off/"
                 key = {"return_mean": "mean_reward", "return_std": "std_reward", "length_mean": "mean_ep_length"}.get(metric, metric)
-                self.logger.record(folder + key, summary[metric])
-        off = summarize(protocols["off"])
-        summary = {**summarize(protocols["on"]), "supervisor_off": off}
+                self.logger.record(folder + key, protocol_summary[metric])
+        off = summaries["off"]
+        summary = {**summaries["on"], "supervisor_off": off}
         for key, value in row.items():
             self.evaluations[key].append(value)
         if self.log_path is not None:

@@ -107,7 +107,7 @@ class EpisodeRecord:
     headways: list[float] = field(default_factory=list)  # [m]
     accelerations: list[float] = field(default_factory=list)  # [m/s²]
     lane_changes: int = 0
-    yields: int = 0  # lane changes an AV behind yielded to (:meth:`EpisodeTrace.yields`)
+    yield_events: list[CooperativeLaneChange] = field(default_factory=list)  # :meth:`EpisodeTrace.yields`
     interventions: int = 0  # AV-steps whose action the safety supervisor replaced
     av_steps: int = 0  # AV-steps on the road
 
@@ -155,7 +155,7 @@ def summarize(records: list[EpisodeRecord]) -> dict[str, float]:
         "headway_mean": float(pooled("headways").mean()),
         "acceleration_std": float(pooled("accelerations").std()),
         "lane_changes_per_episode": float(np.mean([r.lane_changes for r in records])),
-        "yields_per_episode": float(np.mean([r.yields for r in records])),
+        "yields_per_episode": float(np.mean([len(r.yield_events) for r in records])),
         "intervention_rate": float(sum(r.interventions for r in records) / max(sum(r.av_steps for r in records), 1)),
     }
 
@@ -232,7 +232,7 @@ def run_episodes(
                 if on_step is not None:
                     on_step(env, info)
                 done = terminated or truncated
-        record.yields = len(trace.yields())
+        record.yield_events = trace.yields()
         records.append(record)
     return records
 

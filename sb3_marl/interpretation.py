@@ -38,24 +38,13 @@ SNAPSHOT_OFFSETS = (-YIELD_WINDOW_STEPS, 0, 2 * AFTER_STEPS)
 SNAPSHOT_VIEW = {"scaling": 7.0, "screen_width": 1200, "screen_height": 150, "centering_position": [0.5, 0.5]}
 
 
-def _traces(policy: Policy, env_id: str, n_episodes: int, seed: int, config: dict | None) -> list[EpisodeTrace]:
-    traces: list[EpisodeTrace] = []
-
-    def record(env: LaneChangeEnv, info: dict) -> None:
-        if info["step"] == 0:
-            traces.append(EpisodeTrace(seed + len(traces), env.n_avs))
-        traces[-1].record(env, info)
-
-    evaluation_records(policy, env_id, n_episodes, seed, config, on_step=record)
-    return traces
-
-
 def find_cooperative_lane_change(
     policy: Policy, env_id: str, n_episodes: int, seed: int, config: dict | None = None
 ) -> tuple[CooperativeLaneChange | None, int]:
     """The yield with the largest speed drop in the evaluation episodes (seeds ``seed ..``), and
     how many yields there were; ``(None, 0)`` if no AV yielded to a lane change."""
-    found = [event for trace in _traces(policy, env_id, n_episodes, seed, config) for event in trace.yields()]
+    found = [event for record in evaluation_records(policy, env_id, n_episodes, seed, config)
+             for event in record.yield_events]
     return (max(found, key=lambda event: event.speed_drop) if found else None), len(found)
 
 

@@ -64,6 +64,13 @@ def check_safety_loss_coef(coef: Any) -> float:
     return float(coef)
 
 
+def executed_labels(infos: list[dict[str, Any]]) -> list[int]:
+    """Per VecEnv slot of one step: the action the safety supervisor executed where it replaced the
+    proposal of an AV still on the road, -1 elsewhere (the labels of the teachers' losses)."""
+    return [int(info["executed_action"]) if info.get("intervened", False) and not info.get("exited", False) else -1
+            for info in infos]
+
+
 class InterventionRecorder(BaseCallback):
     """Records, per rollout step and VecEnv slot, the action the safety supervisor executed where
     it replaced the policy's proposal (``info["intervened"]``), -1 elsewhere: the labels of
@@ -80,10 +87,7 @@ class InterventionRecorder(BaseCallback):
 
     def _on_step(self) -> bool:
         if self.position < len(self.executed):
-            self.executed[self.position] = [
-                int(info["executed_action"]) if info.get("intervened", False) and not info.get("exited", False) else -1
-                for info in self.locals["infos"]
-            ]
+            self.executed[self.position] = executed_labels(self.locals["infos"])
         self.position += 1
         return True
 
@@ -258,10 +262,7 @@ class MaskedReplayBuffer(ReplayBuffer):
     def add(self, obs: np.ndarray, next_obs: np.ndarray, action: np.ndarray, reward: np.ndarray,
             done: np.ndarray, infos: list[dict[str, Any]]) -> None:
         self.next_action_masks[self.pos] = [info.get("action_mask", True) for info in infos]
-        self.executed_actions[self.pos] = [
-            int(info["executed_action"]) if info.get("intervened", False) and not info.get("exited", False) else -1
-            for info in infos
-        ]
+        self.executed_actions[self.pos] = executed_labels(infos)
         super().add(obs, next_obs, action, reward, done, infos)
 
     def _get_samples(self, batch_inds: np.ndarray, env: Any = None) -> MaskedReplayBufferSamples:

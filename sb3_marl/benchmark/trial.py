@@ -120,8 +120,7 @@ def run_trial(config: dict[str, Any]) -> None:
     from ray import tune
 
     from sb3_marl.callbacks import ScenarioEvalCallback
-    from sb3_marl.evaluation import evaluate_protocols, model_policy, protocol_label
-    from sb3_marl.experiment import EVAL_SEED_OFFSET, MARLExperimentManager
+    from sb3_marl.experiment import MARLExperimentManager
 
     torch.set_num_threads(1)  # one core per trial: Ray schedules trials by CPU
     spec = TrialSpec(**config["spec"])
@@ -167,19 +166,25 @@ def run_trial(config: dict[str, Any]) -> None:
         raise KeyboardInterrupt(f"trial {spec.trial_id} interrupted")
     manager.save_trained_model(model)
     wall_time = round(time.perf_counter() - start, 1)
-    final = evaluate_protocols(model_policy(model), spec.env_id, FINAL_EVAL_EPISODES, EVAL_SEED_OFFSET,
-                               manager.scenario.get("env_config"))
     result = {
         **info, "num_timesteps": int(model.num_timesteps), "env_steps": int(spec.env_steps(model.num_timesteps)),
         "final_evaluation": evaluation.final_summary(),
         "final_returns": [float(r) for r in evaluation.evaluations["results"][-1]],
-        "paper_evaluation": {
-            "episodes": FINAL_EVAL_EPISODES, "seeds": [EVAL_SEED_OFFSET, EVAL_SEED_OFFSET + FINAL_EVAL_EPISODES - 1],
-            "protocol": protocol_label(False, model), **final,
-        },
+        "paper_evaluation": paper_evaluation(model, spec.env_id, manager.scenario.get("env_config")),
         "wall_time_s": wall_time, "machine": f"{platform.node()} ({os.cpu_count()} cores)",
     }
     write_json(folder / RESULT, result)
+
+
+def paper_evaluation(model: Any, env_id: str, config: dict[str, Any] | None) -> dict[str, Any]:
+    """The paper's final evaluation of a trained model: :data:`FINAL_EVAL_EPISODES` seeded
+    episodes (seeds 10000..), sampled actions, under both supervisor protocols."""
+    from sb3_marl.evaluation import evaluate_protocols, model_policy, protocol_label
+    from sb3_marl.experiment import EVAL_SEED_OFFSET
+
+    return {"episodes": FINAL_EVAL_EPISODES, "seeds": [EVAL_SEED_OFFSET, EVAL_SEED_OFFSET + FINAL_EVAL_EPISODES - 1],
+            "protocol": protocol_label(False, model),
+            **evaluate_protocols(model_policy(model), env_id, FINAL_EVAL_EPISODES, EVAL_SEED_OFFSET, config)}
 
 
 def reevaluate_trial(folder: Path) -> bool:
@@ -187,8 +192,6 @@ def reevaluate_trial(folder: Path) -> bool:
     one under both supervisor protocols (same model, seeds and episodes) where it lacks the
     policy-alone protocol or the yields; the supervisor-on return of an earlier evaluation is kept
     in ``note`` if it differs. Returns whether the trial was re-evaluated."""
-    from sb3_marl.evaluation import evaluate_protocols, model_policy, protocol_label
-    from sb3_marl.experiment import EVAL_SEED_OFFSET
     from sb3_marl.runs import find_run
 
     result = json.loads((folder / RESULT).read_text())
@@ -197,13 +200,10 @@ def reevaluate_trial(folder: Path) -> bool:
         return False
     spec = TrialSpec(**result["trial"])
     run = find_run(folder, spec.algo, spec.env_id, RUN_ID)
-    model = run.load_model("cpu")
-    final = evaluate_protocols(model_policy(model), spec.env_id, FINAL_EVAL_EPISODES, EVAL_SEED_OFFSET, run.env_config)
-    evaluation = {"episodes": FINAL_EVAL_EPISODES, "seeds": [EVAL_SEED_OFFSET, EVAL_SEED_OFFSET + FINAL_EVAL_EPISODES - 1],
-                  "protocol": protocol_label(False, model), **final}
+    evaluation = paper_evaluation(run.load_model("cpu"), spec.env_id, run.env_config)
     if "note" in earlier:
         evaluation["note"] = earlier["note"]
-    if earlier and abs(earlier["return_mean"] - final["return_mean"]) > 1e-9:
+    if earlier and abs(earlier["return_mean"] - evaluation["return_mean"]) > 1e-9:
         evaluation["note"] = (evaluation.get("note", "") + f" Before the re-evaluation under both supervisor "
                               f"protocols: return {earlier['return_mean']:.4f}.").strip()
     write_json(folder / RESULT, {**result, "paper_evaluation": evaluation})
