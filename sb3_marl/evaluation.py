@@ -18,10 +18,12 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import torch as th
+from gymnasium import spaces
 
 from sb3_marl.algos.masking import uses_action_masks
 from sb3_marl.envs import av_counts
 from sb3_marl.envs.lane_change_env import ACTION_INDEX, LaneChangeEnv
+from sb3_marl.envs.observation import STATE_KEY, centralised_observations
 from sb3_marl.policies import unchecked_distributions
 
 Policy = Callable[[LaneChangeEnv, np.ndarray], np.ndarray]
@@ -265,8 +267,12 @@ def model_policy(model: Any, deterministic: bool = False) -> Policy:
         evaluation protocol. A maskable model with ``action_masking`` gets the env's action masks.
     """
     masked = uses_action_masks(model)
+    # a centralised critic's model takes Dict observations; its actor reads only each AV's own view
+    state_slots = model.observation_space[STATE_KEY].shape[0] if isinstance(model.observation_space, spaces.Dict) else 0
 
     def act(env: LaneChangeEnv, obs: np.ndarray) -> np.ndarray:
+        if state_slots:
+            obs = centralised_observations(obs, state_slots)
         with unchecked_distributions():
             if masked:
                 return model.predict(obs, deterministic=deterministic, action_masks=env.action_masks())[0]

@@ -44,6 +44,7 @@ from sb3_marl.hyperparams import (
     load_hyperparams,
     merge_hyperparams,
     parse_string_values,
+    policy_for,
     policy_kwargs_for,
     validate_hyperparams,
 )
@@ -145,6 +146,7 @@ class MARLExperimentManager(ExperimentManager):
         self.scenario = {key: hyperparams.pop(key) for key in SCENARIO_KEYS if key in hyperparams}
         hyperparams, env_wrapper, callbacks, vec_env_wrapper = super()._preprocess_hyperparams(hyperparams)
         hyperparams["policy_kwargs"] = policy_kwargs_for(self.algo, {**hyperparams, **self.scenario})
+        hyperparams["policy"] = policy_for({**hyperparams, **self.scenario})
         # rl_zoo3 divides eval/save frequencies by n_envs: every VecEnv step is one step per AV slot
         self.n_envs = sum(
             copy_av_counts(self.env_name.gym_id, self.scenario.get("env_config"), self.scenario.get("n_copies"))

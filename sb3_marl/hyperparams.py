@@ -16,6 +16,9 @@ an entry may set the scenario and the wrapper:
   learner stores where the safety supervisor replaced the policy's
 - ``supervisor_dropout``: probability in [0, 1] that a training episode runs without the safety
   supervisor (default 0); evaluation is unaffected
+- ``critic`` (``ma2c``, ``mappo``, ``maacktr``): ``local`` (default: the critic sees the AV's own
+  view, as the actor) or ``centralised`` (CTDE: the critic sees the global state of the AV's
+  scenario copy, :class:`~sb3_marl.policies.CentralisedCriticPolicy`; needs ``architecture: separate``)
 
 and ``safety_loss_coef`` (``ma2c``, ``mappo``, ``madqn``): weight of the loss that teaches the
 policy the safety supervisor's replacements (default 0, see :mod:`sb3_marl.algos.masking`);
@@ -35,19 +38,31 @@ import gymnasium as gym
 import yaml
 
 from sb3_marl.algos import get_algo
-from sb3_marl.envs import default_config, validate_config
-from sb3_marl.policies import ACTOR_CRITIC_FUSED_ADAM, ARCHITECTURES, ma2c_policy_kwargs, ma2c_q_policy_kwargs
+from sb3_marl.envs import av_counts, default_config, validate_config
+from sb3_marl.policies import (
+    ACTOR_CRITIC_FUSED_ADAM,
+    ARCHITECTURES,
+    LocalViewExtractor,
+    ma2c_policy_kwargs,
+    ma2c_q_policy_kwargs,
+)
 from wrappers.parameter_sharing import check_reward_scale, check_sharing_options
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "zoo_configs"
 #: Algorithms registered under two names share one file: ``acktr`` reads ``maacktr.yml``.
 CONFIG_FILES = {"acktr": "maacktr"}
 SCENARIO_KEYS = ("reward_mode", "n_copies", "env_config", "reward_scale", "intervention_penalty", "architecture",
-                 "stored_actions", "supervisor_dropout")
+                 "stored_actions", "supervisor_dropout", "critic")
 #: What the learner stores when the safety supervisor replaced an action: the policy's proposal
 #: (the authors' choice) or the action executed.
 STORED_ACTIONS = ("proposed", "executed")
 ZOO_KEYS = ("n_timesteps", "policy")
+#: Critic inputs of the actor-critic learners: the AV's own view, or its copy's global state (CTDE).
+CRITICS = ("local", "centralised")
+#: The learners whose critic may be centralised (sb3-contrib's maskable actor-critic machinery).
+CENTRALISED_CRITIC_ALGOS = ("ma2c", "mappo", "maacktr", "acktr")
+#: The policy alias of a centralised critic (:class:`~sb3_marl.policies.CentralisedCriticPolicy`).
+CENTRALISED_POLICY = "CentralisedCriticPolicy"
 #: Constructor arguments the training code sets itself.
 RESERVED_KEYS = ("env", "seed", "device", "tensorboard_log", "verbose", "_init_setup_model")
 
@@ -218,6 +233,7 @@ def validate_hyperparams(algo: str, hyperparams: dict[str, Any], env_id: str | N
             f"Invalid architecture {architecture!r} for {algo!r}: expected one of {allowed_architectures}"
             + (" (a Q-network has no separate critic)." if q_learning else ".")
         )
+    check_critic(algo, hyperparams)
     policy = hyperparams.get("policy", "MlpPolicy")
     aliases = sorted(get_algo(algo).policy_aliases)
     if policy not in aliases:
@@ -227,12 +243,39 @@ def validate_hyperparams(algo: str, hyperparams: dict[str, Any], env_id: str | N
         check_policy_kwargs(algo, hyperparams, env_id)
 
 
+def check_critic(algo: str, hyperparams: dict[str, Any]) -> None:
+    """``critic``: one of :data:`CRITICS`; ``centralised`` only for :data:`CENTRALISED_CRITIC_ALGOS`
+    with ``architecture: separate`` (the critic has its own network on the global state)."""
+    critic = hyperparams.get("critic", "local")
+    if critic not in CRITICS:
+        raise ValueError(f"Invalid critic={critic!r}: expected one of {list(CRITICS)}.")
+    if critic == "local":
+        return
+    if algo not in CENTRALISED_CRITIC_ALGOS:
+        raise ValueError(f"Invalid critic='centralised' for {algo!r}: a centralised critic is available for "
+                         f"{list(CENTRALISED_CRITIC_ALGOS[:3])}.")
+    if hyperparams.get("architecture", "default") != "separate":
+        raise ValueError(f"Invalid architecture={hyperparams.get('architecture', 'default')!r} with critic='centralised': "
+                         "expected 'separate' (the actor reads the AV's view, the critic the global state, each "
+                         "with its own network).")
+    if hyperparams.get("policy", "MlpPolicy") not in ("MlpPolicy", CENTRALISED_POLICY):
+        raise ValueError(f"Invalid policy={hyperparams['policy']!r} with critic='centralised': expected "
+                         f"'MlpPolicy' or {CENTRALISED_POLICY!r} (the centralised critic sets the policy).")
+
+
+def policy_for(hyperparams: dict[str, Any]) -> str:
+    """The policy alias of an entry: :data:`CENTRALISED_POLICY` with ``critic: centralised``."""
+    if hyperparams.get("critic", "local") == "centralised":
+        return CENTRALISED_POLICY
+    return str(hyperparams.get("policy", "MlpPolicy"))
+
+
 def check_policy_kwargs(algo: str, hyperparams: dict[str, Any], env_id: str) -> None:
     """``policy_kwargs`` (with the architecture's preset) must build the policy on the scenario's
     per-AV spaces: a ValueError naming ``policy_kwargs`` otherwise (before any folder or env)."""
     from gymnasium import spaces
 
-    from sb3_marl.envs.observation import observation_space
+    from sb3_marl.envs.observation import centralised_observation_space, observation_space
 
     kwargs = hyperparams.get("policy_kwargs")
     if kwargs is not None and not isinstance(kwargs, dict):
@@ -240,9 +283,11 @@ def check_policy_kwargs(algo: str, hyperparams: dict[str, Any], env_id: str) -> 
     density = (gym.spec(env_id).kwargs or {}).get("density", 1)
     config = {**default_config(), "density": density, **(hyperparams.get("env_config") or {}), "n_avs": 1}
     per_av = observation_space(1, config)
-    obs_space = spaces.Box(per_av.low[0], per_av.high[0], dtype=per_av.dtype)
+    obs_space: spaces.Space = spaces.Box(per_av.low[0], per_av.high[0], dtype=per_av.dtype)
+    if hyperparams.get("critic", "local") == "centralised":
+        obs_space = centralised_observation_space(obs_space, max(av_counts(env_id, hyperparams.get("env_config"))))
     algo_class = get_algo(algo)
-    policy_class = algo_class.policy_aliases.get(hyperparams.get("policy", "MlpPolicy"))
+    policy_class = algo_class.policy_aliases.get(policy_for(hyperparams))
     try:
         policy_class(obs_space, spaces.Discrete(5), lambda _: 1e-3, **policy_kwargs_for(algo, hyperparams))
     except Exception as error:  # TypeError (unknown keyword), RuntimeError / ValueError (bad sizes), ...
@@ -271,6 +316,8 @@ def policy_kwargs_for(algo: str, hyperparams: dict[str, Any]) -> dict[str, Any]:
     if architecture == "default":
         return kwargs
     preset = ma2c_q_policy_kwargs() if is_q_learning(algo) else ma2c_policy_kwargs(architecture)
+    if hyperparams.get("critic", "local") == "centralised":
+        preset["features_extractor_class"] = LocalViewExtractor
     if algo in ADAM_ACTOR_CRITICS:
         preset["optimizer_kwargs"] = dict(ACTOR_CRITIC_FUSED_ADAM)
     return {**preset, **kwargs}

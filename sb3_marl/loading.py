@@ -199,6 +199,8 @@ def _rebuild(key: str, entry: dict[str, Any], algo_class: type) -> Any:
         dtype = np.dtype(entry["dtype"])
         low, high = (_numbers(entry[bound], shape).astype(dtype) for bound in ("low", "high"))
         return spaces.Box(low, high, shape, dtype)
+    if kind == "gymnasium.spaces.dict.Dict":
+        return _dict_space(entry["spaces"])
     if kind == "gymnasium.spaces.discrete.Discrete":
         return spaces.Discrete(int(entry["n"]), start=int(entry["start"]))
     if kind == "dict" and key == "policy_kwargs":
@@ -210,6 +212,22 @@ def _rebuild(key: str, entry: dict[str, Any], algo_class: type) -> Any:
     if kind in ("abc.ABCMeta", "type"):
         return _known_class(key, entry, algo_class)
     raise ValueError(f"type {kind} is not one sb3-marl rebuilds")
+
+
+#: A Box of uniform bounds as gymnasium prints it: ``Box(-1.0, 1.0, (5, 5), float32)``.
+UNIFORM_BOX = r"Box\(([-+\w.]+), ([-+\w.]+), \(([\d, ]*)\), (\w+)\)"
+
+
+def _dict_space(text: str) -> spaces.Dict:
+    """A Dict space of uniform-bound Boxes from its printed ``spaces`` (the centralised critic's)."""
+    items = re.findall(rf"'(\w+)': {UNIFORM_BOX}", text)
+    if not items or len(items) != text.count("Box("):
+        raise ValueError(f"the Dict space {text[:80]!r} is not made of readable Boxes of uniform bounds")
+    return spaces.Dict({
+        name: spaces.Box(float(low), float(high), tuple(int(n) for n in shape.replace(" ", "").split(",") if n),
+                         np.dtype(dtype))
+        for name, low, high, shape, dtype in items
+    })
 
 
 def _numbers(text: str, shape: tuple[int, ...]) -> np.ndarray:
@@ -234,14 +252,15 @@ def _schedule(kind: str, entry: dict[str, Any]) -> Any:
 
 def _known_classes(algo_class: type) -> dict[str, type]:
     """Classes a model of ``algo_class`` may name: its policies, the buffers and feature extractors."""
-    from sb3_contrib.common.maskable.buffers import MaskableRolloutBuffer
+    from sb3_contrib.common.maskable.buffers import MaskableDictRolloutBuffer, MaskableRolloutBuffer
     from stable_baselines3.common.buffers import ReplayBuffer, RolloutBuffer
 
-    from sb3_marl.algos.masking import MaskedReplayBuffer, PerAgentRolloutBuffer
-    from sb3_marl.policies import MA2CFeaturesExtractor
+    from sb3_marl.algos.masking import MaskedReplayBuffer, PerAgentDictRolloutBuffer, PerAgentRolloutBuffer
+    from sb3_marl.policies import GlobalStateExtractor, LocalViewExtractor, MA2CFeaturesExtractor
 
-    classes = [*algo_class.policy_aliases.values(), MaskableRolloutBuffer, RolloutBuffer, ReplayBuffer,
-               MaskedReplayBuffer, PerAgentRolloutBuffer, MA2CFeaturesExtractor]
+    classes = [*algo_class.policy_aliases.values(), MaskableRolloutBuffer, MaskableDictRolloutBuffer, RolloutBuffer,
+               ReplayBuffer, MaskedReplayBuffer, PerAgentRolloutBuffer, PerAgentDictRolloutBuffer,
+               MA2CFeaturesExtractor, LocalViewExtractor, GlobalStateExtractor]
     return {f"{c.__module__}.{c.__qualname__}": c for c in classes}
 
 

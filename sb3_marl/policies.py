@@ -14,8 +14,11 @@ from typing import Any
 
 import torch as th
 from gymnasium import spaces
+from sb3_contrib.common.maskable.policies import MaskableActorCriticPolicy
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
+
+from sb3_marl.envs.observation import LOCAL_KEY, STATE_KEY
 
 #: Actor-critic network layouts: one trunk for both heads (the paper's) or one network each.
 ARCHITECTURES = ("shared", "separate")
@@ -60,6 +63,81 @@ class MA2CFeaturesExtractor(BaseFeaturesExtractor):
             layer(observations[:, :, self.columns[unit]].flatten(start_dim=1)) for unit, layer in self.units.items()
         ]
         return self.trunk(th.cat(parts, dim=1))
+
+
+class LocalViewExtractor(BaseFeaturesExtractor):
+    """The MA2C network (:class:`MA2CFeaturesExtractor`) on the ``observation`` part of a
+    centralised-critic Dict observation: the actor of CTDE sees only its AV's view."""
+
+    def __init__(self, observation_space: spaces.Dict, **kwargs: Any) -> None:
+        local = MA2CFeaturesExtractor(observation_space[LOCAL_KEY], **kwargs)
+        super().__init__(observation_space, local.features_dim)
+        self.local = local
+
+    def forward(self, observations: dict[str, th.Tensor]) -> th.Tensor:
+        return self.local(observations[LOCAL_KEY])
+
+
+class GlobalStateExtractor(BaseFeaturesExtractor):
+    """The centralised critic's network: the copy's global state (``state``: one row per AV slot,
+    presence and ego flags then the AV's view; :func:`~sb3_marl.envs.observation.centralised_observations`)
+    flattened, then two fully connected ReLU layers (``hidden_dim``, then ``features_dim`` units)."""
+
+    def __init__(self, observation_space: spaces.Dict, hidden_dim: int = 256, features_dim: int = 128) -> None:
+        super().__init__(observation_space, features_dim)
+        state_size = int(th.tensor(observation_space[STATE_KEY].shape).prod())
+        self.net = nn.Sequential(
+            nn.Flatten(), nn.Linear(state_size, hidden_dim), nn.ReLU(), nn.Linear(hidden_dim, features_dim), nn.ReLU()
+        )
+
+    def forward(self, observations: dict[str, th.Tensor]) -> th.Tensor:
+        return self.net(observations[STATE_KEY])
+
+
+class CentralisedCriticPolicy(MaskableActorCriticPolicy):
+    """Maskable actor-critic policy with a centralised critic (CTDE): the actor's features come from
+    ``features_extractor_class`` (default :class:`LocalViewExtractor`: the AV's own view), the
+    critic's from ``critic_extractor_class`` (default :class:`GlobalStateExtractor`: the copy's
+    global state). Acting needs only the actor; the critic trains it. Observations are the Dict of
+    :class:`~wrappers.VecCentralisedState`.
+
+    :param critic_extractor_class: features extractor of the critic
+    :param critic_extractor_kwargs: its keyword arguments
+    Other parameters: as sb3-contrib's ``MaskableActorCriticPolicy`` (``share_features_extractor``
+    is always False: actor and critic read different inputs).
+    """
+
+    def __init__(
+        self,
+        *args: Any,
+        features_extractor_class: type[BaseFeaturesExtractor] = LocalViewExtractor,
+        critic_extractor_class: type[BaseFeaturesExtractor] = GlobalStateExtractor,
+        critic_extractor_kwargs: dict[str, Any] | None = None,
+        share_features_extractor: bool = False,
+        **kwargs: Any,
+    ) -> None:
+        if share_features_extractor:
+            raise ValueError("CentralisedCriticPolicy: share_features_extractor must be False "
+                             "(the actor reads the AV's view, the critic the global state).")
+        self.critic_extractor_class = critic_extractor_class
+        self.critic_extractor_kwargs = dict(critic_extractor_kwargs or {})
+        super().__init__(*args, features_extractor_class=features_extractor_class, share_features_extractor=False,
+                         **kwargs)
+
+    def _build_mlp_extractor(self) -> None:
+        # called by _build before the optimiser is created: the critic's extractor replaces the
+        # second copy of the actor's that the parent built
+        self.vf_features_extractor = self.critic_extractor_class(self.observation_space, **self.critic_extractor_kwargs)
+        if self.vf_features_extractor.features_dim != self.features_dim:
+            raise ValueError(f"The critic's features_dim {self.vf_features_extractor.features_dim} must equal the "
+                             f"actor's {self.features_dim} (one MLP extractor serves both).")
+        super()._build_mlp_extractor()
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        data = super()._get_constructor_parameters()
+        data.update(critic_extractor_class=self.critic_extractor_class,
+                    critic_extractor_kwargs=self.critic_extractor_kwargs)
+        return data
 
 
 def ma2c_policy_kwargs(architecture: str = "shared") -> dict[str, Any]:

@@ -13,10 +13,12 @@ from sb3_marl.algos import get_algo
 from sb3_marl.hyperparams import (
     SCENARIO_KEYS,
     ZOO_KEYS,
+    policy_for,
     policy_kwargs_for,
     validate_hyperparams,
 )
-from wrappers import ParameterSharingVecEnv, VecRewardScale
+from sb3_marl.envs import av_counts
+from wrappers import ParameterSharingVecEnv, VecCentralisedState, VecRewardScale
 
 
 def make_venv(
@@ -28,7 +30,8 @@ def make_venv(
     monitor_file: str = "monitor.csv",
 ) -> VecEnv:
     """The parameter-sharing VecEnv of the scenario, with the entry's reward mode, copies,
-    scenario overrides, intervention penalty and reward scale; with ``monitor_dir``, SB3's VecMonitor writes each AV's
+    scenario overrides, intervention penalty and reward scale, and with ``critic: centralised``
+    each slot's copy's global state (:class:`~wrappers.VecCentralisedState`); with ``monitor_dir``, SB3's VecMonitor writes each AV's
     episodes (unscaled return, length) to ``<monitor_dir>/<monitor_file>``, as rl_zoo3 expects (SB3's
     ``load_results`` reads every ``*monitor.csv`` of a folder)."""
     venv: VecEnv = ParameterSharingVecEnv(
@@ -40,6 +43,8 @@ def make_venv(
         config=hyperparams.get("env_config"),
         supervisor_dropout=hyperparams.get("supervisor_dropout", 0.0),
     )
+    if hyperparams.get("critic", "local") == "centralised":
+        venv = VecCentralisedState(venv, max(av_counts(env_id, hyperparams.get("env_config"))))
     if monitor_dir is not None:
         os.makedirs(monitor_dir, exist_ok=True)
         venv = VecMonitor(venv, os.path.join(monitor_dir, monitor_file))
@@ -60,5 +65,5 @@ def make_model(
     }
     arguments = ExperimentManager._preprocess_schedules(arguments)  # "lin_5e-4" -> a schedule, as rl_zoo3 does
     arguments["policy_kwargs"] = policy_kwargs_for(algo, hyperparams)
-    policy = hyperparams.get("policy", "MlpPolicy")
+    policy = policy_for(hyperparams)
     return get_algo(algo)(policy, venv, seed=seed, device=device, **arguments, **kwargs)

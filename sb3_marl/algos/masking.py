@@ -30,7 +30,7 @@ import torch as th
 import torch.nn.functional as F
 from gymnasium import spaces
 from sb3_contrib import TRPO, MaskablePPO
-from sb3_contrib.common.maskable.buffers import MaskableRolloutBuffer
+from sb3_contrib.common.maskable.buffers import MaskableDictRolloutBuffer, MaskableRolloutBuffer
 from sb3_contrib.common.maskable.utils import get_action_masks
 from stable_baselines3 import DQN
 from stable_baselines3.common.base_class import BaseAlgorithm
@@ -41,6 +41,13 @@ from stable_baselines3.common.type_aliases import GymEnv, Schedule
 
 from sb3_marl.algos.acktr import ACKTR
 from sb3_marl.loading import SafeLoading
+from sb3_marl.policies import CentralisedCriticPolicy
+
+#: Policies of the maskable actor-critic learners: sb3-contrib's, plus the centralised critic
+#: (``critic: centralised``, selected by the hyperparameters under this alias).
+ACTOR_CRITIC_POLICIES: dict[str, type[BasePolicy]] = {
+    **MaskablePPO.policy_aliases, "CentralisedCriticPolicy": CentralisedCriticPolicy,
+}
 
 
 class MaskingLearner(SafeLoading):
@@ -143,7 +150,7 @@ class SupervisorTeacher:
         returns the loss before the step (0 without intervened samples)."""
         buffer = self.rollout_buffer  # type: ignore[attr-defined]
         labels = executed.swapaxes(0, 1).reshape(-1) if buffer.generator_ready else executed.reshape(-1)
-        observations = buffer.observations.reshape(len(labels), *buffer.obs_shape)
+        observations = _flat_samples(buffer.observations, buffer.obs_shape, len(labels))
         masks = buffer.action_masks.reshape(len(labels), -1) if self.action_masking else None  # type: ignore[attr-defined]
         chosen = np.flatnonzero(labels >= 0)
         self.logger.record("train/intervened_share", chosen.size / max(len(labels), 1))  # type: ignore[attr-defined]
@@ -153,7 +160,7 @@ class SupervisorTeacher:
         policy = self.policy  # type: ignore[attr-defined]
         policy.set_training_mode(True)
         loss = self.safety_loss(
-            th.as_tensor(observations[chosen], device=policy.device),
+            policy.obs_to_tensor(_select(observations, chosen))[0],
             None if masks is None else masks[chosen],
             th.as_tensor(labels[chosen], device=policy.device),
         )
@@ -163,6 +170,19 @@ class SupervisorTeacher:
         policy.optimizer.step()
         self.logger.record("train/safety_loss", float(loss.item()))  # type: ignore[attr-defined]
         return float(loss.item())
+
+
+def _flat_samples(observations: Any, obs_shape: Any, n: int) -> Any:
+    """A rollout buffer's observations (an array, or a dict of arrays) as ``n`` samples."""
+    if isinstance(observations, dict):
+        return {key: value.reshape(n, *obs_shape[key]) for key, value in observations.items()}
+    return observations.reshape(n, *obs_shape)
+
+
+def _select(observations: Any, rows: np.ndarray) -> Any:
+    if isinstance(observations, dict):
+        return {key: value[rows] for key, value in observations.items()}
+    return observations[rows]
 
 
 class ActionMaskingMixin(SupervisorTeacher, MaskingLearner):
@@ -209,12 +229,14 @@ def _with_action_masking(cls: type, base: type, teacher: bool = True) -> None:
 class MaskedPPO(ActionMaskingMixin, MaskablePPO):
     """sb3-contrib's ``MaskablePPO`` with the ``action_masking`` switch (see the module doc)."""
 
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = ACTOR_CRITIC_POLICIES
+
 
 class MaskableACKTR(ActionMaskingMixin, ACKTR):
     """Our :class:`~sb3_marl.algos.acktr.ACKTR` on sb3-contrib's maskable policy, rollout buffer and
     masked rollouts (see the module doc); ACKTR's update evaluates the actions under their masks."""
 
-    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = MaskablePPO.policy_aliases
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = ACTOR_CRITIC_POLICIES
 
     def _setup_model(self) -> None:
         """As ``MaskablePPO._setup_model`` (maskable policy and rollout buffer), then K-FAC."""
@@ -223,7 +245,8 @@ class MaskableACKTR(ActionMaskingMixin, ACKTR):
         self.policy = self.policy_class(
             self.observation_space, self.action_space, self.lr_schedule, **self.policy_kwargs
         ).to(self.device)
-        self.rollout_buffer = MaskableRolloutBuffer(
+        buffer_class = MaskableDictRolloutBuffer if isinstance(self.observation_space, spaces.Dict) else MaskableRolloutBuffer
+        self.rollout_buffer = buffer_class(
             self.n_steps, self.observation_space, self.action_space, self.device,
             gamma=self.gamma, gae_lambda=self.gae_lambda, n_envs=self.n_envs,
         )
@@ -394,16 +417,28 @@ _with_action_masking(MaskableACKTR, ACKTR, teacher=False)  # K-FAC steps only on
 _with_action_masking(MaskableDQN, DQN)
 
 
+def per_agent_batches(buffer: Any, parent_get: Any) -> Any:
+    """Minibatches of a maskable rollout buffer that are the VecEnv slots: each yields one AV slot's
+    ``n_steps`` consecutive transitions, the slots in random order (the authors' MA2C takes one
+    optimiser step per AV on that AV's transitions)."""
+    if not buffer.generator_ready:
+        next(parent_get(None))  # sb3-contrib flattens the arrays slot-major on first use
+    for slot in np.random.permutation(buffer.n_envs):
+        yield buffer._get_samples(np.arange(slot * buffer.buffer_size, (slot + 1) * buffer.buffer_size))
+
+
 class PerAgentRolloutBuffer(MaskableRolloutBuffer):
-    """sb3-contrib's maskable rollout buffer whose minibatches are the VecEnv slots: each yields
-    one AV slot's ``n_steps`` consecutive transitions, the slots in random order (the authors' MA2C
-    takes one optimiser step per AV on that AV's transitions)."""
+    """sb3-contrib's maskable rollout buffer with one minibatch per AV slot (:func:`per_agent_batches`)."""
 
     def get(self, batch_size: int | None = None) -> Any:
-        if not self.generator_ready:
-            next(super().get(None))  # sb3-contrib flattens the arrays slot-major on first use
-        for slot in np.random.permutation(self.n_envs):
-            yield self._get_samples(np.arange(slot * self.buffer_size, (slot + 1) * self.buffer_size))
+        return per_agent_batches(self, super().get)
+
+
+class PerAgentDictRolloutBuffer(MaskableDictRolloutBuffer):
+    """The same on Dict observations (``critic: centralised``)."""
+
+    def get(self, batch_size: int | None = None) -> Any:
+        return per_agent_batches(self, super().get)
 
 
 class MaskableA2C(ActionMaskingMixin, MaskablePPO):
@@ -453,8 +488,6 @@ class MaskableA2C(ActionMaskingMixin, MaskablePPO):
             policy_kwargs["optimizer_class"] = th.optim.RMSprop
             policy_kwargs["optimizer_kwargs"] = dict(alpha=0.99, eps=rms_prop_eps, weight_decay=0)
         self.per_agent_updates = bool(per_agent_updates)
-        if self.per_agent_updates and rollout_buffer_class is None:
-            rollout_buffer_class = PerAgentRolloutBuffer
         super().__init__(
             policy,
             env,
@@ -481,6 +514,14 @@ class MaskableA2C(ActionMaskingMixin, MaskablePPO):
             action_masking=action_masking,
             safety_loss_coef=safety_loss_coef,
         )
+
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = ACTOR_CRITIC_POLICIES
+
+    def _setup_model(self) -> None:
+        if self.per_agent_updates and self.rollout_buffer_class is None:
+            dict_obs = isinstance(self.observation_space, spaces.Dict)
+            self.rollout_buffer_class = PerAgentDictRolloutBuffer if dict_obs else PerAgentRolloutBuffer
+        super()._setup_model()
 
     def learn(self, total_timesteps: int, callback: Any = None, log_interval: int = 10, tb_log_name: str = "MA2C",
               reset_num_timesteps: bool = True, use_masking: bool = True, progress_bar: bool = False) -> MaskableA2C:

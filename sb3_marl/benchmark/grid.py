@@ -34,6 +34,8 @@ VARIANTS: dict[str, dict[str, Any]] = {
     # training that makes the policy safe on its own (README "Safety without the supervisor"): half
     # the training episodes without the supervisor, actor and critic on their own networks
     "safety-training": {"architecture": "separate", "supervisor_dropout": 0.5},
+    # centralised training, decentralised execution: the critic reads the copy's global state
+    "centralised-critic": {"architecture": "separate", "critic": "centralised"},
 }
 
 #: Experiment -> its curves: label -> (algorithm, variant). In the order of the paper's sections.
@@ -58,11 +60,16 @@ EXPERIMENTS: dict[str, dict[str, tuple[str, str]]] = {
         "behind the supervisor (default)": ("ma2c", "default"),
         "safety training": ("ma2c", "safety-training"),
     },
+    # beyond the paper: CTDE, a critic that sees every AV of the copy (same networks otherwise)
+    "ctde": {
+        "local critic (separate networks)": ("ma2c", "separate-networks"),
+        "centralised critic": ("ma2c", "centralised-critic"),
+    },
 }
 
 #: Grid name -> the experiments it runs.
 #: The "paper" grid: the paper's five experiments and our intervention-penalty one (81 trials with 3 seeds).
-GRIDS: dict[str, tuple[str, ...]] = {"paper": tuple(e for e in EXPERIMENTS if e != "safety"),
+GRIDS: dict[str, tuple[str, ...]] = {"paper": tuple(e for e in EXPERIMENTS if e not in ("safety", "ctde")),
                                      **{name: (name,) for name in EXPERIMENTS}}
 
 

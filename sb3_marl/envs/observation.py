@@ -83,3 +83,38 @@ def _observe(
             obs[i, row + 1] = (1.0, clip((x[j] - x[i]) / x_range), clip((y[j] - y[i]) / y_range),
                                clip((vx[j] - vx[i]) / v_range), clip((vy[j] - vy[i]) / v_range))
     return obs
+
+
+#: Keys of the centralised-critic observation (a Dict): the AV's own view, which the actor reads,
+#: and the copy's global state, which only a centralised critic reads.
+LOCAL_KEY, STATE_KEY = "observation", "state"
+
+
+def centralised_observation_space(agent_space: spaces.Box, max_avs: int) -> spaces.Dict:
+    """Per-AV Dict space of :func:`centralised_observations`: ``observation`` (``agent_space``) and
+    ``state``, shape (max_avs, 2 + vehicles * features) in [-1, 1]."""
+    state_shape = (max_avs, 2 + int(np.prod(agent_space.shape)))
+    return spaces.Dict({
+        LOCAL_KEY: agent_space,
+        STATE_KEY: spaces.Box(low=-1.0, high=1.0, shape=state_shape, dtype=np.float32),
+    })
+
+
+def centralised_observations(copy_obs: np.ndarray, max_avs: int) -> dict[str, np.ndarray]:
+    """Every AV's view plus the global state of its scenario copy (the centralised critic's input).
+
+    The state of AV i is one row per AV slot j < ``max_avs`` in a fixed order (the copy's AV
+    indices): ``(present_j, j == i, AV j's observation flattened)``; slots past the copy's AV count
+    are zero rows (present 0), so copies with fewer AVs than the density's maximum share one shape.
+
+    :param copy_obs: the copy's observations, shape (n_avs, vehicles, features), n_avs <= max_avs
+    :return: ``{"observation": copy_obs, "state": (n_avs, max_avs, 2 + vehicles * features)}``
+    """
+    n_avs = copy_obs.shape[0]
+    if n_avs > max_avs:
+        raise ValueError(f"A copy of {n_avs} AVs does not fit a centralised state of {max_avs} AV slots.")
+    state = np.zeros((n_avs, max_avs, 2 + int(np.prod(copy_obs.shape[1:]))), dtype=np.float32)
+    state[:, :n_avs, 0] = 1.0
+    state[np.arange(n_avs), np.arange(n_avs), 1] = 1.0
+    state[:, :n_avs, 2:] = copy_obs.reshape(n_avs, -1)
+    return {LOCAL_KEY: copy_obs, STATE_KEY: state}
