@@ -4,6 +4,11 @@ from setuptools import find_packages, setup
 
 RAY = ["ray[tune]>=2.60,<2.61"]
 PETTINGZOO = ["pettingzoo>=1.27,<1.28", "supersuit>=3.10,<3.11"]
+# other MARL libraries on the PettingZoo env (README "Other MARL libraries")
+TORCHRL = ["torchrl>=0.14,<0.15", *PETTINGZOO]
+RLLIB = ["ray[rllib]>=2.60,<2.61", *PETTINGZOO]  # RLlib pins gymnasium 1.2.x
+# BenchMARL 1.5 pins torchrl < 0.12 (and torchvision): its own environment, not [dev]
+BENCHMARL = ["benchmarl>=1.5,<1.6", *PETTINGZOO]
 
 setup(
     name="sb3-marl",
@@ -38,8 +43,12 @@ setup(
         "ray": RAY,
         # the scenario as a PettingZoo ParallelEnv (sb3_marl.envs.parallel_env), SuperSuit to feed it to SB3
         "pettingzoo": PETTINGZOO,
-        # seaborn and scipy: rl_zoo3's own plotting scripts, run by the tests on our logs
-        "dev": ["pytest>=8", "seaborn", "scipy", *RAY, *PETTINGZOO],
+        "torchrl": TORCHRL,
+        "rllib": RLLIB,
+        "benchmarl": BENCHMARL,
+        # seaborn and scipy: rl_zoo3's own plotting scripts, run by the tests on our logs;
+        # ruff and mypy: lint and types, run by `make test`
+        "dev": ["pytest>=8", "seaborn", "scipy", "ruff>=0.16,<0.17", "mypy>=2.3,<2.5", *RAY, *TORCHRL, *RLLIB],
     },
     entry_points={"console_scripts": ["sb3-marl=sb3_marl.cli:main"]},
     classifiers=[

@@ -13,7 +13,8 @@ puts the same :class:`~sb3_marl.envs.lane_change_env.LaneChangeEnv` behind it:
 - per-agent rewards in ``reward_mode``: ``"local"`` (the paper's neighbourhood average, default),
   ``"global"`` (mean over all AVs) or ``"individual"`` (the AV's own);
 - ``infos[agent]["action_mask"]``: the AV's available meta-actions (int8, 1 = available), where
-  PettingZoo's masked environments without dict observations put it, with the AV's speed [m/s],
+  PettingZoo's masked environments without dict observations put it (in the observation instead
+  with ``action_mask_in_observation``), with the AV's speed [m/s],
   headway [m], crash flag and, with the safety supervisor on, its proposed and executed action;
 - ``state()``: the global view, all AVs' observations stacked (``state_space``, shape
   (n_avs * obs_vehicles_count * 5,)), for centralised critics;
@@ -21,7 +22,8 @@ puts the same :class:`~sb3_marl.envs.lane_change_env.LaneChangeEnv` behind it:
 - for other libraries' conventions: ``flatten_observations=True`` gives each agent a 1-D Box
   (``obs_vehicles_count * 5``,) (RLlib's and BenchMARL's default models take 1-D inputs), and
   ``action_mask_in_observation=True`` PettingZoo's masked-env convention, a Dict observation
-  ``{"observation": ..., "action_mask": int8 (5,)}`` that RLlib's and TorchRL's masking read.
+  ``{"observation": ..., "action_mask": int8 (5,)}`` that TorchRL's masking reads;
+  ``observation_key="observations"`` names the view as RLlib's action-masking RLModule expects.
 
 Unlike :class:`~wrappers.parameter_sharing.ParameterSharingVecEnv`, which feeds AV counts that
 vary between copies to one SB3 learner with no padding, a ParallelEnv has a fixed set of possible
@@ -53,7 +55,8 @@ class LaneChangeParallelEnv(ParallelEnv):
 
     def __init__(
         self, density: int = 1, reward_mode: str = "local", render_mode: str | None = None,
-        flatten_observations: bool = False, action_mask_in_observation: bool = False, **config: Any
+        flatten_observations: bool = False, action_mask_in_observation: bool = False,
+        observation_key: str = "observation", **config: Any
     ) -> None:
         """
         :param density: traffic density, 1, 2 or 3
@@ -61,6 +64,8 @@ class LaneChangeParallelEnv(ParallelEnv):
         :param render_mode: None, ``"rgb_array"`` or ``"human"``
         :param flatten_observations: each agent's observation as a 1-D vector
         :param action_mask_in_observation: each agent's observation as a Dict with its action mask
+        :param observation_key: the key of the AV's view in that Dict (PettingZoo's ``observation``;
+            ``observations`` for RLlib's ``ActionMaskingTorchRLModule``)
         :param config: scenario config overrides (``n_avs``, ``safety_supervisor``, ...; see
             :mod:`sb3_marl.envs.config`)
         """
@@ -72,6 +77,10 @@ class LaneChangeParallelEnv(ParallelEnv):
                            ("action_mask_in_observation", action_mask_in_observation)):
             if not isinstance(flag, bool):
                 raise ValueError(f"Invalid {name}={flag!r}: expected True or False.")
+        if not isinstance(observation_key, str) or observation_key in ("", "action_mask"):
+            raise ValueError(f"Invalid observation_key={observation_key!r}: expected a name other than 'action_mask', "
+                             "e.g. 'observation' (PettingZoo's) or 'observations' (RLlib's).")
+        self.observation_key = observation_key
         self.flatten_observations = flatten_observations
         self.action_mask_in_observation = action_mask_in_observation
         self.env: LaneChangeEnv = gym.make(ENV_IDS[density], config=config, render_mode=render_mode).unwrapped
@@ -95,7 +104,7 @@ class LaneChangeParallelEnv(ParallelEnv):
                          dtype=self._observation_space.dtype)
         if not self.action_mask_in_observation:
             return box
-        return spaces.Dict({"observation": box, "action_mask": spaces.Box(0, 1, (len(ACTIONS),), dtype=np.int8)})
+        return spaces.Dict({self.observation_key: box, "action_mask": spaces.Box(0, 1, (len(ACTIONS),), dtype=np.int8)})
 
     @functools.lru_cache(maxsize=None)
     def action_space(self, agent: str) -> spaces.Discrete:
@@ -159,12 +168,15 @@ class LaneChangeParallelEnv(ParallelEnv):
         if not self.action_mask_in_observation:
             return {agent: rows[i] for i, agent in enumerate(self.possible_agents)}
         masks = info["action_mask"].astype(np.int8)
-        return {agent: {"observation": rows[i], "action_mask": masks[i]} for i, agent in enumerate(self.possible_agents)}
+        return {agent: {self.observation_key: rows[i], "action_mask": masks[i]} for i, agent in enumerate(self.possible_agents)}
 
     def _infos(self, info: dict[str, Any]) -> dict[str, dict[str, Any]]:
+        """Per-agent infos; the action mask here unless it is in the observation (one place, as
+        PettingZoo's masked envs: TorchRL reads whichever it finds)."""
         masks = info["action_mask"].astype(np.int8)
         return {
-            agent: {"action_mask": masks[i], **{key: info[key][i] for key in AGENT_INFO}}
+            agent: {**({} if self.action_mask_in_observation else {"action_mask": masks[i]}),
+                    **{key: info[key][i] for key in AGENT_INFO}}
             for i, agent in enumerate(self.possible_agents)
         }
 
@@ -172,7 +184,8 @@ class LaneChangeParallelEnv(ParallelEnv):
 def parallel_env(density: int = 1, reward_mode: str = "local", render_mode: str | None = None,
                  **kwargs: Any) -> LaneChangeParallelEnv:
     """The lane-change scenario as a PettingZoo ``ParallelEnv`` (PettingZoo's constructor name);
-    ``kwargs``: ``flatten_observations``, ``action_mask_in_observation`` and scenario config keys."""
+    ``kwargs``: ``flatten_observations``, ``action_mask_in_observation``, ``observation_key`` and
+    scenario config keys."""
     return LaneChangeParallelEnv(density=density, reward_mode=reward_mode, render_mode=render_mode, **kwargs)
 
 

@@ -113,8 +113,9 @@ def test_other_libraries_conventions_pass_pettingzoos_tests(options):
     env = parallel_env(density=3, **options)
     observations, infos = env.reset(seed=0)
     first = observations["av_0"]
-    if options.get("action_mask_in_observation"):
-        assert np.array_equal(first["action_mask"], infos["av_0"]["action_mask"])
+    if options.get("action_mask_in_observation"):  # the mask in the observation, not in the info
+        assert np.array_equal(first["action_mask"], env.env.action_masks()[0].astype(np.int8))
+        assert "action_mask" not in infos["av_0"]
         first = first["observation"]
     assert first.ndim == (1 if options.get("flatten_observations") else 2)
     assert env.observation_space("av_0").contains(observations["av_0"])
@@ -123,3 +124,12 @@ def test_other_libraries_conventions_pass_pettingzoos_tests(options):
 def test_bad_convention_flags_name_the_field():
     with pytest.raises(ValueError, match="flatten_observations"):
         parallel_env(flatten_observations="yes")
+    with pytest.raises(ValueError, match="observation_key"):
+        parallel_env(action_mask_in_observation=True, observation_key="action_mask")
+
+
+def test_the_view_key_follows_rllibs_convention_on_request():
+    env = parallel_env(density=1, action_mask_in_observation=True, observation_key="observations")
+    observations, _ = env.reset(seed=0)
+    assert set(observations["av_0"]) == {"observations", "action_mask"}
+    assert env.observation_space("av_0").contains(observations["av_0"])

@@ -1,0 +1,90 @@
+"""Other MARL libraries on the PettingZoo env, as their users run them: the README's TorchRL,
+RLlib and BenchMARL examples verbatim, TorchRL's spec check at densities 1 and 3, and masked
+actions never taken (TorchRL's masked rollout; RLlib's action-masking module on a recording env)."""
+
+import importlib.util
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sb3_marl.envs import parallel_env
+from sb3_marl.envs.parallel import LaneChangeParallelEnv
+
+README = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+
+
+def readme_example(library: str) -> str:
+    section = README.split("\n## Other MARL libraries: TorchRL, RLlib, BenchMARL\n", 1)[1].split("\n## ", 1)[0]
+    body = section.split(f"\n### {library}\n", 1)[1].split("\n### ", 1)[0]
+    return re.search(r"```python\n(.*?)```", body, re.S).group(1)
+
+
+def test_the_dev_environment_is_coherent():
+    result = subprocess.run([sys.executable, "-m", "pip", "check"], capture_output=True, text=True)
+    assert result.returncode == 0, result.stdout + result.stderr
+
+
+@pytest.mark.parametrize("density", [1, 3])
+def test_the_torchrl_example_passes_check_env_specs_and_never_takes_a_masked_action(density, capsys):
+    code = readme_example("TorchRL")
+    if density != 3:
+        code = code.replace("density=3", f"density={density}").replace("6 AVs", f"{density + 2} AVs")
+    exec(compile(code, "README.md", "exec"), {})
+    out = capsys.readouterr().out
+    assert "masked actions taken: 0" in out
+    n_avs = {1: 3, 3: 6}[density]
+    assert f"global state: (50, {n_avs * 25})" in out
+
+
+class RecordingEnv(LaneChangeParallelEnv):
+    """The real env, counting the actions it receives that its last action masks excluded."""
+
+    masked_taken = 0
+    actions_seen = 0
+
+    def reset(self, *args, **kwargs):
+        observations, infos = super().reset(*args, **kwargs)
+        self._masks = {agent: obs["action_mask"] for agent, obs in observations.items()}
+        return observations, infos
+
+    def step(self, actions):
+        for agent, action in actions.items():
+            RecordingEnv.actions_seen += 1
+            RecordingEnv.masked_taken += int(not self._masks[agent][action])
+        observations, *rest = super().step(actions)
+        self._masks = {agent: obs["action_mask"] for agent, obs in observations.items()}
+        return (observations, *rest)
+
+
+def test_the_rllib_example_trains_two_iterations_of_shared_masked_ppo(capsys):
+    exec(compile(readme_example("RLlib"), "README.md", "exec"), {})
+    lines = [line.split() for line in capsys.readouterr().out.splitlines() if re.fullmatch(r"[01] \d+(\.\d+)?", line)]
+    assert [line[0] for line in lines] == ["0", "1"] and float(lines[1][1]) > float(lines[0][1]) > 0
+
+
+def test_rllib_with_the_action_masking_module_never_takes_a_masked_action():
+    code = readme_example("RLlib").replace("ParallelPettingZooEnv(parallel_env(", "ParallelPettingZooEnv(RecordingEnv(")
+    RecordingEnv.masked_taken = RecordingEnv.actions_seen = 0
+    exec(compile(code, "README.md", "exec"), {"RecordingEnv": RecordingEnv})
+    assert RecordingEnv.actions_seen >= 400 and RecordingEnv.masked_taken == 0
+
+
+def test_masks_are_real_constraints_on_this_env():
+    """Without masking some actions are unavailable: the checks above can fail."""
+    env = parallel_env(density=1, action_mask_in_observation=True)
+    observations, _ = env.reset(seed=0)
+    assert any(not obs["action_mask"].all() for obs in observations.values())
+    assert np.all([obs["action_mask"].dtype == np.int8 for obs in observations.values()])
+
+
+@pytest.mark.skipif(importlib.util.find_spec("benchmarl") is None,
+                    reason="BenchMARL is not installed: it pins TorchRL < 0.12, which cannot live beside the "
+                           "[dev] extra's TorchRL 0.14; install the [benchmarl] extra in its own environment")
+def test_the_benchmarl_example_runs_two_iterations_of_mappo(capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    exec(compile(readme_example("BenchMARL"), "README.md", "exec"), {})
+    assert "BenchMARL MAPPO: 2 iterations" in capsys.readouterr().out
