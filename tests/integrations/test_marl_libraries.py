@@ -6,6 +6,7 @@ import importlib.util
 import re
 import subprocess
 import sys
+import types
 from pathlib import Path
 
 import numpy as np
@@ -86,5 +87,7 @@ def test_masks_are_real_constraints_on_this_env():
                            "[dev] extra's TorchRL 0.14; install the [benchmarl] extra in its own environment")
 def test_the_benchmarl_example_runs_two_iterations_of_mappo(capsys, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    exec(compile(readme_example("BenchMARL"), "README.md", "exec"), {})
+    module = types.ModuleType("benchmarl_readme_example")  # BenchMARL pickles the task class: a real module
+    monkeypatch.setitem(sys.modules, module.__name__, module)
+    exec(compile(readme_example("BenchMARL"), "README.md", "exec"), module.__dict__)
     assert "BenchMARL MAPPO: 2 iterations" in capsys.readouterr().out
