@@ -8,9 +8,10 @@ with the safety supervisor and without it, and IDM/MOBIL on the same episodes.
     python benchmarks/heldout_evaluation.py -f results/paper-grid --variants default safety-training \
         --densities 1 2 3 --seeds 3 -o results/safety
 
-writes ``<output>/heldout.json`` (every trial's and IDM/MOBIL's summaries; finished entries are kept
-and skipped on a rerun) and ``<output>/heldout.md`` (per variant and density: mean ± std over seeds
-of the return, collision rate, lane changes and yields per episode, under each protocol).
+writes ``<output>/heldout.json`` (every trial's and IDM/MOBIL's summaries with each episode's return;
+finished entries are kept and skipped on a rerun) and ``<output>/heldout.md`` (per variant and density:
+mean ± std over seeds of the return, its IQM with a 95 % stratified-bootstrap CI over seeds where every
+entry kept its episode returns, collision rate, lane changes and yields per episode, under each protocol).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from tqdm import tqdm
 
 from sb3_marl.baselines import IDMMobilPolicy
 from sb3_marl.benchmark.grid import TrialSpec
+from sb3_marl.benchmark.report import iqm_with_ci
 from sb3_marl.envs import ENV_IDS
 from sb3_marl.evaluation import evaluate_protocols, model_policy
 from sb3_marl.runs import find_run
@@ -34,8 +36,8 @@ METRICS = ("return_mean", "collision_rate", "lane_changes_per_episode", "yields_
 
 
 def slim(result: dict) -> dict:
-    """A protocol result without its per-episode returns (kept: their mean and the metrics)."""
-    return {key: value for key, value in result.items() if key != "returns"}
+    """A protocol result with its per-episode returns rounded to 3 decimals (the IQM's input)."""
+    return {**result, "returns": [round(float(r), 3) for r in result["returns"]]}
 
 
 def evaluate_all(args: argparse.Namespace) -> dict:
@@ -74,10 +76,11 @@ def table(results: dict, variants: list[str], densities: list[int], seeds: int, 
     entries = results["entries"]
     lines = [f"Held-out evaluation: {results['protocol']['episodes']} episodes, seeds "
              f"{results['protocol']['seeds'][0]}..{results['protocol']['seeds'][1]}, actions sampled, masks; "
-             "learners: mean ± std over training seeds.", "",
-             "| policy | density | seeds | supervisor on: return | collision | supervisor off: return | collision "
-             "| lane changes / ep. (off) | yields / ep. (off) |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "learners: mean ± std over training seeds; IQM over every (seed, episode) return, its CI by stratified "
+             "bootstrap over seeds (IDM/MOBIL, one policy: over episodes).", "",
+             "| policy | density | seeds | supervisor on: return | IQM [95 % CI] | collision | supervisor off: return "
+             "| IQM [95 % CI] | collision | lane changes / ep. (off) | yields / ep. (off) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for density in densities:
         rows = [("IDM/MOBIL", [entries.get(f"idm-mobil_density{density}")])]
         rows += [(f"{algo} {variant}", [entries.get(TrialSpec(algo, density, variant, s).trial_id) for s in range(seeds)])
@@ -91,8 +94,16 @@ def table(results: dict, variants: list[str], densities: list[int], seeds: int, 
                 values = np.array([(e["supervisor_off"] if off else e)[metric] for e in found])
                 return f"{values.mean():.2f} ± {values.std():.2f}" if spread else f"{values.mean():.3f}"
 
-            lines.append(f"| {label} | {density} | {len(found)} | {cell('return_mean')} | "
-                         f"{cell('collision_rate', spread=False)} | {cell('return_mean', True)} | "
+            def iqm(off: bool = False) -> str:
+                returns = [(e["supervisor_off"] if off else e).get("returns") for e in found]
+                if not all(returns):
+                    return "—"
+                # seeds resampled within each episode; one policy alone (IDM/MOBIL): episodes resampled
+                value, low, high = iqm_with_ci(np.array(returns) if len(returns) > 1 else np.array(returns[0])[:, None])
+                return f"{value:.2f} [{low:.2f}, {high:.2f}]"
+
+            lines.append(f"| {label} | {density} | {len(found)} | {cell('return_mean')} | {iqm()} | "
+                         f"{cell('collision_rate', spread=False)} | {cell('return_mean', True)} | {iqm(True)} | "
                          f"{cell('collision_rate', True, False)} | {cell('lane_changes_per_episode', True, False)} | "
                          f"{cell('yields_per_episode', True, False)} |")
     return "\n".join(lines) + "\n"
