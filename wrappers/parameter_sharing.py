@@ -5,6 +5,8 @@ One shared policy then drives all AVs (parameter sharing), trained by any SB3 al
 
 from __future__ import annotations
 
+import contextlib
+import itertools
 import multiprocessing as mp
 import os
 import signal
@@ -36,8 +38,16 @@ VEC_BACKENDS = ("dummy", "subproc")
 PER_AGENT_METHODS = ("action_masks",)
 #: Per-AV arrays of the scenario's info that each slot's info carries as scalars.
 PER_AGENT_INFO = (
-    "speed", "headway", "acceleration", "lane_change", "crashed", "exited", "action_mask",
-    "proposed_action", "executed_action", "intervened",
+    "speed",
+    "headway",
+    "acceleration",
+    "lane_change",
+    "crashed",
+    "exited",
+    "action_mask",
+    "proposed_action",
+    "executed_action",
+    "intervened",
 )
 
 EnvFactory = Callable[[int], gym.Env]
@@ -115,7 +125,8 @@ class CopyRunner:
         self.copy = copy
         self.reward_mode = reward_mode
         self.supervisor_dropout = supervisor_dropout
-        self._supervised = bool(self.env.unwrapped.config.get("safety_supervisor", False)) if supervisor_dropout else False
+        self.scenario_config: dict[str, Any] = self.env.get_wrapper_attr("config")  # the dropout switches its supervisor
+        self._supervised = bool(self.scenario_config.get("safety_supervisor", False)) if supervisor_dropout else False
         self._dropout_rng = np.random.default_rng()
 
     def _draw_supervisor(self, seed: int | None) -> None:
@@ -124,7 +135,7 @@ class CopyRunner:
             return
         if seed is not None:
             self._dropout_rng = np.random.default_rng([seed, self.copy])
-        self.env.unwrapped.config["safety_supervisor"] = bool(self._dropout_rng.random() >= self.supervisor_dropout)
+        self.scenario_config["safety_supervisor"] = bool(self._dropout_rng.random() >= self.supervisor_dropout)
 
     def spaces(self) -> tuple[spaces.Space, spaces.Space]:
         return self.env.observation_space, self.env.action_space
@@ -167,7 +178,7 @@ class CopyRunner:
     def env_is_wrapped(self, wrapper_class: type[gym.Wrapper]) -> bool:
         return is_wrapped(self.env, wrapper_class)
 
-    def get_image(self) -> np.ndarray | None:
+    def get_image(self) -> Any:
         return self.env.render()
 
     def close(self) -> None:
@@ -184,7 +195,7 @@ def _run_calls(runners: list[CopyRunner], calls: list[Call]) -> list[Any]:
 class LocalCopies:
     """Copies stepped one after the other in this process."""
 
-    def __init__(self, runners: list[Callable[[], CopyRunner]]) -> None:
+    def __init__(self, runners: Sequence[Callable[[], CopyRunner]]) -> None:
         self.runners = [make_runner() for make_runner in runners]
         self._results: list[Any] = []
 
@@ -199,13 +210,13 @@ class LocalCopies:
             runner.close()
 
 
-def _worker(remote: Any, parent_remote: Any, runners: CloudpickleWrapper) -> None:
+def _worker(remote: Any, parent_remote: Any, factories: CloudpickleWrapper) -> None:
     """Worker process: host a group of copies and run the calls the main process sends.
 
     Ctrl-C is left to the main process, which stops training and then closes the workers."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     parent_remote.close()
-    runners = [make_runner() for make_runner in runners.var]
+    runners: list[CopyRunner] = [make_runner() for make_runner in factories.var]
     while True:
         try:
             calls = remote.recv()
@@ -229,7 +240,7 @@ class WorkerCopies:
         stopped or hung worker must not block training forever)
     """
 
-    def __init__(self, runners: list[Callable[[], CopyRunner]], context: Any, timeout: float = 120.0) -> None:
+    def __init__(self, runners: Sequence[Callable[[], CopyRunner]], context: Any, timeout: float = 120.0) -> None:
         self.timeout = timeout
         self.started = False
         self.remote, work_remote = context.Pipe()
@@ -258,10 +269,8 @@ class WorkerCopies:
 
     def close(self) -> None:
         if self.process.is_alive():
-            try:
+            with contextlib.suppress(BrokenPipeError, ConnectionResetError):
                 self.remote.send(None)
-            except (BrokenPipeError, ConnectionResetError):
-                pass
         self.process.join(timeout=5)
         if self.process.is_alive():
             self.process.terminate()
@@ -342,10 +351,17 @@ class ParameterSharingVecEnv(VecEnv):
         self.reward_mode = reward_mode
         self.vec_backend = vec_backend
         runners = []
-        for k, n_avs in enumerate(copy_counts):
-            copy_config = config if n_avs is None else {**config, "n_avs": n_avs}
-            runners.append(partial(CopyRunner, partial(_make_copy, env, k, copy_config, render_mode), k, reward_mode,
-                                   float(supervisor_dropout)))
+        for k, count in enumerate(copy_counts):
+            copy_config = config if count is None else {**config, "n_avs": count}
+            runners.append(
+                partial(
+                    CopyRunner,
+                    partial(_make_copy, env, k, copy_config, render_mode),
+                    k,
+                    reward_mode,
+                    float(supervisor_dropout),
+                )
+            )
         #: copy k runs in group placement[k][0] at index placement[k][1]
         self.placement = [(k % n_workers, k // n_workers) for k in range(n_copies)]
         self.group_copies = [list(range(g, n_copies, n_workers)) for g in range(n_workers)]
@@ -355,17 +371,16 @@ class ParameterSharingVecEnv(VecEnv):
             if start_method is None:
                 start_method = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
             context = mp.get_context(start_method)
-            self.groups = [WorkerCopies([runners[k] for k in copies], context, worker_timeout)
-                           for copies in self.group_copies]
+            self.groups = [WorkerCopies([runners[k] for k in copies], context, worker_timeout) for copies in self.group_copies]
         try:
-            copy_spaces = self._run({k: ("spaces", ()) for k in range(n_copies)})
+            copy_spaces = self._run(dict.fromkeys(range(n_copies), ("spaces", ())))
             single_obs_space, single_action_space, n_avs = self._check_spaces(copy_spaces)
         except Exception:
             self.close()
             raise
         self.n_avs: list[int] = n_avs
         starts = np.concatenate([[0], np.cumsum(n_avs)])
-        self.slices: list[slice] = [slice(int(a), int(b)) for a, b in zip(starts[:-1], starts[1:])]
+        self.slices: list[slice] = [slice(int(a), int(b)) for a, b in itertools.pairwise(starts)]
         self.slot_copy = np.repeat(np.arange(n_copies), n_avs)
         self.slot_agent = np.concatenate([np.arange(n) for n in n_avs])
         super().__init__(int(starts[-1]), single_obs_space, single_action_space)
@@ -385,7 +400,9 @@ class ParameterSharingVecEnv(VecEnv):
 
     def _check_spaces(self, copy_spaces: dict[int, tuple]) -> tuple[spaces.Box, spaces.Discrete, list[int]]:
         """Per-slot spaces and AV counts; a clear error for envs that are not multi-agent scenarios."""
-        n_avs, obs_space, action_space = [], None, None
+        n_avs: list[int] = []
+        obs_space: spaces.Box | None = None
+        action_space: spaces.Discrete | None = None
         for k, (copy_obs, copy_actions) in sorted(copy_spaces.items()):
             if not (
                 isinstance(copy_actions, spaces.MultiDiscrete)
@@ -398,8 +415,8 @@ class ParameterSharingVecEnv(VecEnv):
                     f"(one action per AV) and a Box observation space with one row per AV, got "
                     f"{copy_actions} and {copy_obs}."
                 )
-            agent_obs = spaces.Box(copy_obs.low[0], copy_obs.high[0], dtype=copy_obs.dtype)
-            agent_actions = spaces.Discrete(int(copy_actions.nvec[0]))
+            agent_obs = spaces.Box(copy_obs.low[0], copy_obs.high[0], dtype=copy_obs.dtype)  # type: ignore[arg-type]
+            agent_actions: spaces.Discrete = spaces.Discrete(int(copy_actions.nvec[0]))
             if obs_space is not None and (agent_obs != obs_space or agent_actions != action_space):
                 raise ValueError(
                     f"Copy {k} has per-AV spaces {agent_obs}, {agent_actions}, unlike copy 0's "
@@ -407,6 +424,7 @@ class ParameterSharingVecEnv(VecEnv):
                 )
             obs_space, action_space = agent_obs, agent_actions
             n_avs.append(int(copy_actions.shape[0]))
+        assert obs_space is not None and action_space is not None, "no scenario copy"
         return obs_space, action_space, n_avs
 
     # ---- running calls on copies -----------------------------------------------------------
@@ -419,8 +437,7 @@ class ParameterSharingVecEnv(VecEnv):
         for group, copies in enumerate(self.group_copies):
             mine = [k for k in copies if k in calls]
             if mine:
-                self._guard(group, self.groups[group].submit,
-                            [(self.placement[k][1], *calls[k]) for k in mine])
+                self._guard(group, self.groups[group].submit, [(self.placement[k][1], *calls[k]) for k in mine])
                 pending.append((group, mine))
         return pending
 
@@ -471,11 +488,11 @@ class ParameterSharingVecEnv(VecEnv):
                 f"slot, got dtype {actions.dtype} and shape {actions.shape}."
             )
         actions = actions.reshape(self.num_envs)
-        bad = np.flatnonzero((actions < 0) | (actions >= self.action_space.n))
+        n_actions = int(self.action_space.n)  # type: ignore[attr-defined]
+        bad = np.flatnonzero((actions < 0) | (actions >= n_actions))
         if bad.size:
             raise ValueError(
-                f"Invalid actions at slots {bad.tolist()}: {actions[bad].tolist()}, expected integers in "
-                f"[0, {self.action_space.n - 1}]."
+                f"Invalid actions at slots {bad.tolist()}: {actions[bad].tolist()}, expected integers in [0, {n_actions - 1}]."
             )
         self._pending = self._submit({k: ("step", (actions[sl],)) for k, sl in enumerate(self.slices)})
 
@@ -496,7 +513,9 @@ class ParameterSharingVecEnv(VecEnv):
                 elapsed = round(time.time() - self._t_start, 6)
                 for slot, slot_info in zip(range(sl.start, sl.stop), slot_infos):
                     slot_info["episode"] = {
-                        "r": float(self._episode_returns[slot]), "l": int(self._episode_lengths[slot]), "t": elapsed
+                        "r": float(self._episode_returns[slot]),
+                        "l": int(self._episode_lengths[slot]),
+                        "t": elapsed,
                     }
                 self._episode_returns[sl] = 0.0
                 self._episode_lengths[sl] = 0
@@ -519,7 +538,7 @@ class ParameterSharingVecEnv(VecEnv):
 
     def _per_copy(self, indices: VecEnvIndices, method: str, *args: Any) -> dict[int, Any]:
         """Run a CopyRunner method once on each copy owning one of the slots."""
-        return self._run({k: (method, args) for k in set(self._copies_of(indices))})
+        return self._run(dict.fromkeys(set(self._copies_of(indices)), (method, args)))
 
     def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
         """The attribute of each slot's copy."""
@@ -535,7 +554,9 @@ class ParameterSharingVecEnv(VecEnv):
             return True  # the scenario's masks, through :meth:`action_masks`
         return super().has_attr(attr_name)
 
-    def env_method(self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs: Any) -> list[Any]:
+    def env_method(
+        self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs: Any
+    ) -> list[Any]:
         """Call a method of each slot's copy once per copy; per-AV results (``action_masks``) are split by slot.
 
         ``action_masks`` is answered from the masks the copies reported with the current
@@ -557,22 +578,22 @@ class ParameterSharingVecEnv(VecEnv):
 
     def get_images(self) -> Sequence[np.ndarray | None]:
         """One frame per scenario copy (a copy shows all its AVs)."""
-        images = self._run({k: ("get_image", ()) for k in range(self.n_copies)})
+        images = self._run(dict.fromkeys(range(self.n_copies), ("get_image", ())))
         return [images[k] for k in range(self.n_copies)]
 
     def copy_env(self, copy: int) -> gym.Env:
         """The unwrapped scenario env of a copy (``dummy`` backend only: workers keep theirs)."""
         if self.vec_backend != "dummy":
             raise RuntimeError("copy_env() needs vec_backend='dummy': subproc copies live in worker processes.")
-        return self.groups[0].runners[copy].env.unwrapped
+        local = self.groups[0]
+        assert isinstance(local, LocalCopies)
+        return local.runners[copy].env.unwrapped
 
     def close(self) -> None:
         self.closed = True
         for group in getattr(self, "groups", []):
-            try:
-                group.close()
-            except (EOFError, BrokenPipeError, ConnectionResetError):
-                pass  # a dead worker has nothing left to close
+            with contextlib.suppress(EOFError, BrokenPipeError, ConnectionResetError):
+                group.close()  # a dead worker has nothing left to close
 
 
 class VecRewardScale(VecEnvWrapper):
@@ -598,7 +619,7 @@ class VecRewardScale(VecEnvWrapper):
         self.scale = float(scale)
         self.intervention_penalty = float(intervention_penalty)
 
-    def reset(self) -> np.ndarray:
+    def reset(self) -> Any:
         return self.venv.reset()
 
     def step_wait(self) -> VecEnvStepReturn:
