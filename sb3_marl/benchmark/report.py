@@ -75,6 +75,10 @@ PAPER_FINDINGS = {
         "Beyond the paper: MA2C trained behind the supervisor (default) vs with safety training",
         "not studied (the authors train and evaluate behind the supervisor only)",
     ),
+    "ctde": (
+        "Beyond the paper: MA2C with a local critic vs a centralised critic (CTDE), separate networks both",
+        "not studied (the paper's critics see one AV's view)",
+    ),
 }
 
 #: Experiment -> what a reader must know to compare its curves' returns.
@@ -431,7 +435,7 @@ def _findings(experiment: str, summaries: dict[tuple[str, str, int], dict[str, A
         if len(finals) < len(curves):
             continue
         (first, a), (second, b) = list(finals.items())[:2]
-        if experiment in ("reward", "sharing", "penalty", "safety"):
+        if experiment in ("reward", "sharing", "penalty", "safety", "ctde"):
             finding = (
                 f"{first} vs {second}: return {_compare(a['return_mean'], b['return_mean'], 'higher', 'lower')}"
                 f" ({_ci_verdict(a, b)}), "
@@ -457,7 +461,7 @@ def _findings(experiment: str, summaries: dict[tuple[str, str, int], dict[str, A
             finding = f"best final return: {best}; its IQM against " + ", ".join(
                 f"{label}: {_ci_verdict(finals[best], finals[label])}" for label in others
             )
-        if experiment == "safety" and a.get("supervisor_off") and b.get("supervisor_off"):
+        if experiment in ("safety", "ctde") and a.get("supervisor_off") and b.get("supervisor_off"):
             off_a, off_b = a["supervisor_off"], b["supervisor_off"]
             finding += (
                 f"; the policy alone (supervisor off): return {off_a['return_mean']:.2f} vs "

@@ -50,7 +50,8 @@ def test_grids_hold_each_trial_once():
     # the paper grid shares the default MA2C trials between experiments: 4 algos + 5 MA2C variants
     paper = make_grid("paper")
     assert len(paper) == (4 + 5) * 3 * 2 == len({spec.trial_id for spec in paper})
-    assert set(GRIDS) == {"paper", "baselines", "reward", "sharing", "comfort", "politeness", "penalty", "safety"}
+    assert set(GRIDS) == {"paper", "baselines", "reward", "sharing", "comfort", "politeness", "penalty", "safety",
+                          "ctde"}
     safety = make_grid("safety", seeds=1)
     assert [spec.variant for spec in safety] == ["default"] * 3 + ["safety-training"] * 3
     assert safety[-1].hyperparams == VARIANTS["safety-training"] and safety[-1].hyperparams["supervisor_dropout"] > 0
