@@ -478,7 +478,7 @@ def train(args: argparse.Namespace) -> int:
                 raise CommandFailed(
                     f"training stopped by {type(error).__name__}: {error}\n" + _write_failure(manager, model, save_error)
                 ) from None
-            cause = error.__cause__  # a worker's own traceback (see wrappers.parameter_sharing.WorkerCopies)
+            cause = error.__cause__  # a worker's own traceback (see wrappers.copies.WorkerCopies)
             worker = f"\n{cause}" if isinstance(cause, RuntimeError) and str(cause).startswith("in the worker") else ""
             raise CommandFailed(
                 f"training stopped by {type(error).__name__}: {error}{worker}\n"

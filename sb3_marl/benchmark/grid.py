@@ -131,7 +131,7 @@ def check_budget(budget: float) -> float:
     return float(budget)
 
 
-def make_grid(grid: str = "paper", densities: tuple[int, ...] = (1, 2, 3), seeds: int = PAPER_SEEDS) -> list[TrialSpec]:
+def make_grid(grid: str = "paper", densities: tuple[int, ...] = tuple(DENSITIES), seeds: int = PAPER_SEEDS) -> list[TrialSpec]:
     """The trials of ``grid`` on ``densities`` with seeds ``0 .. seeds-1``, each trial once.
 
     :raises ValueError: naming the bad grid name, density or seed count

@@ -28,6 +28,7 @@ from sb3_marl.benchmark.grid import (
     make_grid,
 )
 from sb3_marl.benchmark.trial import CHECKPOINT, RESULT, checkpoint_timesteps, final_evaluation, run_trial, trial_folder
+from sb3_marl.envs import DENSITIES
 
 SETTINGS_FILE = "benchmark.json"
 
@@ -64,7 +65,7 @@ def run_benchmark(
     log_folder: str | Path = "logs/benchmark",
     budget: float = 1.0,
     seeds: int = PAPER_SEEDS,
-    densities: tuple[int, ...] = (1, 2, 3),
+    densities: tuple[int, ...] = tuple(DENSITIES),
     eval_every_episodes: float = PAPER_EVAL_EVERY_EPISODES,
     eval_episodes: int = PAPER_EVAL_EPISODES,
     address: str | None = None,
@@ -191,7 +192,7 @@ class TrialStatus:
 
 
 def grid_status(
-    grid: str, log_folder: str | Path, seeds: int = PAPER_SEEDS, densities: tuple[int, ...] = (1, 2, 3)
+    grid: str, log_folder: str | Path, seeds: int = PAPER_SEEDS, densities: tuple[int, ...] = tuple(DENSITIES)
 ) -> list[TrialStatus]:
     """Each trial of ``grid`` (as :func:`run_benchmark` would run it into ``log_folder``), in order.
 
