@@ -5,7 +5,7 @@ STAMP := $(VENV)/.installed
 
 .PHONY: install run test benchmark clean
 
-$(STAMP): setup.py
+$(STAMP): setup.py pyproject.toml
 	python3 -m venv $(VENV)
 	$(PYTHON) -m pip install --quiet --upgrade pip
 	$(PYTHON) -m pip install --quiet torch==2.13.0
@@ -26,8 +26,11 @@ run: $(STAMP)
 	$(VENV)/bin/sb3-marl plot --algo ma2c --env $(RUN_ENV) -f $(RUN_LOGS)
 	@echo "TensorBoard: $(VENV)/bin/tensorboard --logdir $(RUN_LOGS)/tensorboard"
 
-## test: the whole test suite
+## test: lint (ruff), format check, types (mypy), then the whole test suite
 test: $(STAMP)
+	$(VENV)/bin/ruff check sb3_marl wrappers
+	$(VENV)/bin/ruff format --check sb3_marl wrappers
+	$(VENV)/bin/mypy sb3_marl wrappers
 	$(PYTHON) -m pytest -q
 
 benchmark: $(STAMP)

@@ -67,9 +67,8 @@ class StoreExecutedActions(BaseCallback):
         log_probs = self.locals.get("log_probs")
         if log_probs is not None:
             with th.no_grad():
-                distribution = self.model.policy.get_distribution(
-                    self.locals["obs_tensor"], action_masks=self.locals.get("action_masks")
-                )
+                policy: Any = self.model.policy
+                distribution = policy.get_distribution(self.locals["obs_tensor"], action_masks=self.locals.get("action_masks"))
                 log_probs.copy_(distribution.log_prob(th.as_tensor(executed, device=log_probs.device)))
         return True
 
@@ -126,8 +125,9 @@ class DrivingMetricsCallback(BaseCallback):
             elif key == "supervisor_interventions":
                 self.logger.record_mean("rollout/supervisor_interventions", float(np.mean(values)))
             else:
-                self.logger.record_mean(f"rollout/{key}" if key.startswith("reward_") else f"rollout/{key}_mean",
-                                        float(np.mean(values)))
+                self.logger.record_mean(
+                    f"rollout/{key}" if key.startswith("reward_") else f"rollout/{key}_mean", float(np.mean(values))
+                )
         if self._action_counts.sum():
             for index, share in enumerate(self._action_counts / self._action_counts.sum()):
                 self.logger.record_mean(f"rollout/action_share_{ACTIONS[index]}", float(share))
@@ -153,14 +153,24 @@ class ScenarioEvalCallback(BaseCallback):
     and without it (the policy alone). Results go to ``<log_path>/evaluations.npz`` in SB3's layout
     (``timesteps``, ``results``, ``ep_lengths``: supervisor on) plus one array per driving metric,
     and the same with the prefix ``supervisor_off_`` for the policy alone; to the logger under
-    ``eval/`` and ``eval/supervisor_off/``; and the best model so far (supervisor on) to ``<best_model_save_path>/best_model.zip``. ``callback_after_eval`` is called
+    ``eval/`` and ``eval/supervisor_off/``; and the best model so far (supervisor on) to
+    ``<best_model_save_path>/best_model.zip``. ``callback_after_eval`` is called
     after each evaluation (as in SB3's ``EvalCallback``; it sees this callback as ``parent``, with
-    the latest summary in ``last_summary``; returning False stops training). With ``evaluate_at_end``, training that ends normally
+    the latest summary in ``last_summary``; returning False stops training). With ``evaluate_at_end``, training
+    that ends normally
     ends with an evaluation of the final model (unless one was just made at that step).
     """
 
-    METRICS = ("collision_rate", "success_rate", "speed_mean", "headway_mean", "acceleration_std",
-               "lane_changes_per_episode", "yields_per_episode", "intervention_rate")
+    METRICS = (
+        "collision_rate",
+        "success_rate",
+        "speed_mean",
+        "headway_mean",
+        "acceleration_std",
+        "lane_changes_per_episode",
+        "yields_per_episode",
+        "intervention_rate",
+    )
     #: Prefix of the policy-alone (supervisor off) arrays in ``evaluations.npz``.
     OFF = "supervisor_off_"
 
@@ -183,7 +193,7 @@ class ScenarioEvalCallback(BaseCallback):
         self.callback_after_eval = callback_after_eval
         if callback_after_eval is not None:
             callback_after_eval.parent = self
-        self.last_summary: dict[str, float] = {}
+        self.last_summary: dict[str, Any] = {}
         self.env_id, self.config = env_id, config
         self.eval_freq, self.n_eval_episodes, self.seed = eval_freq, n_eval_episodes, seed
         self.log_path = Path(log_path) if log_path is not None else None
@@ -211,11 +221,18 @@ class ScenarioEvalCallback(BaseCallback):
         """The latest evaluation's summary, also when it was loaded with :meth:`load_history`."""
         if not self.evaluations["results"]:
             raise ValueError("No evaluation has been made.")
+
         def latest(prefix: str) -> dict[str, float]:
             returns = np.asarray(self.evaluations[f"{prefix}results"][-1])
-            return {"return_mean": float(returns.mean()), "return_std": float(returns.std()),
-                    **{m: float(self.evaluations[f"{prefix}{m}"][-1]) for m in self.METRICS
-                       if len(self.evaluations.get(f"{prefix}{m}", []))}}
+            return {
+                "return_mean": float(returns.mean()),
+                "return_std": float(returns.std()),
+                **{
+                    m: float(self.evaluations[f"{prefix}{m}"][-1])
+                    for m in self.METRICS
+                    if len(self.evaluations.get(f"{prefix}{m}", []))
+                },
+            }
 
         summary: dict[str, Any] = {"timesteps": int(self.evaluations["timesteps"][-1]), **latest("")}
         if len(self.evaluations.get(f"{self.OFF}results", [])):
@@ -231,7 +248,7 @@ class ScenarioEvalCallback(BaseCallback):
         if self.evaluations["results"]:
             self.best_mean_reward = max(float(np.mean(results)) for results in self.evaluations["results"])
 
-    def evaluate(self) -> dict[str, float]:
+    def evaluate(self) -> dict[str, Any]:
         """Run one evaluation now; returns its summary."""
         protocols = protocol_records(
             model_policy(self.model, self.deterministic), self.env_id, self.n_eval_episodes, self.seed, self.config
@@ -244,15 +261,17 @@ class ScenarioEvalCallback(BaseCallback):
             row[f"{prefix}ep_lengths"] = [r.length for r in records]
             row.update({f"{prefix}{metric}": protocol_summary[metric] for metric in self.METRICS})
             for metric in ("return_mean", "return_std", "length_mean", *self.METRICS):
-                key = {"return_mean": "mean_reward", "return_std": "std_reward", "length_mean": "mean_ep_length"}.get(metric, metric)
+                key = {"return_mean": "mean_reward", "return_std": "std_reward", "length_mean": "mean_ep_length"}.get(
+                    metric, metric
+                )
                 self.logger.record(folder + key, protocol_summary[metric])
         off = summaries["off"]
-        summary = {**summaries["on"], "supervisor_off": off}
+        summary: dict[str, Any] = {**summaries["on"], "supervisor_off": off}
         for key, value in row.items():
             self.evaluations[key].append(value)
         if self.log_path is not None:
             with replaced_atomically(self.log_path / "evaluations.npz") as temporary:
-                np.savez(temporary, **{key: np.array(values) for key, values in self.evaluations.items()})
+                np.savez(temporary, **{key: np.array(values) for key, values in self.evaluations.items()})  # type: ignore[arg-type]
 
         if self.verbose >= 1:
             print(

@@ -35,7 +35,7 @@ from sb3_marl.benchmark.grid import (
     PAPER_EVAL_EVERY_EPISODES,
     PAPER_SEEDS,
 )
-from sb3_marl.envs import DENSITIES, ENV_IDS
+from sb3_marl.envs import DENSITIES, ENV_IDS, make_scenario
 
 DEFAULT_ENV = ENV_IDS[1]
 EXIT_INTERRUPTED = {signal.SIGINT: 130, signal.SIGTERM: 143}
@@ -47,7 +47,9 @@ class StoreHyperparams(argparse.Action):
     ``policy_kwargs:"dict(activation_fn=nn.Tanh)"``); a bare word stays a string
     (``reward_mode:global``); anything else (a call, an operator) exits 2 naming the key."""
 
-    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any, option_string: Any = None) -> None:
+    def __call__(
+        self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any, option_string: Any = None
+    ) -> None:
         from sb3_marl.loading import parse_literal
 
         parsed = {}
@@ -68,6 +70,7 @@ def _positive(kind: type = int) -> Any:
         if value < 1:
             raise argparse.ArgumentTypeError(f"expected a value >= 1, got {text}")
         return value
+
     return parse
 
 
@@ -83,8 +86,12 @@ def _positive_or_default(text: str) -> int:
 
 
 def _add_num_threads(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--num-threads", type=_positive_or_default, default=1,
-                        help="torch threads (default: 1, fastest for these small networks); -1: torch's default")
+    parser.add_argument(
+        "--num-threads",
+        type=_positive_or_default,
+        default=1,
+        help="torch threads (default: 1, fastest for these small networks); -1: torch's default",
+    )
 
 
 def _set_num_threads(args: argparse.Namespace) -> None:
@@ -145,17 +152,23 @@ def _add_run_selection(parser: argparse.ArgumentParser) -> None:
     picked.add_argument("--load-checkpoint", type=int, metavar="STEPS", help="load rl_model_<STEPS>_steps.zip")
     picked.add_argument("--load-last-checkpoint", action="store_true", help="load the latest checkpoint")
     parser.add_argument("--seed", type=int, default=0, help="episode seeds start at seed + 10000 (default: 0)")
-    parser.add_argument("--deterministic", action="store_true",
-                        help="argmax actions (default: sampled from the policy, the authors' evaluation protocol)")
+    parser.add_argument(
+        "--deterministic",
+        action="store_true",
+        help="argmax actions (default: sampled from the policy, the authors' evaluation protocol)",
+    )
     parser.add_argument("--device", default="auto", help="torch device (default: auto)")
     _add_trust_remote_code(parser)
     _add_num_threads(parser)
 
 
 def _add_trust_remote_code(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--trust-remote-code", action="store_true",
-                        help="load a model zip from another tool that needs unpickling (it can run code: only for "
-                             "files you trust); default: models are read as data and such a zip is refused")
+    parser.add_argument(
+        "--trust-remote-code",
+        action="store_true",
+        help="load a model zip from another tool that needs unpickling (it can run code: only for "
+        "files you trust); default: models are read as data and such a zip is refused",
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -166,56 +179,94 @@ def build_parser() -> argparse.ArgumentParser:
     train = commands.add_parser("train", help="train a learner (rl-zoo's train.py flags)")
     train.add_argument("--algo", default="ma2c", choices=ALGO_NAMES, help="learner (default: ma2c)")
     train.add_argument("--env", default=DEFAULT_ENV, choices=list(ENV_IDS.values()), help="scenario id")
-    train.add_argument("-n", "--n-timesteps", type=_positive_or_default, default=-1,
-                       help="AV-steps to train (>= 1); -1: the config's n_timesteps")
+    train.add_argument(
+        "-n",
+        "--n-timesteps",
+        type=_positive_or_default,
+        default=-1,
+        help="AV-steps to train (>= 1); -1: the config's n_timesteps",
+    )
     train.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
     train.add_argument("-f", "--log-folder", default="logs", help="log folder (default: logs)")
-    train.add_argument("-tb", "--tensorboard-log", default=None,
-                       help="TensorBoard folder (default: <log-folder>/tensorboard; '' disables)")
+    train.add_argument(
+        "-tb", "--tensorboard-log", default=None, help="TensorBoard folder (default: <log-folder>/tensorboard; '' disables)"
+    )
     train.add_argument("--eval-freq", type=int, default=10_000, help="evaluate every N AV-steps; -1 disables")
     train.add_argument("--eval-episodes", type=_positive(), default=5, help="episodes per evaluation (default: 5)")
     train.add_argument("--save-freq", type=int, default=-1, help="checkpoint every N AV-steps; -1 disables")
     train.add_argument("-c", "--conf-file", default=None, help="YAML instead of zoo_configs/<algo>.yml")
-    train.add_argument("-params", "--hyperparams", nargs="+", action=StoreHyperparams, default={},
-                       metavar="KEY:VALUE", help="override hyperparameters, e.g. n_steps:20 reward_mode:'global'")
+    train.add_argument(
+        "-params",
+        "--hyperparams",
+        nargs="+",
+        action=StoreHyperparams,
+        default={},
+        metavar="KEY:VALUE",
+        help="override hyperparameters, e.g. n_steps:20 reward_mode:'global'",
+    )
     train.add_argument("-i", "--trained-agent", default="", help="continue training this model zip (counts on)")
-    train.add_argument("--vec-env", default="dummy", choices=["dummy", "subproc"], help="scenario copies in process or in workers")
+    train.add_argument(
+        "--vec-env", default="dummy", choices=["dummy", "subproc"], help="scenario copies in process or in workers"
+    )
     train.add_argument("--n-envs", type=_positive(), default=None, help="scenario copies (default: the config's)")
-    train.add_argument("--reward-mode", choices=["local", "global", "individual"], default=None,
-                       help="overrides the config's reward_mode")
+    train.add_argument(
+        "--reward-mode", choices=["local", "global", "individual"], default=None, help="overrides the config's reward_mode"
+    )
     train.add_argument("--progress", action="store_true", help="progress bar (tqdm + rich)")
     train.add_argument("--device", default="auto", help="torch device (default: auto)")
     _add_trust_remote_code(train)
     _add_num_threads(train)
-    train.add_argument("--log-interval", type=_positive_or_default, default=-1,
-                       help="SB3 log_interval (>= 1); -1: the algorithm's default")
+    train.add_argument(
+        "--log-interval", type=_positive_or_default, default=-1, help="SB3 log_interval (>= 1); -1: the algorithm's default"
+    )
     train.add_argument("--verbose", type=int, default=1, choices=[0, 1, 2])
     search = train.add_argument_group("hyperparameter search (rl-zoo's -optimize, Optuna)")
-    search.add_argument("-optimize", "--optimize-hyperparameters", action="store_true",
-                        help="search hyperparameters instead of training one model")
+    search.add_argument(
+        "-optimize",
+        "--optimize-hyperparameters",
+        action="store_true",
+        help="search hyperparameters instead of training one model",
+    )
     search.add_argument("--n-trials", type=_positive(), default=500, help="trials to run (default: 500)")
     search.add_argument("--n-jobs", type=_positive(), default=1, help="trials in parallel (threads; default: 1)")
     search.add_argument("--sampler", default="tpe", choices=["tpe", "random"], help="Optuna sampler (default: tpe)")
-    search.add_argument("--pruner", default="median", choices=["median", "halving", "none"],
-                        help="Optuna pruner (default: median)")
-    search.add_argument("--n-startup-trials", type=int, default=10,
-                        help="trials before the TPE sampler and the median pruner act (default: 10)")
-    search.add_argument("--n-evaluations", type=_positive(), default=None,
-                        help="evaluations per trial, for pruning (default: one per 100k AV-steps)")
-    search.add_argument("--storage", default=None,
-                        help="database URL (sqlite:///study.db) or .log journal file; a study is resumed from it")
+    search.add_argument(
+        "--pruner", default="median", choices=["median", "halving", "none"], help="Optuna pruner (default: median)"
+    )
+    search.add_argument(
+        "--n-startup-trials",
+        type=int,
+        default=10,
+        help="trials before the TPE sampler and the median pruner act (default: 10)",
+    )
+    search.add_argument(
+        "--n-evaluations",
+        type=_positive(),
+        default=None,
+        help="evaluations per trial, for pruning (default: one per 100k AV-steps)",
+    )
+    search.add_argument(
+        "--storage", default=None, help="database URL (sqlite:///study.db) or .log journal file; a study is resumed from it"
+    )
     search.add_argument("--study-name", default=None, help="study name in --storage (required with it)")
 
     for name in ("evaluate", "enjoy"):
-        evaluate = commands.add_parser(name, help="evaluate a trained model on seeded episodes" if name == "evaluate"
-                                       else "alias of evaluate (rl-zoo's name)")
+        evaluate = commands.add_parser(
+            name,
+            help="evaluate a trained model on seeded episodes" if name == "evaluate" else "alias of evaluate (rl-zoo's name)",
+        )
         _add_run_selection(evaluate)
         evaluate.add_argument("--eval-episodes", type=_positive(), default=30, help="episodes (default: 30)")
         evaluate.add_argument("-o", "--output", default=None, help="JSON file (default: <run>/evaluation.json)")
-        evaluate.add_argument("--with-baselines", nargs="*", default=None, metavar="POLICY",
-                              choices=["random", "cruise", "idm-mobil"],
-                              help="add reference policies on the same seeds to the table: the ones named, or all of "
-                                   "them (random, cruise, idm-mobil) without a name")
+        evaluate.add_argument(
+            "--with-baselines",
+            nargs="*",
+            default=None,
+            metavar="POLICY",
+            choices=["random", "cruise", "idm-mobil"],
+            help="add reference policies on the same seeds to the table: the ones named, or all of "
+            "them (random, cruise, idm-mobil) without a name",
+        )
 
     plot = commands.add_parser("plot", help="learning-curve PNGs of one or several runs")
     plot.add_argument("--algo", "--algos", dest="algos", nargs="+", default=["ma2c"], choices=ALGO_NAMES)
@@ -254,26 +305,46 @@ def build_parser() -> argparse.ArgumentParser:
     baselines.add_argument("--seed", type=int, default=0)
     baselines.add_argument("--out", type=Path, default=Path("logs/scenario_baselines.md"))
 
-    benchmark = commands.add_parser("benchmark", help="the paper's experiment grid as Ray Tune trials; "
-                                    "`benchmark report` writes its table and figures")
-    benchmark.add_argument("action", nargs="?", choices=["run", "report", "status", "evaluate"], default="run",
-                           help="run the grid (default), report on it, list where its trials stand, or evaluate "
-                                "its finished trials under both supervisor protocols where they lack one")
-    benchmark.add_argument("--grid", default="paper", choices=list(GRIDS),
-                           help="paper (the five experiments of the paper and our intervention-penalty one) or one "
-                                "experiment (default: paper)")
+    benchmark = commands.add_parser(
+        "benchmark", help="the paper's experiment grid as Ray Tune trials; `benchmark report` writes its table and figures"
+    )
+    benchmark.add_argument(
+        "action",
+        nargs="?",
+        choices=["run", "report", "status", "evaluate"],
+        default="run",
+        help="run the grid (default), report on it, list where its trials stand, or evaluate "
+        "its finished trials under both supervisor protocols where they lack one",
+    )
+    benchmark.add_argument(
+        "--grid",
+        default="paper",
+        choices=list(GRIDS),
+        help="paper (the five experiments of the paper and our intervention-penalty one) or one experiment (default: paper)",
+    )
     benchmark.add_argument("-f", "--log-folder", default="logs/benchmark", help="default: logs/benchmark")
-    benchmark.add_argument("--budget", type=_budget, default=1.0,
-                           help="fraction of the paper's 1M env steps per trial (default: 1)")
+    benchmark.add_argument(
+        "--budget", type=_budget, default=1.0, help="fraction of the paper's 1M env steps per trial (default: 1)"
+    )
     benchmark.add_argument("--seeds", type=_positive(), default=PAPER_SEEDS, help="seeds per trial setting (default: 2)")
     benchmark.add_argument("--densities", type=int, nargs="+", choices=sorted(DENSITIES), default=sorted(DENSITIES))
-    benchmark.add_argument("--eval-every", type=_positive(float), default=PAPER_EVAL_EVERY_EPISODES,
-                           metavar="EPISODES", help="evaluate every N training episodes (default: 200, the paper's)")
-    benchmark.add_argument("--eval-episodes", type=_positive(), default=PAPER_EVAL_EPISODES,
-                           help="episodes per evaluation (default: 3, the paper's)")
+    benchmark.add_argument(
+        "--eval-every",
+        type=_positive(float),
+        default=PAPER_EVAL_EVERY_EPISODES,
+        metavar="EPISODES",
+        help="evaluate every N training episodes (default: 200, the paper's)",
+    )
+    benchmark.add_argument(
+        "--eval-episodes",
+        type=_positive(),
+        default=PAPER_EVAL_EPISODES,
+        help="episodes per evaluation (default: 3, the paper's)",
+    )
     benchmark.add_argument("--address", default=None, help="attach to this Ray cluster (default: a local Ray)")
-    benchmark.add_argument("--max-concurrent", type=_positive(), default=None,
-                           help="trials at once (default: one per free CPU)")
+    benchmark.add_argument(
+        "--max-concurrent", type=_positive(), default=None, help="trials at once (default: one per free CPU)"
+    )
     benchmark.add_argument("--max-failures", type=int, default=2, help="restarts of a failed trial (default: 2)")
     benchmark.add_argument("-o", "--output", default="results", help="report: output folder (default: results)")
     benchmark.add_argument("--verbose", type=int, default=1, choices=[0, 1, 2])
@@ -287,7 +358,8 @@ def _budget(text: str) -> float:
         return check_budget(float(text))
     except ValueError:
         raise argparse.ArgumentTypeError(
-            f"expected a fraction in (0, 1] of the paper's 1M env steps per trial, got {text!r}") from None
+            f"expected a fraction in (0, 1] of the paper's 1M env steps per trial, got {text!r}"
+        ) from None
 
 
 # ---- train -------------------------------------------------------------------------------------
@@ -352,15 +424,36 @@ def train(args: argparse.Namespace) -> int:
     _set_num_threads(args)
     tensorboard_log = os.path.join(args.log_folder, "tensorboard") if args.tensorboard_log is None else args.tensorboard_log
     manager = MARLExperimentManager(
-        args, args.algo, args.env, args.log_folder,
-        conf_file=args.conf_file, n_copies=args.n_envs, reward_mode=args.reward_mode, vec_env_type=args.vec_env,
-        tensorboard_log=tensorboard_log, n_timesteps=args.n_timesteps, eval_freq=args.eval_freq,
-        n_eval_episodes=args.eval_episodes, save_freq=args.save_freq, hyperparams=args.hyperparams,
-        trained_agent=args.trained_agent, seed=args.seed, log_interval=args.log_interval, verbose=args.verbose,
-        device=args.device, show_progress=args.progress, trust_remote_code=args.trust_remote_code,
-        optimize_hyperparameters=args.optimize_hyperparameters, n_trials=args.n_trials, n_jobs=args.n_jobs,
-        sampler=args.sampler, pruner=args.pruner, n_startup_trials=args.n_startup_trials,
-        n_evaluations=args.n_evaluations, storage=args.storage, study_name=args.study_name,
+        args,
+        args.algo,
+        args.env,
+        args.log_folder,
+        conf_file=args.conf_file,
+        n_copies=args.n_envs,
+        reward_mode=args.reward_mode,
+        vec_env_type=args.vec_env,
+        tensorboard_log=tensorboard_log,
+        n_timesteps=args.n_timesteps,
+        eval_freq=args.eval_freq,
+        n_eval_episodes=args.eval_episodes,
+        save_freq=args.save_freq,
+        hyperparams=args.hyperparams,
+        trained_agent=args.trained_agent,
+        seed=args.seed,
+        log_interval=args.log_interval,
+        verbose=args.verbose,
+        device=args.device,
+        show_progress=args.progress,
+        trust_remote_code=args.trust_remote_code,
+        optimize_hyperparameters=args.optimize_hyperparameters,
+        n_trials=args.n_trials,
+        n_jobs=args.n_jobs,
+        sampler=args.sampler,
+        pruner=args.pruner,
+        n_startup_trials=args.n_startup_trials,
+        n_evaluations=args.n_evaluations,
+        storage=args.storage,
+        study_name=args.study_name,
     )
     try:
         experiment = manager.setup_experiment()
@@ -371,7 +464,7 @@ def train(args: argparse.Namespace) -> int:
         manager.hyperparameters_optimization()
         print(f"Search wall time: {time.perf_counter() - start:.1f} s")
         return EXIT_INTERRUPTED[signal.SIGINT] if manager.interrupted else 0
-    model, _ = experiment
+    model, _ = experiment  # type: ignore[misc]
     start = time.perf_counter()
     with _StopTraining() as stop:
         try:
@@ -382,9 +475,10 @@ def train(args: argparse.Namespace) -> int:
             try:
                 manager.save_trained_model(model)
             except OSError as save_error:
-                raise CommandFailed(f"training stopped by {type(error).__name__}: {error}\n"
-                                    + _write_failure(manager, model, save_error)) from None
-            cause = error.__cause__  # a worker's own traceback (see wrappers.parameter_sharing.WorkerCopies)
+                raise CommandFailed(
+                    f"training stopped by {type(error).__name__}: {error}\n" + _write_failure(manager, model, save_error)
+                ) from None
+            cause = error.__cause__  # a worker's own traceback (see wrappers.copies.WorkerCopies)
             worker = f"\n{cause}" if isinstance(cause, RuntimeError) and str(cause).startswith("in the worker") else ""
             raise CommandFailed(
                 f"training stopped by {type(error).__name__}: {error}{worker}\n"
@@ -400,8 +494,10 @@ def train(args: argparse.Namespace) -> int:
         print(f"TensorBoard: tensorboard --logdir {tensorboard_log}")
     if manager.interrupted:
         signum = stop.signal or signal.SIGINT
-        print(f"Training interrupted ({signal.Signals(signum).name}); resume with -i {manager.save_path}/{manager.env_name}.zip")
-        return EXIT_INTERRUPTED[signum]
+        print(
+            f"Training interrupted ({signal.Signals(signum).name}); resume with -i {manager.save_path}/{manager.env_name}.zip"
+        )
+        return EXIT_INTERRUPTED[signal.Signals(signum)]
     return 0
 
 
@@ -411,10 +507,15 @@ def _write_failure(manager: Any, model: Any, error: OSError) -> str:
 
     where = f" ({error.filename})" if error.filename else ""
     checkpoint = latest_checkpoint(manager.save_path)
-    resume = (f"The last complete checkpoint is {checkpoint}: free some space, then continue with -i {checkpoint}."
-              if checkpoint else "No checkpoint was written (--save-freq saves them); free some space and train again.")
-    return (f"could not write{where} at {model.num_timesteps} timesteps: {error.strerror or error}. "
-            f"The model of this moment could not be saved. {resume}")
+    resume = (
+        f"The last complete checkpoint is {checkpoint}: free some space, then continue with -i {checkpoint}."
+        if checkpoint
+        else "No checkpoint was written (--save-freq saves them); free some space and train again."
+    )
+    return (
+        f"could not write{where} at {model.num_timesteps} timesteps: {error.strerror or error}. "
+        f"The model of this moment could not be saved. {resume}"
+    )
 
 
 # ---- evaluate, record-video, plot, baselines ----------------------------------------------------
@@ -425,8 +526,9 @@ def _find_run(args: argparse.Namespace) -> Any:
 
     _check_seed(args.seed)
     try:
-        return find_run(args.folder, args.algo, args.env, args.exp_id, args.load_best, args.load_checkpoint,
-                        args.load_last_checkpoint)
+        return find_run(
+            args.folder, args.algo, args.env, args.exp_id, args.load_best, args.load_checkpoint, args.load_last_checkpoint
+        )
     except (FileNotFoundError, ValueError) as error:
         raise UsageError(str(error)) from None
 
@@ -461,8 +563,10 @@ def evaluate(args: argparse.Namespace) -> int:
             baseline = evaluate_protocols(policy_class(), args.env, args.eval_episodes, seed, run.env_config)
             result["baselines"][name] = baseline
             rows += protocol_rows({"policy": name, "timesteps": "-"}, baseline)
-    heading = (f"{args.env}: {args.eval_episodes} episodes, seeds {seed}..{seed + args.eval_episodes - 1}, "
-               f"{result['protocol']} (on: the authors' protocol; off: the policy alone); model {run.model_path}")
+    heading = (
+        f"{args.env}: {args.eval_episodes} episodes, seeds {seed}..{seed + args.eval_episodes - 1}, "
+        f"{result['protocol']} (on: the authors' protocol; off: the policy alone); model {run.model_path}"
+    )
     table = markdown_table(rows)
     print(heading + "\n")
     print(table)
@@ -484,12 +588,20 @@ def record_video_command(args: argparse.Namespace) -> int:
     output = Path(args.output) if args.output else run.log_path / "videos" / f"{run.model_path.stem}.mp4"
     _check_folder("-o/--output", str(output.parent))
     try:
-        info = record_video(model_policy(model, args.deterministic), args.env, output, args.n_episodes,
-                            args.seed + EVAL_SEED_OFFSET, run.env_config)
+        info = record_video(
+            model_policy(model, args.deterministic),
+            args.env,
+            output,
+            args.n_episodes,
+            args.seed + EVAL_SEED_OFFSET,
+            run.env_config,
+        )
     except (OSError, RuntimeError) as error:  # ffmpeg missing, broken or refusing the file
-        raise CommandFailed(f"could not write the video {output} with ffmpeg ({type(error).__name__}: "
-                            f"{str(error).strip().splitlines()[-1] if str(error).strip() else error}); check the "
-                            "ffmpeg that imageio-ffmpeg uses (IMAGEIO_FFMPEG_EXE).") from None
+        raise CommandFailed(
+            f"could not write the video {output} with ffmpeg ({type(error).__name__}: "
+            f"{str(error).strip().splitlines()[-1] if str(error).strip() else error}); check the "
+            "ffmpeg that imageio-ffmpeg uses (IMAGEIO_FFMPEG_EXE)."
+        ) from None
     print(f"wrote {info['path']}: {info['episodes']} episode(s), {info['frames']} frames at {info['fps']} fps")
     return 0
 
@@ -584,7 +696,6 @@ def summary(args: argparse.Namespace) -> int:
 
 
 def baselines(args: argparse.Namespace) -> int:
-    import gymnasium as gym
 
     from sb3_marl.baselines import BASELINES
     from sb3_marl.evaluation import markdown_table, run_episodes, summarize
@@ -594,12 +705,14 @@ def baselines(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     for name, policy_class in BASELINES.items():
         for n_avs in range(lo, hi + 1):
-            env = gym.make(ENV_IDS[args.density], config={"n_avs": n_avs}).unwrapped
+            env = make_scenario(ENV_IDS[args.density], {"n_avs": n_avs})
             summary = summarize(run_episodes(env, policy_class(), args.episodes, seed=args.seed))
             results.append({"policy": name, "n_avs": n_avs, **summary})
             rows.append(({"policy": name, "n_avs": n_avs}, summary))
-    table = (f"Scenario {ENV_IDS[args.density]}: {args.episodes} episodes per row, "
-             f"seeds {args.seed}..{args.seed + args.episodes - 1}\n\n" + markdown_table(rows))
+    table = (
+        f"Scenario {ENV_IDS[args.density]}: {args.episodes} episodes per row, "
+        f"seeds {args.seed}..{args.seed + args.episodes - 1}\n\n" + markdown_table(rows)
+    )
     print(table)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(table + "\n")
@@ -630,21 +743,34 @@ def benchmark(args: argparse.Namespace) -> int:
 
     try:
         outcome = run_benchmark(
-            args.grid, args.log_folder, args.budget, args.seeds, tuple(args.densities), args.eval_every,
-            args.eval_episodes, args.address, args.max_concurrent, args.max_failures, args.verbose,
+            args.grid,
+            args.log_folder,
+            args.budget,
+            args.seeds,
+            tuple(args.densities),
+            args.eval_every,
+            args.eval_episodes,
+            args.address,
+            args.max_concurrent,
+            args.max_failures,
+            args.verbose,
         )
     except ValueError as error:
         raise UsageError(str(error)) from None
     except ModuleNotFoundError as error:
         raise CommandFailed(str(error)) from None
-    print(f"{len(outcome.completed)} trials completed, {len(outcome.skipped)} skipped (finished before), "
-          f"{len(outcome.failed)} failed, {len(outcome.unfinished)} stopped unfinished in {outcome.wall_time_s:.0f} s")
-    for trial_id, error in outcome.failed.items():
-        print(f"  failed: {trial_id}: {error.splitlines()[0]}")
+    print(
+        f"{len(outcome.completed)} trials completed, {len(outcome.skipped)} skipped (finished before), "
+        f"{len(outcome.failed)} failed, {len(outcome.unfinished)} stopped unfinished in {outcome.wall_time_s:.0f} s"
+    )
+    for trial_id, message in outcome.failed.items():
+        print(f"  failed: {trial_id}: {message.splitlines()[0]}")
     print(f"report: sb3-marl benchmark report -f {args.log_folder}")
     if outcome.failed:
-        raise CommandFailed(f"{len(outcome.failed)} trial(s) failed after {args.max_failures} restarts: "
-                            f"{sorted(outcome.failed)}; run the command again to retry them.")
+        raise CommandFailed(
+            f"{len(outcome.failed)} trial(s) failed after {args.max_failures} restarts: "
+            f"{sorted(outcome.failed)}; run the command again to retry them."
+        )
     if outcome.unfinished:
         print(f"{len(outcome.unfinished)} trial(s) stopped before the end; the same command continues them.")
         return EXIT_INTERRUPTED[signal.SIGINT]
@@ -674,11 +800,15 @@ def _benchmark_status(args: argparse.Namespace) -> int:
         statuses = grid_status(args.grid, args.log_folder, args.seeds, tuple(args.densities))
     except FileNotFoundError as error:
         raise UsageError(str(error)) from None
-    counts = {state: sum(s.state == state for s in statuses)
-              for state in ("finished", "unfinished", "not started", "unreadable")}
-    print(f"Benchmark grid {args.grid!r} in {args.log_folder}: {counts['finished']} of {len(statuses)} trials finished, "
-          f"{counts['unfinished']} unfinished (continue from their checkpoint), {counts['not started']} not started"
-          + (f", {counts['unreadable']} with an unreadable result" if counts["unreadable"] else "") + "\n")
+    counts = {
+        state: sum(s.state == state for s in statuses) for state in ("finished", "unfinished", "not started", "unreadable")
+    }
+    print(
+        f"Benchmark grid {args.grid!r} in {args.log_folder}: {counts['finished']} of {len(statuses)} trials finished, "
+        f"{counts['unfinished']} unfinished (continue from their checkpoint), {counts['not started']} not started"
+        + (f", {counts['unreadable']} with an unreadable result" if counts["unreadable"] else "")
+        + "\n"
+    )
     width = max(len(s.trial_id) for s in statuses)
     print(f"{'trial':<{width}}  {'state':<11}  {'AV-steps done':>25}  {'return':>7}  {'wall time':>9}")
     for s in statuses:
@@ -700,9 +830,18 @@ class CommandFailed(Exception):
     """The work could not be done (e.g. no Hub token, network error): printed like a UsageError, exit code 1."""
 
 
-COMMANDS = {"train": train, "evaluate": evaluate, "enjoy": evaluate, "plot": plot,
-            "record-video": record_video_command, "push-to-hub": push_to_hub, "load-from-hub": load_from_hub_command,
-            "baselines": baselines, "benchmark": benchmark, "summary": summary}
+COMMANDS = {
+    "train": train,
+    "evaluate": evaluate,
+    "enjoy": evaluate,
+    "plot": plot,
+    "record-video": record_video_command,
+    "push-to-hub": push_to_hub,
+    "load-from-hub": load_from_hub_command,
+    "baselines": baselines,
+    "benchmark": benchmark,
+    "summary": summary,
+}
 
 
 def main(argv: list[str] | None = None) -> int:

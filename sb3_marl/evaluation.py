@@ -15,13 +15,12 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
-import gymnasium as gym
 import numpy as np
 import torch as th
 from gymnasium import spaces
 
 from sb3_marl.algos.masking import uses_action_masks
-from sb3_marl.envs import av_counts
+from sb3_marl.envs import av_counts, make_scenario
 from sb3_marl.envs.lane_change_env import ACTION_INDEX, LaneChangeEnv
 from sb3_marl.envs.observation import STATE_KEY, centralised_observations
 from sb3_marl.policies import unchecked_distributions
@@ -268,27 +267,31 @@ def model_policy(model: Any, deterministic: bool = False) -> Policy:
     """
     masked = uses_action_masks(model)
     # a centralised critic's model takes Dict observations; its actor reads only each AV's own view
-    state_slots = model.observation_space[STATE_KEY].shape[0] if isinstance(model.observation_space, spaces.Dict) else 0
+    space = model.observation_space
+    state_slots = len(space[STATE_KEY].low) if isinstance(space, spaces.Dict) else 0  # type: ignore[attr-defined]
 
     def act(env: LaneChangeEnv, obs: np.ndarray) -> np.ndarray:
-        if state_slots:
-            obs = centralised_observations(obs, state_slots)
+        inputs = centralised_observations(obs, state_slots) if state_slots else obs
         with unchecked_distributions():
             if masked:
-                return model.predict(obs, deterministic=deterministic, action_masks=env.action_masks())[0]
-            return model.predict(obs, deterministic=deterministic)[0]
+                return model.predict(inputs, deterministic=deterministic, action_masks=env.action_masks())[0]
+            return model.predict(inputs, deterministic=deterministic)[0]
 
     return act
 
 
 def evaluation_records(
-    policy: Policy, env_id: str, n_episodes: int, seed: int = 0, config: dict | None = None,
+    policy: Policy,
+    env_id: str,
+    n_episodes: int,
+    seed: int = 0,
+    config: dict | None = None,
     on_step: StepHook | None = None,
 ) -> list[EpisodeRecord]:
     """``n_episodes`` episodes with seeds ``seed, seed + 1, ...``, cycling through the density's AV
     counts (``on_step`` as in :func:`run_episodes`)."""
     counts = av_counts(env_id, config)
-    envs = {n: gym.make(env_id, config={**(config or {}), "n_avs": n}).unwrapped for n in counts}
+    envs = {n: make_scenario(env_id, {**(config or {}), "n_avs": n}) for n in counts}
     records = []
     for episode in range(n_episodes):
         env = envs[counts[episode % len(counts)]]
@@ -309,8 +312,10 @@ def protocol_records(
     policy: Policy, env_id: str, n_episodes: int, seed: int = 0, config: dict | None = None
 ) -> dict[str, list[EpisodeRecord]]:
     """The same seeded episodes under each of :data:`SUPERVISOR_PROTOCOLS`: ``{"on": ..., "off": ...}``."""
-    return {name: evaluation_records(policy, env_id, n_episodes, seed, with_supervisor(config, name))
-            for name in SUPERVISOR_PROTOCOLS}
+    return {
+        name: evaluation_records(policy, env_id, n_episodes, seed, with_supervisor(config, name))
+        for name in SUPERVISOR_PROTOCOLS
+    }
 
 
 def evaluate_protocols(
@@ -332,7 +337,24 @@ def protocol_rows(label: dict[str, Any], result: dict[str, Any]) -> list[tuple[d
     return [({**label, "supervisor": "on"}, result), ({**label, "supervisor": "off"}, result["supervisor_off"])]
 
 
-__all__ = ["PROTOCOLS", "SUPERVISOR_PROTOCOLS", "CooperativeLaneChange", "EpisodeRecord", "EpisodeTrace", "Policy",
-           "StepHook", "evaluate_on_density", "evaluate_protocols", "evaluation_records", "markdown_table",
-           "model_policy", "protocol_label", "protocol_records", "protocol_result", "protocol_rows", "run_episodes",
-           "summarize", "with_supervisor"]
+__all__ = [
+    "PROTOCOLS",
+    "SUPERVISOR_PROTOCOLS",
+    "CooperativeLaneChange",
+    "EpisodeRecord",
+    "EpisodeTrace",
+    "Policy",
+    "StepHook",
+    "evaluate_on_density",
+    "evaluate_protocols",
+    "evaluation_records",
+    "markdown_table",
+    "model_policy",
+    "protocol_label",
+    "protocol_records",
+    "protocol_result",
+    "protocol_rows",
+    "run_episodes",
+    "summarize",
+    "with_supervisor",
+]

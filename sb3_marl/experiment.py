@@ -26,7 +26,7 @@ import rl_zoo3.utils as zoo_utils
 from rl_zoo3.exp_manager import ExperimentManager
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, ProgressBarCallback
-from stable_baselines3.common.logger import HumanOutputFormat, Logger, make_output_format
+from stable_baselines3.common.logger import HumanOutputFormat, KVWriter, Logger, make_output_format
 from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_marl.algos import ALGOS
@@ -57,7 +57,7 @@ from sb3_marl.tuning import SAMPLERS, TrialPruningCallback, best_hyperparams_yam
 EVAL_SEED_OFFSET = 10_000
 
 
-def interrupted_by_user(error: BaseException) -> bool:
+def interrupted_by_user(error: BaseException | None) -> bool:
     """Whether ``error`` is, or was caused by, a KeyboardInterrupt (Ctrl-C, or SIGTERM as the CLI
     maps it). A signal that arrives while compiled (numba) code is running raises its
     KeyboardInterrupt inside numba's dispatcher, which reports it as a SystemError caused by it."""
@@ -148,9 +148,7 @@ class MARLExperimentManager(ExperimentManager):
         hyperparams["policy_kwargs"] = policy_kwargs_for(self.algo, {**hyperparams, **self.scenario})
         hyperparams["policy"] = policy_for({**hyperparams, **self.scenario})
         # rl_zoo3 divides eval/save frequencies by n_envs: every VecEnv step is one step per AV slot
-        self.n_envs = sum(
-            copy_av_counts(self.env_name.gym_id, self.scenario.get("env_config"), self.scenario.get("n_copies"))
-        )
+        self.n_envs = sum(copy_av_counts(self.env_name.gym_id, self.scenario.get("env_config"), self.scenario.get("n_copies")))
         return hyperparams, env_wrapper, callbacks, vec_env_wrapper
 
     # ---- env, callbacks, model ----------------------------------------------------------------
@@ -161,16 +159,24 @@ class MARLExperimentManager(ExperimentManager):
         print("Loading pretrained agent")
         hyperparams = {key: value for key, value in hyperparams.items() if key not in ("policy", "policy_kwargs")}
         model = ALGOS[self.algo].load(
-            self.trained_agent, env=env, seed=self.seed, tensorboard_log=self.tensorboard_log, verbose=self.verbose,
-            device=self.device, trust_remote_code=self.trust_remote_code, **hyperparams,
+            self.trained_agent,
+            env=env,
+            seed=self.seed,
+            tensorboard_log=self.tensorboard_log,
+            verbose=self.verbose,
+            device=self.device,
+            trust_remote_code=self.trust_remote_code,
+            **hyperparams,
         )
         replay_buffer = os.path.join(os.path.dirname(self.trained_agent), "replay_buffer.pkl")
         if os.path.exists(replay_buffer) and hasattr(model, "load_replay_buffer"):
             if self.trust_remote_code or self.own_checkpoint:
                 model.load_replay_buffer(replay_buffer)
             else:
-                print(f"Not loading {replay_buffer}: a replay buffer is a pickle, which can run code; training "
-                      "continues with an empty buffer (pass --trust-remote-code to load it).")
+                print(
+                    f"Not loading {replay_buffer}: a replay buffer is a pickle, which can run code; training "
+                    "continues with an empty buffer (pass --trust-remote-code to load it)."
+                )
         return model
 
     def create_log_folder(self) -> None:
@@ -179,8 +185,14 @@ class MARLExperimentManager(ExperimentManager):
 
     def create_envs(self, n_envs: int, eval_env: bool = False, no_log: bool = False) -> VecEnv:
         monitor_dir = None if eval_env or no_log or self.optimize_hyperparameters else self.save_path
-        return make_venv(self.env_name.gym_id, self.scenario, self.seed, self.vec_backend, monitor_dir=monitor_dir,
-                         monitor_file=self.monitor_file)
+        return make_venv(
+            self.env_name.gym_id,
+            self.scenario,
+            self.seed,
+            self.vec_backend,
+            monitor_dir=monitor_dir,
+            monitor_file=self.monitor_file,
+        )
 
     def create_callbacks(self) -> None:
         if self.show_progress:
@@ -212,7 +224,7 @@ class MARLExperimentManager(ExperimentManager):
         stops training cleanly so that the model can be saved."""
         remaining = self.n_timesteps - model.num_timesteps if self.continue_training else self.n_timesteps
         # TensorBoard run <ALGO>_<id> matches the log folder <env>_<id>, resumed runs included
-        outputs = [HumanOutputFormat(sys.stdout)] if self.verbose >= 1 else []
+        outputs: list[KVWriter] = [HumanOutputFormat(sys.stdout)] if self.verbose >= 1 else []
         tensorboard_folder = None
         if self.tensorboard_log:
             tensorboard_folder = os.path.join(self.tensorboard_log, f"{self.algo.upper()}_{self.run_id}")
@@ -247,7 +259,9 @@ class MARLExperimentManager(ExperimentManager):
     def objective(self, trial: optuna.Trial) -> float:
         """One Optuna trial: train with sampled hyperparameters on the scenario and score the mean
         return of the last evaluation (the paper's metric), reporting each one for pruning."""
-        sampled = SAMPLERS[self.algo][0](trial, self.n_actions, self.n_envs, {"using_her_replay_buffer": False, "her_kwargs": {}})
+        sampled = SAMPLERS[self.algo][0](
+            trial, self.n_actions, self.n_envs, {"using_her_replay_buffer": False, "her_kwargs": {}}
+        )
         kwargs = merge_sampled(self._hyperparams, sampled)
         env = self.create_envs(self.n_envs, no_log=True)
         # every trial starts from the same seed, so that trials differ only in their hyperparameters
@@ -286,10 +300,14 @@ class MARLExperimentManager(ExperimentManager):
         storage: Any = self.storage
         if storage is not None and storage.endswith(".log"):
             os.makedirs(os.path.dirname(os.path.abspath(storage)), exist_ok=True)
-            storage = optuna.storages.JournalStorage(optuna.storages.journal.JournalFileBackend(storage))
+            storage = optuna.storages.JournalStorage(optuna.storages.journal.JournalFileBackend(storage))  # type: ignore[attr-defined]
         study = optuna.create_study(
-            sampler=self._create_sampler(self.sampler), pruner=self._create_pruner(self.pruner), storage=storage,
-            study_name=self.study_name, load_if_exists=True, direction="maximize",
+            sampler=self._create_sampler(self.sampler),
+            pruner=self._create_pruner(self.pruner),
+            storage=storage,
+            study_name=self.study_name,
+            load_if_exists=True,
+            direction="maximize",
         )
         done = len(study.trials)
         if done:  # a resumed study, or a second worker on the same storage: not the same draws again
@@ -300,8 +318,10 @@ class MARLExperimentManager(ExperimentManager):
         if done == 0 and shipped is not None:
             study.enqueue_trial(shipped, user_attrs={"shipped_config": True})
             print(f"Trial 0 is the configuration as shipped: {shipped}")
-        print(f"Study {study.study_name!r}: {done} earlier trial(s); running {self.n_trials} more "
-              f"(sampler {self.sampler}, pruner {self.pruner}, {self.n_evaluations} evaluation(s) per trial)")
+        print(
+            f"Study {study.study_name!r}: {done} earlier trial(s); running {self.n_trials} more "
+            f"(sampler {self.sampler}, pruner {self.pruner}, {self.n_evaluations} evaluation(s) per trial)"
+        )
         try:
             study.optimize(self.objective, n_trials=self.n_trials, n_jobs=self.n_jobs, gc_after_trial=True)
         except BaseException as error:
@@ -314,7 +334,10 @@ class MARLExperimentManager(ExperimentManager):
         study.trials_dataframe().to_csv(stem.format("report") + ".csv")
         complete = study.get_trials(deepcopy=False, states=[optuna.trial.TrialState.COMPLETE])
         pruned = study.get_trials(deepcopy=False, states=[optuna.trial.TrialState.PRUNED])
-        print(f"Trials: {len(study.trials)} ({len(complete)} complete, {len(pruned)} pruned); report: {stem.format('report')}.csv")
+        print(
+            f"Trials: {len(study.trials)} ({len(complete)} complete, {len(pruned)} pruned); "
+            f"report: {stem.format('report')}.csv"
+        )
         self.best_config_path = None
         if not complete:
             print("No trial completed: no best hyperparameters to write.")
@@ -322,7 +345,11 @@ class MARLExperimentManager(ExperimentManager):
         best = study.best_trial
         self.best_config_path = stem.format("best") + ".yml"
         with open(self.best_config_path, "w") as file:
-            file.write(best_hyperparams_yaml(self.algo, self.env_name.gym_id, self.config_hyperparams, best.params, best.value))
+            file.write(
+                best_hyperparams_yaml(
+                    self.algo, self.env_name.gym_id, self.config_hyperparams, best.params, float(best.value or 0.0)
+                )
+            )
         print(f"Best trial {best.number}: mean evaluation return {best.value:.2f}")
         for key, value in best.params.items():
             print(f"    {key}: {value}")

@@ -96,23 +96,48 @@ def model_card(results: dict[str, Any], repo_id: str) -> ModelCard:
     algo, env_id = results["algo"], results["env_id"]
     evaluation = {"task_type": "reinforcement-learning", "dataset_type": env_id, "dataset_name": env_id}
     # huggingface_sb3's conventions: metric type and name "mean_reward", value "mean +/- std"
-    eval_results = [EvalResult(**evaluation, metric_type="mean_reward", metric_name="mean_reward",
-                               metric_value=f"{results['return_mean']:.2f} +/- {results['return_std']:.2f}")]
-    eval_results += [EvalResult(**evaluation, metric_type=name, metric_name=name, metric_value=round(results[key], 4))
-                     for key, name in CARD_METRICS.items()]
+    eval_results = [
+        EvalResult(
+            **evaluation,
+            metric_type="mean_reward",
+            metric_name="mean_reward",
+            metric_value=f"{results['return_mean']:.2f} +/- {results['return_std']:.2f}",
+        )
+    ]
+    eval_results += [
+        EvalResult(**evaluation, metric_type=name, metric_name=name, metric_value=round(results[key], 4))
+        for key, name in CARD_METRICS.items()
+    ]
     alone = results.get("supervisor_off")
     if alone:  # the policy without the safety supervisor
         eval_results += [
-            EvalResult(**evaluation, metric_type="mean_reward_supervisor_off", metric_name="mean_reward_supervisor_off",
-                       metric_value=f"{alone['return_mean']:.2f} +/- {alone['return_std']:.2f}"),
-            EvalResult(**evaluation, metric_type="collision_rate_supervisor_off",
-                       metric_name="collision_rate_supervisor_off", metric_value=round(alone["collision_rate"], 4)),
+            EvalResult(
+                **evaluation,
+                metric_type="mean_reward_supervisor_off",
+                metric_name="mean_reward_supervisor_off",
+                metric_value=f"{alone['return_mean']:.2f} +/- {alone['return_std']:.2f}",
+            ),
+            EvalResult(
+                **evaluation,
+                metric_type="collision_rate_supervisor_off",
+                metric_name="collision_rate_supervisor_off",
+                metric_value=round(alone["collision_rate"], 4),
+            ),
         ]
     rows = "\n".join(f"| {title} | {cell(results)} | {cell(alone) if alone else '—'} |" for title, cell in CARD_ROWS)
     data = ModelCardData(
-        library_name="stable-baselines3", model_name=f"{algo.upper()}-{env_id}", eval_results=eval_results,
-        tags=[env_id, "reinforcement-learning", "deep-reinforcement-learning", "stable-baselines3",
-              "multi-agent-reinforcement-learning", "autonomous-driving", "sb3-marl"],
+        library_name="stable-baselines3",
+        model_name=f"{algo.upper()}-{env_id}",
+        eval_results=eval_results,
+        tags=[
+            env_id,
+            "reinforcement-learning",
+            "deep-reinforcement-learning",
+            "stable-baselines3",
+            "multi-agent-reinforcement-learning",
+            "autonomous-driving",
+            "sb3-marl",
+        ],
     )
     body = f"""
 # {algo.upper()} on {env_id}
@@ -120,11 +145,11 @@ def model_card(results: dict[str, Any], repo_id: str) -> ModelCard:
 A policy shared by all connected autonomous vehicles (AVs) of the cooperative lane-changing
 scenario of Zhou, Chen et al. (two-lane 520 m highway with human-driven vehicles), trained with
 sb3-marl (`{algo}`: {get_algo(algo).__name__} with one policy shared by all AVs),
-{results['num_timesteps']} timesteps (AV-steps).
+{results["num_timesteps"]} timesteps (AV-steps).
 
 ## Evaluation
 
-{results['episodes']} seeded episodes (seeds {results['seeds'][0]}..{results['seeds'][1]}), {results['protocol']}:
+{results["episodes"]} seeded episodes (seeds {results["seeds"][0]}..{results["seeds"][1]}), {results["protocol"]}:
 with the priority-based safety supervisor (the authors' protocol) and without it (the policy alone),
 on the same episodes.
 
@@ -153,7 +178,7 @@ from sb3_marl.algos import get_algo
 from sb3_marl.evaluation import model_policy, run_episodes
 
 model = get_algo("{algo}").load(hf_hub_download(repo_id="{repo_id}", filename="{model_file_name(algo, env_id)}"))
-env = gym.make("{env_id}", config={dict(results.get('env_config') or {})!r}).unwrapped
+env = gym.make("{env_id}", config={dict(results.get("env_config") or {})!r}).unwrapped
 records = run_episodes(env, model_policy(model), n_episodes=3, seed=10_000)
 print("episode returns:", [round(record.episode_return, 2) for record in records])
 ```
@@ -169,8 +194,7 @@ Hyperparameters: `config.yml`. Evaluation: `results.json`. Replay: `replay.mp4`.
     return ModelCard(f"---\n{data.to_yaml()}\n---\n{body}")
 
 
-def push_folder(folder: str | Path, repo_id: str, commit_message: str, token: str | None = None,
-                private: bool = False) -> str:
+def push_folder(folder: str | Path, repo_id: str, commit_message: str, token: str | None = None, private: bool = False) -> str:
     """Create ``repo_id`` if needed and upload ``folder``; returns the commit URL.
 
     :raises HubError: without a token, or on a network / Hub error (the folder stays in place)
@@ -221,7 +245,7 @@ def _place_run(repo_id: str, snapshot: Path, log_folder: Path) -> Path:
         raise HubError(f"{repo_id}: its results.json names the algorithm {algo!r}, not one of {list(ALGO_NAMES)}.")
     if env_id not in ENV_IDS.values():
         raise HubError(f"{repo_id}: its results.json names the env {env_id!r}, not one of {list(ENV_IDS.values())}.")
-    model_path = snapshot / model_file_name(algo, env_id)
+    model_path = snapshot / model_file_name(algo, str(env_id))
     if not model_path.is_file():
         raise HubError(f"{repo_id} has no model file {model_path.name}.")
     env_name = EnvironmentName(env_id)

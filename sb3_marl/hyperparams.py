@@ -51,8 +51,17 @@ from wrappers.parameter_sharing import check_reward_scale, check_sharing_options
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "zoo_configs"
 #: Algorithms registered under two names share one file: ``acktr`` reads ``maacktr.yml``.
 CONFIG_FILES = {"acktr": "maacktr"}
-SCENARIO_KEYS = ("reward_mode", "n_copies", "env_config", "reward_scale", "intervention_penalty", "architecture",
-                 "stored_actions", "supervisor_dropout", "critic")
+SCENARIO_KEYS = (
+    "reward_mode",
+    "n_copies",
+    "env_config",
+    "reward_scale",
+    "intervention_penalty",
+    "architecture",
+    "stored_actions",
+    "supervisor_dropout",
+    "critic",
+)
 #: What the learner stores when the safety supervisor replaced an action: the policy's proposal
 #: (the authors' choice) or the action executed.
 STORED_ACTIONS = ("proposed", "executed")
@@ -91,8 +100,9 @@ def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> 
 def merge_hyperparams(base: dict[str, Any], overrides: dict[str, Any] | None) -> dict[str, Any]:
     """``base`` updated with ``overrides``; ``env_config`` is merged key by key, so that overriding
     one scenario key (``env_config: {comfort: false}``) keeps the entry's others (the supervisor)."""
-    merged = {**base, **(overrides or {})}
-    if isinstance(base.get("env_config"), dict) and isinstance((overrides or {}).get("env_config"), dict):
+    overrides = overrides or {}
+    merged = {**base, **overrides}
+    if isinstance(base.get("env_config"), dict) and isinstance(overrides.get("env_config"), dict):
         merged["env_config"] = {**base["env_config"], **overrides["env_config"]}
     return merged
 
@@ -205,9 +215,16 @@ def parse_string_values(hyperparams: dict[str, Any]) -> dict[str, Any]:
             parsed[key] = parse_literal(parsed[key], key)
     for key in (*LITERAL_KEYS, "replay_buffer_class", "rollout_buffer_class"):
         if key in parsed and isinstance(parsed[key], str):
-            raise ValueError(f"Invalid {key}={parsed[key]!r}: expected a mapping" +
-                             (" of scenario config keys." if key == "env_config" else
-                              " (YAML or dict(...))." if key in LITERAL_KEYS else "; a class cannot be given as a string."))
+            raise ValueError(
+                f"Invalid {key}={parsed[key]!r}: expected a mapping"
+                + (
+                    " of scenario config keys."
+                    if key == "env_config"
+                    else " (YAML or dict(...))."
+                    if key in LITERAL_KEYS
+                    else "; a class cannot be given as a string."
+                )
+            )
     return parsed
 
 
@@ -252,15 +269,21 @@ def check_critic(algo: str, hyperparams: dict[str, Any]) -> None:
     if critic == "local":
         return
     if algo not in CENTRALISED_CRITIC_ALGOS:
-        raise ValueError(f"Invalid critic='centralised' for {algo!r}: a centralised critic is available for "
-                         f"{list(CENTRALISED_CRITIC_ALGOS[:3])}.")
+        raise ValueError(
+            f"Invalid critic='centralised' for {algo!r}: a centralised critic is available for "
+            f"{list(CENTRALISED_CRITIC_ALGOS[:3])}."
+        )
     if hyperparams.get("architecture", "default") != "separate":
-        raise ValueError(f"Invalid architecture={hyperparams.get('architecture', 'default')!r} with critic='centralised': "
-                         "expected 'separate' (the actor reads the AV's view, the critic the global state, each "
-                         "with its own network).")
+        raise ValueError(
+            f"Invalid architecture={hyperparams.get('architecture', 'default')!r} with critic='centralised': "
+            "expected 'separate' (the actor reads the AV's view, the critic the global state, each "
+            "with its own network)."
+        )
     if hyperparams.get("policy", "MlpPolicy") not in ("MlpPolicy", CENTRALISED_POLICY):
-        raise ValueError(f"Invalid policy={hyperparams['policy']!r} with critic='centralised': expected "
-                         f"'MlpPolicy' or {CENTRALISED_POLICY!r} (the centralised critic sets the policy).")
+        raise ValueError(
+            f"Invalid policy={hyperparams['policy']!r} with critic='centralised': expected "
+            f"'MlpPolicy' or {CENTRALISED_POLICY!r} (the centralised critic sets the policy)."
+        )
 
 
 def policy_for(hyperparams: dict[str, Any]) -> str:
@@ -283,16 +306,18 @@ def check_policy_kwargs(algo: str, hyperparams: dict[str, Any], env_id: str) -> 
     density = (gym.spec(env_id).kwargs or {}).get("density", 1)
     config = {**default_config(), "density": density, **(hyperparams.get("env_config") or {}), "n_avs": 1}
     per_av = observation_space(1, config)
-    obs_space: spaces.Space = spaces.Box(per_av.low[0], per_av.high[0], dtype=per_av.dtype)
+    box = spaces.Box(per_av.low[0], per_av.high[0], dtype=per_av.dtype)  # type: ignore[arg-type]
+    obs_space: spaces.Space = box
     if hyperparams.get("critic", "local") == "centralised":
-        obs_space = centralised_observation_space(obs_space, max(av_counts(env_id, hyperparams.get("env_config"))))
-    algo_class = get_algo(algo)
-    policy_class = algo_class.policy_aliases.get(policy_for(hyperparams))
+        obs_space = centralised_observation_space(box, max(av_counts(env_id, hyperparams.get("env_config"))))
+    policy_class = get_algo(algo).policy_aliases[policy_for(hyperparams)]  # validated by validate_hyperparams
     try:
         policy_class(obs_space, spaces.Discrete(5), lambda _: 1e-3, **policy_kwargs_for(algo, hyperparams))
     except Exception as error:  # TypeError (unknown keyword), RuntimeError / ValueError (bad sizes), ...
-        raise ValueError(f"Invalid policy_kwargs={kwargs!r} for {algo!r}: the policy cannot be built with it "
-                         f"({type(error).__name__}: {error}).") from None
+        raise ValueError(
+            f"Invalid policy_kwargs={kwargs!r} for {algo!r}: the policy cannot be built with it "
+            f"({type(error).__name__}: {error})."
+        ) from None
 
 
 def validate_scenario(hyperparams: dict[str, Any], env_id: str) -> None:

@@ -15,10 +15,10 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-import gymnasium as gym
 import numpy as np
 from matplotlib.figure import Figure
 
+from sb3_marl.envs import make_scenario
 from sb3_marl.envs.lane_change_env import LaneChangeEnv
 from sb3_marl.evaluation import (
     AFTER_STEPS,
@@ -43,14 +43,17 @@ def find_cooperative_lane_change(
 ) -> tuple[CooperativeLaneChange | None, int]:
     """The yield with the largest speed drop in the evaluation episodes (seeds ``seed ..``), and
     how many yields there were; ``(None, 0)`` if no AV yielded to a lane change."""
-    found = [event for record in evaluation_records(policy, env_id, n_episodes, seed, config)
-             for event in record.yield_events]
+    found = [event for record in evaluation_records(policy, env_id, n_episodes, seed, config) for event in record.yield_events]
     return (max(found, key=lambda event: event.speed_drop) if found else None), len(found)
 
 
 @with_default_style
 def plot_cooperative_lane_change(
-    policy: Policy, env_id: str, event: CooperativeLaneChange, path: str | Path, config: dict | None = None,
+    policy: Policy,
+    env_id: str,
+    event: CooperativeLaneChange,
+    path: str | Path,
+    config: dict | None = None,
     title: str = "",
 ) -> Path:
     """Replay ``event``'s episode with the scenario's renderer (the view follows the lane-changing
@@ -60,10 +63,9 @@ def plot_cooperative_lane_change(
     :raises RuntimeError: if the replay does not reproduce the lane change (it should: episodes
         are seeded)
     """
-    env: LaneChangeEnv = gym.make(env_id, config={**(config or {}), **SNAPSHOT_VIEW, "n_avs": event.n_avs},
-                                 render_mode="rgb_array").unwrapped
+    env = make_scenario(env_id, {**(config or {}), **SNAPSHOT_VIEW, "n_avs": event.n_avs}, render_mode="rgb_array")
     moments = [event.step + offset for offset in SNAPSHOT_OFFSETS]
-    frames: dict[int, np.ndarray] = {}
+    frames: dict[int, np.ndarray | None] = {}
     trace = EpisodeTrace(event.episode_seed, event.n_avs)
 
     def record(env: LaneChangeEnv, info: dict) -> None:
@@ -72,15 +74,17 @@ def plot_cooperative_lane_change(
             env.avs[event.changer].color = (255, 140, 0)
             env.avs[event.yielder].color = (150, 60, 200)
             env.render()  # creates the viewer, which then follows the lane-changing AV
-            env.viewer.observer_vehicle = env.avs[event.changer]
+            env.viewer.observer_vehicle = env.avs[event.changer]  # type: ignore[union-attr]
         if info["step"] in moments:
             frames[info["step"]] = env.render()
 
     run_episodes(env, policy, 1, event.episode_seed, on_step=record)
     env.close()
     if not (len(trace.lane_change) > event.step and trace.lane_change[event.step][event.changer]):
-        raise RuntimeError(f"The replay of episode seed {event.episode_seed} did not reproduce the lane change of "
-                           f"AV {event.changer} at step {event.step}.")
+        raise RuntimeError(
+            f"The replay of episode seed {event.episode_seed} did not reproduce the lane change of "
+            f"AV {event.changer} at step {event.step}."
+        )
 
     fig = Figure(figsize=(12, 8.5))
     axes = fig.subplots(len(moments) + 1, 1, gridspec_kw={"height_ratios": [1] * len(moments) + [2.5]})
@@ -91,8 +95,9 @@ def plot_cooperative_lane_change(
         else:
             ax.text(0.5, 0.5, "episode over", ha="center")
         ax.set_axis_off()
-        ax.set_title(f"t = {moment / frequency:.1f} s (step {moment}, {moment - event.step:+d} from the lane change)",
-                     fontsize=9)
+        ax.set_title(
+            f"t = {moment / frequency:.1f} s (step {moment}, {moment - event.step:+d} from the lane change)", fontsize=9
+        )
     ax = axes[-1]
     time_s = np.arange(len(trace.speed)) / frequency
     speeds = np.array(trace.speed)
@@ -109,8 +114,11 @@ def plot_cooperative_lane_change(
     ax.set_ylabel("speed [m/s]")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, ncol=3)
-    fig.suptitle((title or f"Cooperative lane change: episode seed {event.episode_seed}, {event.n_avs} AVs")
-                 + "\norange: the AV changing lanes; purple: the AV yielding; green: other AVs; blue: HDVs", fontsize=10)
+    fig.suptitle(
+        (title or f"Cooperative lane change: episode seed {event.episode_seed}, {event.n_avs} AVs")
+        + "\norange: the AV changing lanes; purple: the AV yielding; green: other AVs; blue: HDVs",
+        fontsize=10,
+    )
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

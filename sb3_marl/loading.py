@@ -40,11 +40,21 @@ class UnsafeModelError(ValueError):
 #: Names a hyperparameter string may use (``policy_kwargs: "dict(activation_fn=nn.Tanh)"``),
 #: under the spellings rl-zoo's configs use.
 ALLOWED_NAMES: dict[str, Any] = {
-    **{f"{prefix}{name}": getattr(nn, name) for prefix in ("nn.", "th.nn.", "torch.nn.", "")
-       for name in ("ReLU", "Tanh", "ELU", "LeakyReLU", "SiLU", "GELU", "Sigmoid", "Identity")},
-    **{f"{prefix}{name}": getattr(optim, name) for prefix in ("optim.", "th.optim.", "torch.optim.", "")
-       for name in ("Adam", "AdamW", "RMSprop", "SGD")},
-    "True": True, "False": False, "None": None, "inf": float("inf"), "nan": float("nan"),
+    **{
+        f"{prefix}{name}": getattr(nn, name)
+        for prefix in ("nn.", "th.nn.", "torch.nn.", "")
+        for name in ("ReLU", "Tanh", "ELU", "LeakyReLU", "SiLU", "GELU", "Sigmoid", "Identity")
+    },
+    **{
+        f"{prefix}{name}": getattr(optim, name)
+        for prefix in ("optim.", "th.optim.", "torch.optim.", "")
+        for name in ("Adam", "AdamW", "RMSprop", "SGD")
+    },
+    "True": True,
+    "False": False,
+    "None": None,
+    "inf": float("inf"),
+    "nan": float("nan"),
 }
 #: rl-zoo's schedule strings, kept as strings for its schedule parser: ``lin_5e-4``.
 SCHEDULE = re.compile(r"^lin_[0-9.eE+-]+$")
@@ -65,23 +75,31 @@ def parse_literal(text: str, key: str) -> Any:
     except SyntaxError:
         if re.fullmatch(r"[\w.\-/]*", text):
             return text  # a bare word rl-zoo would keep as a string (e.g. a Python keyword: global)
-        raise ValueError(f"Invalid value for {key}: {text!r} is not a literal (numbers, strings, lists, dicts, "
-                         "dict(...)).") from None
+        raise ValueError(
+            f"Invalid value for {key}: {text!r} is not a literal (numbers, strings, lists, dicts, dict(...))."
+        ) from None
     if isinstance(tree, ast.Name) and tree.id not in ALLOWED_NAMES:
         return text  # a bare word (reward_mode:local)
     try:
         return _literal(tree)
     except ValueError as error:
-        raise ValueError(f"Invalid value for {key}: {text!r}: {error} (it would run code). Allowed: numbers, strings, "
-                         "lists, tuples, dicts, dict(key=value, ...) and the names "
-                         f"{sorted(n for n in ALLOWED_NAMES if n.startswith(('nn.', 'th.optim.')))}.") from None
+        raise ValueError(
+            f"Invalid value for {key}: {text!r}: {error} (it would run code). Allowed: numbers, strings, "
+            "lists, tuples, dicts, dict(key=value, ...) and the names "
+            f"{sorted(n for n in ALLOWED_NAMES if n.startswith(('nn.', 'th.optim.')))}."
+        ) from None
 
 
 def _literal(node: ast.AST) -> Any:
     if isinstance(node, ast.Constant):
         return node.value
-    if isinstance(node, ast.UnaryOp) and isinstance(node.op, (ast.USub, ast.UAdd)) and isinstance(node.operand, ast.Constant) \
-            and isinstance(node.operand.value, (int, float)) and not isinstance(node.operand.value, bool):
+    if (
+        isinstance(node, ast.UnaryOp)
+        and isinstance(node.op, (ast.USub, ast.UAdd))
+        and isinstance(node.operand, ast.Constant)
+        and isinstance(node.operand.value, (int, float))
+        and not isinstance(node.operand.value, bool)
+    ):
         return -node.operand.value if isinstance(node.op, ast.USub) else node.operand.value
     if isinstance(node, ast.List):
         return [_literal(e) for e in node.elts]
@@ -91,14 +109,26 @@ def _literal(node: ast.AST) -> Any:
         if any(k is None for k in node.keys):
             raise ValueError("** unpacking is not a literal")
         return {_literal(k): _literal(v) for k, v in zip(node.keys, node.values)}  # type: ignore[arg-type]
-    if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "dict" and not node.args \
-            and all(k.arg is not None for k in node.keywords):
+    if (
+        isinstance(node, ast.Call)
+        and isinstance(node.func, ast.Name)
+        and node.func.id == "dict"
+        and not node.args
+        and all(k.arg is not None for k in node.keywords)
+    ):
         return {k.arg: _literal(k.value) for k in node.keywords}
     name = ast.unparse(node)
     if isinstance(node, (ast.Name, ast.Attribute)) and name in ALLOWED_NAMES:
         return ALLOWED_NAMES[name]
-    kind = "a call" if isinstance(node, ast.Call) else "an operator" if isinstance(node, (ast.BinOp, ast.BoolOp)) \
-        else "a name" if isinstance(node, (ast.Name, ast.Attribute)) else "an expression"
+    kind = (
+        "a call"
+        if isinstance(node, ast.Call)
+        else "an operator"
+        if isinstance(node, (ast.BinOp, ast.BoolOp))
+        else "a name"
+        if isinstance(node, (ast.Name, ast.Attribute))
+        else "an expression"
+    )
     raise ValueError(f"{kind} ({name}) is not a literal")
 
 
@@ -112,12 +142,13 @@ class RunFileLoader(yaml.SafeLoader):
 
 def _ordered_dict(loader: yaml.SafeLoader, node: yaml.Node) -> dict:
     (pairs,) = loader.construct_sequence(node, deep=True)
-    return {key: value for key, value in pairs}
+    return dict(pairs)
 
 
 RunFileLoader.add_constructor("tag:yaml.org,2002:python/object/apply:collections.OrderedDict", _ordered_dict)
-RunFileLoader.add_constructor("tag:yaml.org,2002:python/tuple",
-                              lambda loader, node: tuple(loader.construct_sequence(node, deep=True)))
+RunFileLoader.add_constructor(
+    "tag:yaml.org,2002:python/tuple", lambda loader, node: tuple(loader.construct_sequence(node, deep=True))
+)
 
 
 def read_run_yaml(path: str | Path) -> dict[str, Any]:
@@ -126,8 +157,10 @@ def read_run_yaml(path: str | Path) -> dict[str, Any]:
     try:
         data = yaml.load(Path(path).read_text(), Loader=RunFileLoader)
     except yaml.YAMLError as error:
-        raise ValueError(f"{path} is not a plain-data YAML file of a run ({str(error).splitlines()[0]}); "
-                         "it is not read (it could run code).") from None
+        raise ValueError(
+            f"{path} is not a plain-data YAML file of a run ({str(error).splitlines()[0]}); "
+            "it is not read (it could run code)."
+        ) from None
     if data is None:
         return {}
     if not isinstance(data, dict):
@@ -160,7 +193,7 @@ def is_serialized(entry: Any) -> bool:
 TRANSIENT = ("_last_obs", "_last_episode_starts", "_last_original_obs", "ep_info_buffer", "ep_success_buffer")
 
 
-def safe_custom_objects(algo_class: type, path: str | Path) -> dict[str, Any]:
+def safe_custom_objects(algo_class: Any, path: str | Path) -> dict[str, Any]:
     """Every serialized entry of the zip's data rebuilt without unpickling (see module doc).
 
     :raises UnsafeModelError: naming the first entry that cannot be rebuilt
@@ -188,7 +221,7 @@ def _class_name(text: str) -> str:
     return match.group(1)
 
 
-def _rebuild(key: str, entry: dict[str, Any], algo_class: type) -> Any:
+def _rebuild(key: str, entry: dict[str, Any], algo_class: Any) -> Any:
     kind = _class_name(entry[":type:"])
     if key in TRANSIENT:
         return None
@@ -204,8 +237,11 @@ def _rebuild(key: str, entry: dict[str, Any], algo_class: type) -> Any:
     if kind == "gymnasium.spaces.discrete.Discrete":
         return spaces.Discrete(int(entry["n"]), start=int(entry["start"]))
     if kind == "dict" and key == "policy_kwargs":
-        return {name: _plain_value(f"policy_kwargs.{name}", text, algo_class) for name, text in entry.items()
-                if name not in (":type:", ":serialized:")}
+        return {
+            name: _plain_value(f"policy_kwargs.{name}", text, algo_class)
+            for name, text in entry.items()
+            if name not in (":type:", ":serialized:")
+        }
     if kind == "stable_baselines3.common.type_aliases.TrainFreq":
         # not readable: the algorithm's default (continuing training passes the run's own value)
         return inspect.signature(algo_class).parameters["train_freq"].default
@@ -223,11 +259,14 @@ def _dict_space(text: str) -> spaces.Dict:
     items = re.findall(rf"'(\w+)': {UNIFORM_BOX}", text)
     if not items or len(items) != text.count("Box("):
         raise ValueError(f"the Dict space {text[:80]!r} is not made of readable Boxes of uniform bounds")
-    return spaces.Dict({
-        name: spaces.Box(float(low), float(high), tuple(int(n) for n in shape.replace(" ", "").split(",") if n),
-                         np.dtype(dtype))
-        for name, low, high, shape, dtype in items
-    })
+    return spaces.Dict(
+        {
+            name: spaces.Box(
+                float(low), float(high), tuple(int(n) for n in shape.replace(" ", "").split(",") if n), np.dtype(dtype)
+            )
+            for name, low, high, shape, dtype in items
+        }
+    )
 
 
 def _numbers(text: str, shape: tuple[int, ...]) -> np.ndarray:
@@ -250,7 +289,7 @@ def _schedule(kind: str, entry: dict[str, Any]) -> Any:
     return FloatSchedule(_schedule(inner.group(1), fields))
 
 
-def _known_classes(algo_class: type) -> dict[str, type]:
+def _known_classes(algo_class: Any) -> dict[str, type]:
     """Classes a model of ``algo_class`` may name: its policies, the buffers and feature extractors."""
     from sb3_contrib.common.maskable.buffers import MaskableDictRolloutBuffer, MaskableRolloutBuffer
     from stable_baselines3.common.buffers import ReplayBuffer, RolloutBuffer
@@ -258,13 +297,23 @@ def _known_classes(algo_class: type) -> dict[str, type]:
     from sb3_marl.algos.masking import MaskedReplayBuffer, PerAgentDictRolloutBuffer, PerAgentRolloutBuffer
     from sb3_marl.policies import GlobalStateExtractor, LocalViewExtractor, MA2CFeaturesExtractor
 
-    classes = [*algo_class.policy_aliases.values(), MaskableRolloutBuffer, MaskableDictRolloutBuffer, RolloutBuffer,
-               ReplayBuffer, MaskedReplayBuffer, PerAgentRolloutBuffer, PerAgentDictRolloutBuffer,
-               MA2CFeaturesExtractor, LocalViewExtractor, GlobalStateExtractor]
+    classes = [
+        *algo_class.policy_aliases.values(),
+        MaskableRolloutBuffer,
+        MaskableDictRolloutBuffer,
+        RolloutBuffer,
+        ReplayBuffer,
+        MaskedReplayBuffer,
+        PerAgentRolloutBuffer,
+        PerAgentDictRolloutBuffer,
+        MA2CFeaturesExtractor,
+        LocalViewExtractor,
+        GlobalStateExtractor,
+    ]
     return {f"{c.__module__}.{c.__qualname__}": c for c in classes}
 
 
-def saved_policy_class(data: dict[str, Any], algo_class: type) -> type | None:
+def saved_policy_class(data: dict[str, Any], algo_class: Any) -> type | None:
     """The policy class a model's ``data`` names, among ``algo_class``'s; None if it names none
     of them (a model of another algorithm or tool)."""
     entry = data.get("policy_class")
@@ -274,27 +323,29 @@ def saved_policy_class(data: dict[str, Any], algo_class: type) -> type | None:
         return None
 
 
-def _known_class(key: str, entry: dict[str, Any], algo_class: type) -> type:
+def _known_class(key: str, entry: Any, algo_class: Any) -> type:
     """A class entry (``policy_class``, ``rollout_buffer_class``, ...) from its module and the name
     its methods carry (``<function NAME.method at ...>``), among :func:`_known_classes`."""
-    names = {m.group(1) for text in entry.values() if isinstance(text, str)
-             for m in [re.match(r"<function (\w+)\.", text)] if m}
+    names = {
+        m.group(1) for text in entry.values() if isinstance(text, str) for m in [re.match(r"<function (\w+)\.", text)] if m
+    }
     known = _known_classes(algo_class)
     matches = [known[f"{entry['__module__']}.{name}"] for name in names if f"{entry['__module__']}.{name}" in known]
     if len(matches) != 1:
-        raise ValueError(f"class {entry.get('__module__')}.{'/'.join(sorted(names)) or '?'} is not one of "
-                         f"{sorted(known)}")
+        raise ValueError(f"class {entry.get('__module__')}.{'/'.join(sorted(names)) or '?'} is not one of {sorted(known)}")
     return matches[0]
 
 
-def _plain_value(key: str, text: Any, algo_class: type) -> Any:
+def _plain_value(key: str, text: Any, algo_class: Any) -> Any:
     """One readable value of a serialized dict: a JSON value, a known class, or a literal."""
     if not isinstance(text, str):
         return text
     if text.startswith("<class "):
         name = _class_name(text)
-        classes = {**{f"{c.__module__}.{c.__qualname__}": c for c in ALLOWED_NAMES.values() if isinstance(c, type)},
-                   **_known_classes(algo_class)}
+        classes = {
+            **{f"{c.__module__}.{c.__qualname__}": c for c in ALLOWED_NAMES.values() if isinstance(c, type)},
+            **_known_classes(algo_class),
+        }
         if name not in classes:
             raise ValueError(f"{key} is the class {name}, not one of {sorted(classes)}")
         return classes[name]
@@ -304,14 +355,21 @@ def _plain_value(key: str, text: Any, algo_class: type) -> Any:
         raise ValueError(f"{key}={text!r} is not a literal") from None
 
 
-def load_model(algo_class: Any, path: str | Path, *, trust_remote_code: bool = False,
-               custom_objects: dict[str, Any] | None = None, **kwargs: Any) -> Any:
+def load_model(
+    algo_class: Any,
+    path: str | Path,
+    *,
+    trust_remote_code: bool = False,
+    custom_objects: dict[str, Any] | None = None,
+    **kwargs: Any,
+) -> Any:
     """``algo_class.load(path, ...)`` (SB3's own loader) with every serialized entry rebuilt as
     data (:func:`safe_custom_objects`); with ``trust_remote_code`` the zip is unpickled as SB3
     does, after a warning naming the file."""
     if trust_remote_code:
-        warnings.warn(f"Loading {path} with trust_remote_code=True: its pickled entries are unpickled and may run "
-                      "code.", stacklevel=3)
+        warnings.warn(
+            f"Loading {path} with trust_remote_code=True: its pickled entries are unpickled and may run code.", stacklevel=3
+        )
         objects = dict(custom_objects or {})
     else:
         objects = {**safe_custom_objects(algo_class, path), **(custom_objects or {})}
@@ -323,16 +381,43 @@ class SafeLoading:
     unless ``trust_remote_code=True``); ``sb3_load`` is SB3's own ``load``."""
 
     @classmethod
-    def load(cls, path: Any, env: Any = None, device: Any = "auto", custom_objects: dict[str, Any] | None = None,
-             print_system_info: bool = False, force_reset: bool = True, trust_remote_code: bool = False,
-             **kwargs: Any) -> Any:
-        return load_model(cls, path, trust_remote_code=trust_remote_code, custom_objects=custom_objects, env=env,
-                          device=device, print_system_info=print_system_info, force_reset=force_reset, **kwargs)
+    def load(
+        cls,
+        path: Any,
+        env: Any = None,
+        device: Any = "auto",
+        custom_objects: dict[str, Any] | None = None,
+        print_system_info: bool = False,
+        force_reset: bool = True,
+        trust_remote_code: bool = False,
+        **kwargs: Any,
+    ) -> Any:
+        return load_model(
+            cls,
+            path,
+            trust_remote_code=trust_remote_code,
+            custom_objects=custom_objects,
+            env=env,
+            device=device,
+            print_system_info=print_system_info,
+            force_reset=force_reset,
+            **kwargs,
+        )
 
     @classmethod
     def sb3_load(cls, path: Any, **kwargs: Any) -> Any:
         return super().load(path, **kwargs)  # type: ignore[misc]
 
 
-__all__ = ["ALLOWED_NAMES", "RunFileLoader", "SafeLoading", "UnsafeModelError", "load_model", "parse_literal",
-           "read_model_data", "read_run_yaml", "safe_custom_objects", "saved_policy_class"]
+__all__ = [
+    "ALLOWED_NAMES",
+    "RunFileLoader",
+    "SafeLoading",
+    "UnsafeModelError",
+    "load_model",
+    "parse_literal",
+    "read_model_data",
+    "read_run_yaml",
+    "safe_custom_objects",
+    "saved_policy_class",
+]

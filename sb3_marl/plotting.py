@@ -49,8 +49,11 @@ def plot_runs(runs: dict[str, Path], out_dir: str | Path, window: int = 100) -> 
     """Write the :data:`FIGURES` for ``runs`` (label -> run folder) into ``out_dir``; returns the
     files written. Runs without the needed log file are left out of that figure; an unreadable
     ``evaluations.npz`` raises a ValueError naming it before any file is written."""
-    evaluations = {folder: read_evaluations(Path(folder) / "evaluations.npz")
-                   for folder in runs.values() if (Path(folder) / "evaluations.npz").is_file()}
+    evaluations = {
+        folder: read_evaluations(Path(folder) / "evaluations.npz")
+        for folder in runs.values()
+        if (Path(folder) / "evaluations.npz").is_file()
+    }
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
@@ -95,14 +98,27 @@ def _plot_one(ax: Axes, figure: str, label: str, folder: Path, window: int, log:
         line = ax.plot(log["timesteps"], mean, marker="o", label=label + (", supervisor on" if alone else ""))[0]
         ax.fill_between(log["timesteps"], mean - std, mean + std, alpha=0.2)
         if alone:
-            ax.plot(log["timesteps"], log[off + "results"].mean(axis=1), marker="x", linestyle="--",
-                    color=line.get_color(), label=label + ", supervisor off")
+            ax.plot(
+                log["timesteps"],
+                log[off + "results"].mean(axis=1),
+                marker="x",
+                linestyle="--",
+                color=line.get_color(),
+                label=label + ", supervisor off",
+            )
     else:
-        line = ax.plot(log["timesteps"], log["collision_rate"], marker="o",
-                       label=label + (", supervisor on" if alone else ""))[0]
+        line = ax.plot(
+            log["timesteps"], log["collision_rate"], marker="o", label=label + (", supervisor on" if alone else "")
+        )[0]
         if alone:
-            ax.plot(log["timesteps"], log[off + "collision_rate"], marker="x", linestyle="--", color=line.get_color(),
-                    label=label + ", supervisor off")
+            ax.plot(
+                log["timesteps"],
+                log[off + "collision_rate"],
+                marker="x",
+                linestyle="--",
+                color=line.get_color(),
+                label=label + ", supervisor off",
+            )
         ax.set_ylim(-0.05, 1.05)
     return 1
 

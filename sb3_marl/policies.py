@@ -59,9 +59,7 @@ class MA2CFeaturesExtractor(BaseFeaturesExtractor):
         self.trunk = nn.Sequential(nn.Linear(sum(unit_dims), features_dim), nn.ReLU())
 
     def forward(self, observations: th.Tensor) -> th.Tensor:
-        parts = [
-            layer(observations[:, :, self.columns[unit]].flatten(start_dim=1)) for unit, layer in self.units.items()
-        ]
+        parts = [layer(observations[:, :, self.columns[unit]].flatten(start_dim=1)) for unit, layer in self.units.items()]
         return self.trunk(th.cat(parts, dim=1))
 
 
@@ -70,7 +68,7 @@ class LocalViewExtractor(BaseFeaturesExtractor):
     centralised-critic Dict observation: the actor of CTDE sees only its AV's view."""
 
     def __init__(self, observation_space: spaces.Dict, **kwargs: Any) -> None:
-        local = MA2CFeaturesExtractor(observation_space[LOCAL_KEY], **kwargs)
+        local = MA2CFeaturesExtractor(observation_space[LOCAL_KEY], **kwargs)  # type: ignore[arg-type]
         super().__init__(observation_space, local.features_dim)
         self.local = local
 
@@ -117,26 +115,30 @@ class CentralisedCriticPolicy(MaskableActorCriticPolicy):
         **kwargs: Any,
     ) -> None:
         if share_features_extractor:
-            raise ValueError("CentralisedCriticPolicy: share_features_extractor must be False "
-                             "(the actor reads the AV's view, the critic the global state).")
+            raise ValueError(
+                "CentralisedCriticPolicy: share_features_extractor must be False "
+                "(the actor reads the AV's view, the critic the global state)."
+            )
         self.critic_extractor_class = critic_extractor_class
         self.critic_extractor_kwargs = dict(critic_extractor_kwargs or {})
-        super().__init__(*args, features_extractor_class=features_extractor_class, share_features_extractor=False,
-                         **kwargs)
+        super().__init__(  # type: ignore[misc]
+            *args, features_extractor_class=features_extractor_class, share_features_extractor=False, **kwargs
+        )
 
     def _build_mlp_extractor(self) -> None:
         # called by _build before the optimiser is created: the critic's extractor replaces the
         # second copy of the actor's that the parent built
         self.vf_features_extractor = self.critic_extractor_class(self.observation_space, **self.critic_extractor_kwargs)
         if self.vf_features_extractor.features_dim != self.features_dim:
-            raise ValueError(f"The critic's features_dim {self.vf_features_extractor.features_dim} must equal the "
-                             f"actor's {self.features_dim} (one MLP extractor serves both).")
+            raise ValueError(
+                f"The critic's features_dim {self.vf_features_extractor.features_dim} must equal the "
+                f"actor's {self.features_dim} (one MLP extractor serves both)."
+            )
         super()._build_mlp_extractor()
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
-        data.update(critic_extractor_class=self.critic_extractor_class,
-                    critic_extractor_kwargs=self.critic_extractor_kwargs)
+        data.update(critic_extractor_class=self.critic_extractor_class, critic_extractor_kwargs=self.critic_extractor_kwargs)
         return data
 
 

@@ -45,8 +45,9 @@ class Run:
         except UnsafeModelError:
             raise
         except Exception as error:  # a truncated zip, tensors that do not fit the policy, ...
-            raise ValueError(f"{self.model_path} is not a readable {self.algo} model ({type(error).__name__}: "
-                             f"{error}).") from None
+            raise ValueError(
+                f"{self.model_path} is not a readable {self.algo} model ({type(error).__name__}: {error})."
+            ) from None
 
     def evaluate(self, model: BaseAlgorithm, n_episodes: int, seed: int, deterministic: bool = False) -> dict[str, Any]:
         """The paper's metrics of ``model`` on ``n_episodes`` seeded episodes of the run's scenario,
@@ -54,9 +55,13 @@ class Run:
         (``supervisor_off``), with what identifies the evaluation (algo, env, timesteps, seeds, env
         config, protocol: sampled actions by default, the authors') and each return."""
         return {
-            "algo": self.algo, "env_id": self.env_id, "num_timesteps": int(model.num_timesteps),
-            "deterministic": deterministic, "protocol": protocol_label(deterministic, model),
-            "seeds": [seed, seed + n_episodes - 1], "env_config": self.env_config,
+            "algo": self.algo,
+            "env_id": self.env_id,
+            "num_timesteps": int(model.num_timesteps),
+            "deterministic": deterministic,
+            "protocol": protocol_label(deterministic, model),
+            "seeds": [seed, seed + n_episodes - 1],
+            "env_config": self.env_config,
             **evaluate_protocols(model_policy(model, deterministic), self.env_id, n_episodes, seed, self.env_config),
         }
 
@@ -81,8 +86,13 @@ def find_run(
     def model_of(run: int) -> tuple[str, str]:
         try:
             _, model_path, log_path = get_model_path(
-                run, str(folder), algo, env_name, load_best,
-                None if load_checkpoint is None else str(load_checkpoint), load_last_checkpoint,
+                run,
+                str(folder),
+                algo,
+                env_name,
+                load_best,
+                None if load_checkpoint is None else str(load_checkpoint),
+                load_last_checkpoint,
             )
         except (AssertionError, ValueError) as error:
             raise FileNotFoundError(str(error)) from None
@@ -130,7 +140,7 @@ def run_folders(folder: str | Path, algo: str, env_id: str) -> list[Path]:
     algo_folder = Path(folder) / algo
     if not algo_folder.is_dir():
         return []
-    runs = [p for p in algo_folder.iterdir() if p.is_dir() and p.name.startswith(prefix) and p.name[len(prefix):].isdigit()]
+    runs = [p for p in algo_folder.iterdir() if p.is_dir() and p.name.startswith(prefix) and p.name[len(prefix) :].isdigit()]
     return sorted(runs, key=run_id)
 
 
@@ -153,18 +163,35 @@ def summary_table(folder: str | Path) -> str:
     reference policies' rows where it was evaluated ``--with-baselines``)."""
     from sb3_marl.evaluation import TABLE_COLUMNS
 
-    titles = ["algo", "env", "run", "seed", "overrides", "timesteps", "protocol", "supervisor",
-              *(title for title, _ in TABLE_COLUMNS)]
+    titles = [
+        "algo",
+        "env",
+        "run",
+        "seed",
+        "overrides",
+        "timesteps",
+        "protocol",
+        "supervisor",
+        *(title for title, _ in TABLE_COLUMNS),
+    ]
     lines = ["| " + " | ".join(titles) + " |", "|" + "---|" * len(titles)]
-    for evaluation_file in sorted(Path(folder).glob("*/*/evaluation.json"), key=lambda p: (p.parent.parent.name, p.parent.name.rpartition("_")[0], run_id(p.parent))):
+    for evaluation_file in sorted(
+        Path(folder).glob("*/*/evaluation.json"),
+        key=lambda p: (p.parent.parent.name, p.parent.name.rpartition("_")[0], run_id(p.parent)),
+    ):
         try:
             result = json.loads(evaluation_file.read_text())
         except ValueError as error:
             raise ValueError(f"{evaluation_file} is not readable JSON ({error}).") from None
         run_folder = evaluation_file.parent
         args = run_args(run_folder, result["env_id"])
-        label = [result["algo"], result["env_id"], str(run_id(run_folder)), str(args.get("seed", "-")),
-                 run_overrides(run_folder, result["env_id"]) or "-"]
+        label = [
+            result["algo"],
+            result["env_id"],
+            str(run_id(run_folder)),
+            str(args.get("seed", "-")),
+            run_overrides(run_folder, result["env_id"]) or "-",
+        ]
         rows = [(label, result["num_timesteps"], result.get("protocol", "-"), result)]
         for name, baseline in (result.get("baselines") or {}).items():
             rows.append(([name, result["env_id"], "-", "-", "-"], "-", "reference policy", baseline))
@@ -195,4 +222,14 @@ def check_model_file(path: str | Path, algo: str, trust_remote_code: bool = Fals
         )
 
 
-__all__ = ["Run", "check_model_file", "find_run", "latest_checkpoint", "run_args", "run_folders", "run_id", "run_overrides", "summary_table"]
+__all__ = [
+    "Run",
+    "check_model_file",
+    "find_run",
+    "latest_checkpoint",
+    "run_args",
+    "run_folders",
+    "run_id",
+    "run_overrides",
+    "summary_table",
+]

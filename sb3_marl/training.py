@@ -10,6 +10,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 
 from sb3_marl.algos import get_algo
+from sb3_marl.envs import av_counts
 from sb3_marl.hyperparams import (
     SCENARIO_KEYS,
     ZOO_KEYS,
@@ -17,7 +18,6 @@ from sb3_marl.hyperparams import (
     policy_kwargs_for,
     validate_hyperparams,
 )
-from sb3_marl.envs import av_counts
 from wrappers import ParameterSharingVecEnv, VecCentralisedState, VecRewardScale
 
 
@@ -31,7 +31,8 @@ def make_venv(
 ) -> VecEnv:
     """The parameter-sharing VecEnv of the scenario, with the entry's reward mode, copies,
     scenario overrides, intervention penalty and reward scale, and with ``critic: centralised``
-    each slot's copy's global state (:class:`~wrappers.VecCentralisedState`); with ``monitor_dir``, SB3's VecMonitor writes each AV's
+    each slot's copy's global state (:class:`~wrappers.VecCentralisedState`); with ``monitor_dir``, SB3's
+    VecMonitor writes each AV's
     episodes (unscaled return, length) to ``<monitor_dir>/<monitor_file>``, as rl_zoo3 expects (SB3's
     ``load_results`` reads every ``*monitor.csv`` of a folder)."""
     venv: VecEnv = ParameterSharingVecEnv(
@@ -60,9 +61,7 @@ def make_model(
     """The algorithm registered as ``algo`` on ``venv``, with the entry's constructor arguments
     and MA2C network; ``kwargs`` (e.g. ``tensorboard_log``, ``verbose``) go to the constructor."""
     validate_hyperparams(algo, hyperparams)
-    arguments = {
-        key: value for key, value in hyperparams.items() if key not in (*SCENARIO_KEYS, *ZOO_KEYS, "policy_kwargs")
-    }
+    arguments = {key: value for key, value in hyperparams.items() if key not in (*SCENARIO_KEYS, *ZOO_KEYS, "policy_kwargs")}
     arguments = ExperimentManager._preprocess_schedules(arguments)  # "lin_5e-4" -> a schedule, as rl_zoo3 does
     arguments["policy_kwargs"] = policy_kwargs_for(algo, hyperparams)
     policy = policy_for(hyperparams)

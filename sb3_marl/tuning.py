@@ -16,7 +16,8 @@ This module holds the parts rl_zoo3 lacks:
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import optuna
 import yaml
@@ -90,7 +91,7 @@ class TrialPruningCallback(BaseCallback):
 
     def _on_step(self) -> bool:
         self.evaluations += 1
-        self.trial.report(self.parent.last_summary["return_mean"], self.evaluations)
+        self.trial.report(self.parent.last_summary["return_mean"], self.evaluations)  # type: ignore[union-attr]
         self.is_pruned = self.trial.should_prune()
         return not self.is_pruned
 
@@ -136,4 +137,4 @@ def config_trial(algo: str, hyperparams: dict[str, Any]) -> dict[str, Any] | Non
     return {key: hyperparams[key] for key in keys}
 
 
-__all__ = ["CONFIG_TRIAL_KEYS", "config_trial", "SAMPLERS", "TrialPruningCallback", "best_hyperparams_yaml", "merge_sampled"]
+__all__ = ["CONFIG_TRIAL_KEYS", "SAMPLERS", "TrialPruningCallback", "best_hyperparams_yaml", "config_trial", "merge_sampled"]

@@ -6,12 +6,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-import gymnasium as gym
 import imageio.v2 as imageio
 import numpy as np
 
-from sb3_marl.envs import copy_av_counts
-from sb3_marl.envs.lane_change_env import LaneChangeEnv
+from sb3_marl.envs import copy_av_counts, make_scenario
 from sb3_marl.evaluation import Policy, run_episodes
 from sb3_marl.files import replaced_atomically
 
@@ -31,19 +29,20 @@ def record_video(
     """
     path = Path(path)
     counts = copy_av_counts(env_id, config, n_episodes)
-    frames: list[np.ndarray] = []
+    frames: list[np.ndarray | None] = []
     fps = None
     for episode, n_avs in enumerate(counts):
-        env: LaneChangeEnv = gym.make(env_id, config={**(config or {}), "n_avs": n_avs}, render_mode="rgb_array").unwrapped
+        env = make_scenario(env_id, {**(config or {}), "n_avs": n_avs}, render_mode="rgb_array")
         fps = env.config["policy_frequency"]
         run_episodes(env, policy, 1, seed + episode, on_step=lambda env, info: frames.append(env.render()))
         env.close()
     # libx264 needs even frame sizes; macro_block_size=2 pads odd ones instead of rescaling
-    with replaced_atomically(path) as temporary, imageio.get_writer(
-        temporary, fps=fps, codec="libx264", macro_block_size=2, format="FFMPEG"
-    ) as writer:
+    with (
+        replaced_atomically(path) as temporary,
+        imageio.get_writer(temporary, fps=fps, codec="libx264", macro_block_size=2, format="FFMPEG") as writer,
+    ):
         for frame in frames:
-            writer.append_data(frame)
+            writer.append_data(frame)  # type: ignore[attr-defined]
     return {"path": str(path), "frames": len(frames), "episodes": n_episodes, "fps": fps}
 
 

@@ -57,7 +57,8 @@ def test_the_paper_grid_table_regenerates():
     table of the committed trials (finished trials' slim logs, unfinished trials' checkpoints)."""
     import json
 
-    from sb3_marl.benchmark.report import load_trials, paper_table, reference_summaries
+    from sb3_marl.benchmark.statistics import load_trials, reference_summaries
+    from sb3_marl.benchmark.tables import paper_table
 
     settings = json.loads((PAPER_GRID / "benchmark.json").read_text())
     assert settings == {"budget": 1.0, "eval_every_episodes": 200, "eval_episodes": 3}  # the paper's protocol
@@ -128,7 +129,7 @@ TABLE_5_ROWS = (("MA2C, separate actor and critic", "separate actor and critic",
 def test_the_readmes_table_5_is_the_committed_table(readme, committed_rows):
     """The hand-copied Table 5 of each README ("| policy | density 1 | density 2 | density 3 |")
     gives, per row and density, the mean ± std of results/paper_table.md and the paper's mean."""
-    from sb3_marl.benchmark.report import PAPER_RETURNS
+    from sb3_marl.benchmark.tables import PAPER_RETURNS
 
     rows = _readme_table(readme, ["policy", *DENSITIES])
     assert len(rows) == len(TABLE_5_ROWS)

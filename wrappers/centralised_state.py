@@ -29,7 +29,7 @@ class VecCentralisedState(VecEnvWrapper):
             raise TypeError(f"VecCentralisedState wraps a ParameterSharingVecEnv, got {type(venv).__name__}.")
         if max(venv.n_avs) > max_avs:
             raise ValueError(f"Invalid max_avs={max_avs}: a copy has {max(venv.n_avs)} AVs.")
-        super().__init__(venv, observation_space=centralised_observation_space(venv.observation_space, max_avs))
+        super().__init__(venv, observation_space=centralised_observation_space(venv.observation_space, max_avs))  # type: ignore[arg-type]
         self.max_avs = max_avs
         self.slices: list[slice] = venv.slices
 
@@ -38,14 +38,15 @@ class VecCentralisedState(VecEnvWrapper):
         return {LOCAL_KEY: obs, STATE_KEY: state}
 
     def reset(self) -> dict[str, np.ndarray]:
-        return self._with_state(self.venv.reset())
+        return self._with_state(self.venv.reset())  # type: ignore[arg-type]
 
     def step_wait(self) -> VecEnvStepReturn:
         obs, rewards, dones, infos = self.venv.step_wait()
         for sl in self.slices:
             if dones[sl.start]:  # a copy's slots end together
-                final = centralised_observations(np.stack([infos[i]["terminal_observation"] for i in range(sl.start, sl.stop)]),
-                                                 self.max_avs)
+                final = centralised_observations(
+                    np.stack([infos[i]["terminal_observation"] for i in range(sl.start, sl.stop)]), self.max_avs
+                )
                 for agent, info in enumerate(infos[sl]):
                     info["terminal_observation"] = {key: value[agent] for key, value in final.items()}
-        return self._with_state(obs), rewards, dones, infos
+        return self._with_state(obs), rewards, dones, infos  # type: ignore[arg-type]

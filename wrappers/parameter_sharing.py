@@ -5,11 +5,11 @@ One shared policy then drives all AVs (parameter sharing), trained by any SB3 al
 
 from __future__ import annotations
 
+import contextlib
+import itertools
 import multiprocessing as mp
 import os
-import signal
 import time
-import traceback
 from collections.abc import Callable, Sequence
 from functools import partial
 from typing import Any
@@ -17,10 +17,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
-from stable_baselines3.common.env_util import is_wrapped
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 from stable_baselines3.common.vec_env.base_vec_env import (
-    CloudpickleWrapper,
     VecEnvIndices,
     VecEnvStepReturn,
 )
@@ -29,17 +27,12 @@ from sb3_marl.envs import (  # importing sb3_marl.envs registers the scenario id
     av_counts,
     copy_av_counts,
 )
-from sb3_marl.envs.reward import REWARD_MODES, apply_reward_mode
+from sb3_marl.envs.reward import REWARD_MODES
+from wrappers.copies import CopyRunner, LocalCopies, WorkerCopies
 
 VEC_BACKENDS = ("dummy", "subproc")
 #: Copy methods whose result has one row per AV; ``env_method`` hands each slot its own row.
 PER_AGENT_METHODS = ("action_masks",)
-#: Per-AV arrays of the scenario's info that each slot's info carries as scalars.
-PER_AGENT_INFO = (
-    "speed", "headway", "acceleration", "lane_change", "crashed", "exited", "action_mask",
-    "proposed_action", "executed_action", "intervened",
-)
-
 EnvFactory = Callable[[int], gym.Env]
 
 
@@ -74,198 +67,6 @@ def _make_copy(env: str | EnvFactory, index: int, config: dict[str, Any], render
     if callable(env):
         return env(index)
     return gym.make(env, config=config, render_mode=render_mode)
-
-
-def split_info(info: dict[str, Any], copy: int) -> list[dict[str, Any]]:
-    """Each AV's share of its copy's info (see :class:`ParameterSharingVecEnv`)."""
-    own = np.asarray(info["rewards"])
-    global_reward = float(own.mean())
-    terms = info.get("reward_terms", {})
-    slot_infos = []
-    for agent in range(own.size):
-        slot_info = {key: info[key][agent] for key in PER_AGENT_INFO if key in info}
-        slot_info.update(
-            copy=copy,
-            agent=agent,
-            reward=float(own[agent]),
-            global_reward=global_reward,
-            reward_terms={name: float(values[agent]) for name, values in terms.items()},
-        )
-        if "terminal_observation" in info:
-            slot_info["terminal_observation"] = info["terminal_observation"][agent]
-            slot_info["TimeLimit.truncated"] = bool(info["TimeLimit.truncated"])
-        slot_infos.append(slot_info)
-    return slot_infos
-
-
-class CopyRunner:
-    """One scenario copy with SB3's VecEnv conventions: auto-reset, ``terminal_observation`` and
-    ``TimeLimit.truncated`` as SB3's ``DummyVecEnv`` sets them (without its per-step deep copy of
-    the info, which cost more than 5 % of a step). It also applies the reward mode and splits the
-    info per AV, so that worker processes do that work in parallel.
-
-    With ``supervisor_dropout`` p > 0 (and the scenario's safety supervisor on) each episode runs
-    without the supervisor with probability p, drawn at its reset from a generator seeded by the
-    copy's seeded reset (same seed, same episodes): training meets its own mistakes with their
-    crash cost, while most episodes keep the supervisor's safe exploration.
-    """
-
-    def __init__(self, factory: Callable[[], gym.Env], copy: int, reward_mode: str, supervisor_dropout: float = 0.0) -> None:
-        self.env = factory()
-        self.copy = copy
-        self.reward_mode = reward_mode
-        self.supervisor_dropout = supervisor_dropout
-        self._supervised = bool(self.env.unwrapped.config.get("safety_supervisor", False)) if supervisor_dropout else False
-        self._dropout_rng = np.random.default_rng()
-
-    def _draw_supervisor(self, seed: int | None) -> None:
-        """Switch the supervisor on or off for the episode about to start (``supervisor_dropout``)."""
-        if not self._supervised:
-            return
-        if seed is not None:
-            self._dropout_rng = np.random.default_rng([seed, self.copy])
-        self.env.unwrapped.config["safety_supervisor"] = bool(self._dropout_rng.random() >= self.supervisor_dropout)
-
-    def spaces(self) -> tuple[spaces.Space, spaces.Space]:
-        return self.env.observation_space, self.env.action_space
-
-    def reset(self, seed: int | None, options: dict[str, Any]) -> tuple[np.ndarray, list[dict[str, Any]]]:
-        """Observations (n_avs, ...) and per-AV reset infos."""
-        self._draw_supervisor(seed)
-        obs, info = self.env.reset(seed=seed, **({"options": options} if options else {}))
-        missing = [key for key in ("rewards", "neighbours") if key not in info]
-        if missing:
-            raise ValueError(
-                f"Copy {self.copy} is not a multi-agent scenario env: its info lacks {missing} "
-                "(per-AV rewards and the local reward's neighbour sets)."
-            )
-        return obs, split_info(info, self.copy)
-
-    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool, list[dict], list[dict] | None]:
-        """Step with one action per AV: observations, rewards in the reward mode, done, per-AV
-        infos, and per-AV reset infos of the new episode when done (else None)."""
-        obs, _, terminated, truncated, info = self.env.step(actions)
-        done = bool(terminated or truncated)
-        reset_infos = None
-        if done:
-            info["terminal_observation"] = obs
-            info["TimeLimit.truncated"] = bool(truncated and not terminated)
-            self._draw_supervisor(None)
-            obs, reset_info = self.env.reset()
-            reset_infos = split_info(reset_info, self.copy)
-        return obs, apply_reward_mode(info, self.reward_mode), done, split_info(info, self.copy), reset_infos
-
-    def get_attr(self, name: str) -> Any:
-        return self.env.get_wrapper_attr(name)
-
-    def set_attr(self, name: str, value: Any) -> None:
-        setattr(self.env, name, value)  # on the outer wrapper, as SB3's VecEnvs do
-
-    def env_method(self, name: str, args: tuple, kwargs: dict[str, Any]) -> Any:
-        return self.env.get_wrapper_attr(name)(*args, **kwargs)
-
-    def env_is_wrapped(self, wrapper_class: type[gym.Wrapper]) -> bool:
-        return is_wrapped(self.env, wrapper_class)
-
-    def get_image(self) -> np.ndarray | None:
-        return self.env.render()
-
-    def close(self) -> None:
-        self.env.close()
-
-
-Call = tuple[int, str, tuple]  # (copy index within its group, CopyRunner method, arguments)
-
-
-def _run_calls(runners: list[CopyRunner], calls: list[Call]) -> list[Any]:
-    return [getattr(runners[index], method)(*args) for index, method, args in calls]
-
-
-class LocalCopies:
-    """Copies stepped one after the other in this process."""
-
-    def __init__(self, runners: list[Callable[[], CopyRunner]]) -> None:
-        self.runners = [make_runner() for make_runner in runners]
-        self._results: list[Any] = []
-
-    def submit(self, calls: list[Call]) -> None:
-        self._results = _run_calls(self.runners, calls)
-
-    def collect(self) -> list[Any]:
-        return self._results
-
-    def close(self) -> None:
-        for runner in self.runners:
-            runner.close()
-
-
-def _worker(remote: Any, parent_remote: Any, runners: CloudpickleWrapper) -> None:
-    """Worker process: host a group of copies and run the calls the main process sends.
-
-    Ctrl-C is left to the main process, which stops training and then closes the workers."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    parent_remote.close()
-    runners = [make_runner() for make_runner in runners.var]
-    while True:
-        try:
-            calls = remote.recv()
-        except (EOFError, KeyboardInterrupt):
-            break
-        if calls is None:
-            for runner in runners:
-                runner.close()
-            remote.close()
-            break
-        try:
-            remote.send(("ok", _run_calls(runners, calls)))
-        except Exception as error:  # forwarded to the main process, which re-raises it
-            remote.send(("error", (error, traceback.format_exc())))
-
-
-class WorkerCopies:
-    """A group of copies in one worker process, stepped in parallel with the other groups.
-
-    :param timeout: seconds to wait for the worker's answer before giving up with an error (a
-        stopped or hung worker must not block training forever)
-    """
-
-    def __init__(self, runners: list[Callable[[], CopyRunner]], context: Any, timeout: float = 120.0) -> None:
-        self.timeout = timeout
-        self.started = False
-        self.remote, work_remote = context.Pipe()
-        self.process = context.Process(
-            target=_worker, args=(work_remote, self.remote, CloudpickleWrapper(runners)), daemon=True
-        )
-        self.process.start()
-        work_remote.close()
-
-    def submit(self, calls: list[Call]) -> None:
-        self.remote.send(calls)
-
-    def collect(self) -> list[Any]:
-        # the first answer waits for the worker's start-up (imports, building the copies) too
-        if not self.remote.poll(self.timeout if self.started else None):
-            raise TimeoutError(
-                f"Worker process {self.process.pid} did not answer within {self.timeout} s "
-                f"({'alive but not responding: stopped or hung' if self.process.is_alive() else 'dead'})."
-            )
-        status, payload = self.remote.recv()
-        self.started = True
-        if status == "error":
-            error, remote_traceback = payload
-            raise error from RuntimeError(f"in the worker process:\n{remote_traceback}")
-        return payload
-
-    def close(self) -> None:
-        if self.process.is_alive():
-            try:
-                self.remote.send(None)
-            except (BrokenPipeError, ConnectionResetError):
-                pass
-        self.process.join(timeout=5)
-        if self.process.is_alive():
-            self.process.terminate()
-        self.remote.close()
 
 
 class ParameterSharingVecEnv(VecEnv):
@@ -342,10 +143,17 @@ class ParameterSharingVecEnv(VecEnv):
         self.reward_mode = reward_mode
         self.vec_backend = vec_backend
         runners = []
-        for k, n_avs in enumerate(copy_counts):
-            copy_config = config if n_avs is None else {**config, "n_avs": n_avs}
-            runners.append(partial(CopyRunner, partial(_make_copy, env, k, copy_config, render_mode), k, reward_mode,
-                                   float(supervisor_dropout)))
+        for k, count in enumerate(copy_counts):
+            copy_config = config if count is None else {**config, "n_avs": count}
+            runners.append(
+                partial(
+                    CopyRunner,
+                    partial(_make_copy, env, k, copy_config, render_mode),
+                    k,
+                    reward_mode,
+                    float(supervisor_dropout),
+                )
+            )
         #: copy k runs in group placement[k][0] at index placement[k][1]
         self.placement = [(k % n_workers, k // n_workers) for k in range(n_copies)]
         self.group_copies = [list(range(g, n_copies, n_workers)) for g in range(n_workers)]
@@ -355,17 +163,16 @@ class ParameterSharingVecEnv(VecEnv):
             if start_method is None:
                 start_method = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
             context = mp.get_context(start_method)
-            self.groups = [WorkerCopies([runners[k] for k in copies], context, worker_timeout)
-                           for copies in self.group_copies]
+            self.groups = [WorkerCopies([runners[k] for k in copies], context, worker_timeout) for copies in self.group_copies]
         try:
-            copy_spaces = self._run({k: ("spaces", ()) for k in range(n_copies)})
+            copy_spaces = self._run(dict.fromkeys(range(n_copies), ("spaces", ())))
             single_obs_space, single_action_space, n_avs = self._check_spaces(copy_spaces)
         except Exception:
             self.close()
             raise
         self.n_avs: list[int] = n_avs
         starts = np.concatenate([[0], np.cumsum(n_avs)])
-        self.slices: list[slice] = [slice(int(a), int(b)) for a, b in zip(starts[:-1], starts[1:])]
+        self.slices: list[slice] = [slice(int(a), int(b)) for a, b in itertools.pairwise(starts)]
         self.slot_copy = np.repeat(np.arange(n_copies), n_avs)
         self.slot_agent = np.concatenate([np.arange(n) for n in n_avs])
         super().__init__(int(starts[-1]), single_obs_space, single_action_space)
@@ -385,7 +192,9 @@ class ParameterSharingVecEnv(VecEnv):
 
     def _check_spaces(self, copy_spaces: dict[int, tuple]) -> tuple[spaces.Box, spaces.Discrete, list[int]]:
         """Per-slot spaces and AV counts; a clear error for envs that are not multi-agent scenarios."""
-        n_avs, obs_space, action_space = [], None, None
+        n_avs: list[int] = []
+        obs_space: spaces.Box | None = None
+        action_space: spaces.Discrete | None = None
         for k, (copy_obs, copy_actions) in sorted(copy_spaces.items()):
             if not (
                 isinstance(copy_actions, spaces.MultiDiscrete)
@@ -398,8 +207,8 @@ class ParameterSharingVecEnv(VecEnv):
                     f"(one action per AV) and a Box observation space with one row per AV, got "
                     f"{copy_actions} and {copy_obs}."
                 )
-            agent_obs = spaces.Box(copy_obs.low[0], copy_obs.high[0], dtype=copy_obs.dtype)
-            agent_actions = spaces.Discrete(int(copy_actions.nvec[0]))
+            agent_obs = spaces.Box(copy_obs.low[0], copy_obs.high[0], dtype=copy_obs.dtype)  # type: ignore[arg-type]
+            agent_actions: spaces.Discrete = spaces.Discrete(int(copy_actions.nvec[0]))
             if obs_space is not None and (agent_obs != obs_space or agent_actions != action_space):
                 raise ValueError(
                     f"Copy {k} has per-AV spaces {agent_obs}, {agent_actions}, unlike copy 0's "
@@ -407,6 +216,7 @@ class ParameterSharingVecEnv(VecEnv):
                 )
             obs_space, action_space = agent_obs, agent_actions
             n_avs.append(int(copy_actions.shape[0]))
+        assert obs_space is not None and action_space is not None, "no scenario copy"
         return obs_space, action_space, n_avs
 
     # ---- running calls on copies -----------------------------------------------------------
@@ -419,8 +229,7 @@ class ParameterSharingVecEnv(VecEnv):
         for group, copies in enumerate(self.group_copies):
             mine = [k for k in copies if k in calls]
             if mine:
-                self._guard(group, self.groups[group].submit,
-                            [(self.placement[k][1], *calls[k]) for k in mine])
+                self._guard(group, self.groups[group].submit, [(self.placement[k][1], *calls[k]) for k in mine])
                 pending.append((group, mine))
         return pending
 
@@ -471,11 +280,11 @@ class ParameterSharingVecEnv(VecEnv):
                 f"slot, got dtype {actions.dtype} and shape {actions.shape}."
             )
         actions = actions.reshape(self.num_envs)
-        bad = np.flatnonzero((actions < 0) | (actions >= self.action_space.n))
+        n_actions = int(self.action_space.n)  # type: ignore[attr-defined]
+        bad = np.flatnonzero((actions < 0) | (actions >= n_actions))
         if bad.size:
             raise ValueError(
-                f"Invalid actions at slots {bad.tolist()}: {actions[bad].tolist()}, expected integers in "
-                f"[0, {self.action_space.n - 1}]."
+                f"Invalid actions at slots {bad.tolist()}: {actions[bad].tolist()}, expected integers in [0, {n_actions - 1}]."
             )
         self._pending = self._submit({k: ("step", (actions[sl],)) for k, sl in enumerate(self.slices)})
 
@@ -496,7 +305,9 @@ class ParameterSharingVecEnv(VecEnv):
                 elapsed = round(time.time() - self._t_start, 6)
                 for slot, slot_info in zip(range(sl.start, sl.stop), slot_infos):
                     slot_info["episode"] = {
-                        "r": float(self._episode_returns[slot]), "l": int(self._episode_lengths[slot]), "t": elapsed
+                        "r": float(self._episode_returns[slot]),
+                        "l": int(self._episode_lengths[slot]),
+                        "t": elapsed,
                     }
                 self._episode_returns[sl] = 0.0
                 self._episode_lengths[sl] = 0
@@ -519,7 +330,7 @@ class ParameterSharingVecEnv(VecEnv):
 
     def _per_copy(self, indices: VecEnvIndices, method: str, *args: Any) -> dict[int, Any]:
         """Run a CopyRunner method once on each copy owning one of the slots."""
-        return self._run({k: (method, args) for k in set(self._copies_of(indices))})
+        return self._run(dict.fromkeys(set(self._copies_of(indices)), (method, args)))
 
     def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
         """The attribute of each slot's copy."""
@@ -535,7 +346,9 @@ class ParameterSharingVecEnv(VecEnv):
             return True  # the scenario's masks, through :meth:`action_masks`
         return super().has_attr(attr_name)
 
-    def env_method(self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs: Any) -> list[Any]:
+    def env_method(
+        self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs: Any
+    ) -> list[Any]:
         """Call a method of each slot's copy once per copy; per-AV results (``action_masks``) are split by slot.
 
         ``action_masks`` is answered from the masks the copies reported with the current
@@ -557,22 +370,22 @@ class ParameterSharingVecEnv(VecEnv):
 
     def get_images(self) -> Sequence[np.ndarray | None]:
         """One frame per scenario copy (a copy shows all its AVs)."""
-        images = self._run({k: ("get_image", ()) for k in range(self.n_copies)})
+        images = self._run(dict.fromkeys(range(self.n_copies), ("get_image", ())))
         return [images[k] for k in range(self.n_copies)]
 
     def copy_env(self, copy: int) -> gym.Env:
         """The unwrapped scenario env of a copy (``dummy`` backend only: workers keep theirs)."""
         if self.vec_backend != "dummy":
             raise RuntimeError("copy_env() needs vec_backend='dummy': subproc copies live in worker processes.")
-        return self.groups[0].runners[copy].env.unwrapped
+        local = self.groups[0]
+        assert isinstance(local, LocalCopies)
+        return local.runners[copy].env.unwrapped
 
     def close(self) -> None:
         self.closed = True
         for group in getattr(self, "groups", []):
-            try:
-                group.close()
-            except (EOFError, BrokenPipeError, ConnectionResetError):
-                pass  # a dead worker has nothing left to close
+            with contextlib.suppress(EOFError, BrokenPipeError, ConnectionResetError):
+                group.close()  # a dead worker has nothing left to close
 
 
 class VecRewardScale(VecEnvWrapper):
@@ -598,7 +411,7 @@ class VecRewardScale(VecEnvWrapper):
         self.scale = float(scale)
         self.intervention_penalty = float(intervention_penalty)
 
-    def reset(self) -> np.ndarray:
+    def reset(self) -> Any:
         return self.venv.reset()
 
     def step_wait(self) -> VecEnvStepReturn:

@@ -9,7 +9,10 @@ unavailable meta-actions (:mod:`sb3_marl.algos.masking`), as the authors' MA2C d
 from __future__ import annotations
 
 from importlib import import_module
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from stable_baselines3.common.base_class import BaseAlgorithm
 
 #: Learner name -> "module:class" (imported on first use: torch is not loaded by the CLI's --help).
 ALGO_CLASSES: dict[str, str] = {
@@ -23,7 +26,7 @@ ALGO_CLASSES: dict[str, str] = {
 ALGO_NAMES: tuple[str, ...] = tuple(sorted(ALGO_CLASSES))
 
 
-def get_algo(name: str) -> type:
+def get_algo(name: str) -> type[BaseAlgorithm]:
     """The class registered under ``name``; a ValueError listing the valid names otherwise."""
     if name not in ALGO_CLASSES:
         raise ValueError(f"Unknown algorithm {name!r}: expected one of {list(ALGO_NAMES)}.")

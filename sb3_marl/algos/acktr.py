@@ -95,13 +95,20 @@ class KFAC(th.optim.Optimizer):
         if not isinstance(inverse_update_freq, int) or inverse_update_freq < 1:
             raise ValueError(f"Invalid inverse_update_freq={inverse_update_freq!r}: expected an integer >= 1.")
         defaults = dict(
-            lr=lr, momentum=momentum, stat_decay=stat_decay, damping=damping, kl_clip=kl_clip,
-            inverse_update_freq=inverse_update_freq, steps=0,
+            lr=lr,
+            momentum=momentum,
+            stat_decay=stat_decay,
+            damping=damping,
+            kl_clip=kl_clip,
+            inverse_update_freq=inverse_update_freq,
+            steps=0,
         )
         super().__init__(model.parameters(), defaults)
         self.layers = [module for module in model.modules() if isinstance(module, KFAC_LAYERS)]
         for layer in self.layers:
-            if isinstance(layer, nn.Conv2d) and (layer.groups != 1 or layer.dilation != (1, 1) or layer.padding_mode != "zeros"):
+            if isinstance(layer, nn.Conv2d) and (
+                layer.groups != 1 or layer.dilation != (1, 1) or layer.padding_mode != "zeros"
+            ):
                 raise ValueError(f"KFAC supports Conv2d with groups=1, dilation=1, zero padding only, got {layer}.")
             layer.register_forward_hook(self._record_inputs)
         self._recording = False
@@ -131,7 +138,7 @@ class KFAC(th.optim.Optimizer):
             a, spatial = inputs[0], 1
             if isinstance(layer, nn.Conv2d):  # (batch, C, H, W) -> patches (batch * L, C * kh * kw)
                 batch = a.shape[0]
-                patches = F.unfold(a, layer.kernel_size, padding=layer.padding, stride=layer.stride)
+                patches = F.unfold(a, layer.kernel_size, padding=layer.padding, stride=layer.stride)  # type: ignore[arg-type]
                 spatial = patches.shape[2]
                 a = patches.transpose(1, 2).reshape(-1, patches.shape[1])
             else:
@@ -140,7 +147,7 @@ class KFAC(th.optim.Optimizer):
             if layer.bias is not None:
                 a = th.cat([a, a.new_ones(a.shape[0], 1)], dim=1)
             a = a / spatial  # convolutions: Grosse and Martens (2016)'s scaling, as ikostrikov's
-            self._update_average(layer.weight, "A", a.T @ a / batch)
+            self._update_average(layer.weight, "A", a.T @ a / batch)  # type: ignore[arg-type]
 
     def _record_output_gradients(self, layer: nn.Module, g: th.Tensor) -> None:
         """Hook on a layer output's gradient: G's batch estimate (only inside record_statistics)."""
@@ -152,7 +159,7 @@ class KFAC(th.optim.Optimizer):
             else:
                 g = g.reshape(-1, g.shape[-1])
             g = g * g.shape[0]  # gradients of a mean over the rows -> per-row gradients
-            self._update_average(layer.weight, "G", g.T @ g / g.shape[0])
+            self._update_average(layer.weight, "G", g.T @ g / g.shape[0])  # type: ignore[arg-type]
 
     def _update_average(self, weight: th.Tensor, name: str, estimate: th.Tensor) -> None:
         """Running average with decay ``stat_decay``, started at the first estimate."""
@@ -190,7 +197,7 @@ class KFAC(th.optim.Optimizer):
                     state[f"Q_{factor}"] = eigenvectors
             gradient = weight.grad.reshape(weight.shape[0], -1)
             if bias is not None:
-                gradient = th.cat([gradient, bias.grad[:, None]], dim=1)
+                gradient = th.cat([gradient, bias.grad[:, None]], dim=1)  # type: ignore[index]
             q_a, q_g = state["Q_A"], state["Q_G"]
             scaled = (q_g.T @ gradient @ q_a) / (state["d_G"][:, None] * state["d_A"][None, :] + group["damping"])
             v = q_g @ scaled @ q_a.T
@@ -211,7 +218,7 @@ class KFAC(th.optim.Optimizer):
         group = self.group
         updates = self.natural_gradients()
         lr = group["lr"]
-        kl_estimate = float(sum((v * p.grad).sum() for p, v in updates.items())) * lr**2
+        kl_estimate = float(sum((v * p.grad).sum() for p, v in updates.items())) * lr**2  # type: ignore[misc, operator]
         self.last_step_scale = min(1.0, math.sqrt(group["kl_clip"] / kl_estimate)) if kl_estimate > 0 else 1.0
         for parameter, v in updates.items():
             state = self.state[parameter]
@@ -334,7 +341,7 @@ class ACKTR(OnPolicyAlgorithm):
     def train(self) -> None:
         """One K-FAC update on the rollout buffer (one batch)."""
         self.policy.set_training_mode(True)
-        optimizer: KFAC = self.policy.optimizer
+        optimizer: KFAC = self.policy.optimizer  # type: ignore[assignment]
         self._update_learning_rate(optimizer)
         rollout = next(self.rollout_buffer.get(batch_size=None))
         actions = rollout.actions
@@ -392,4 +399,3 @@ class ACKTR(OnPolicyAlgorithm):
             reset_num_timesteps=reset_num_timesteps,
             progress_bar=progress_bar,
         )
-

@@ -46,7 +46,8 @@ from sb3_marl.policies import CentralisedCriticPolicy
 #: Policies of the maskable actor-critic learners: sb3-contrib's, plus the centralised critic
 #: (``critic: centralised``, selected by the hyperparameters under this alias).
 ACTOR_CRITIC_POLICIES: dict[str, type[BasePolicy]] = {
-    **MaskablePPO.policy_aliases, "CentralisedCriticPolicy": CentralisedCriticPolicy,
+    **MaskablePPO.policy_aliases,
+    "CentralisedCriticPolicy": CentralisedCriticPolicy,
 }
 
 
@@ -74,8 +75,10 @@ def check_safety_loss_coef(coef: Any) -> float:
 def executed_labels(infos: list[dict[str, Any]]) -> list[int]:
     """Per VecEnv slot of one step: the action the safety supervisor executed where it replaced the
     proposal of an AV still on the road, -1 elsewhere (the labels of the teachers' losses)."""
-    return [int(info["executed_action"]) if info.get("intervened", False) and not info.get("exited", False) else -1
-            for info in infos]
+    return [
+        int(info["executed_action"]) if info.get("intervened", False) and not info.get("exited", False) else -1
+        for info in infos
+    ]
 
 
 class InterventionRecorder(BaseCallback):
@@ -192,13 +195,19 @@ class ActionMaskingMixin(SupervisorTeacher, MaskingLearner):
 
     action_masking: bool = True
 
-    def collect_rollouts(self, env: Any, callback: Any, rollout_buffer: Any, n_rollout_steps: int,
-                         use_masking: bool = True) -> bool:
+    def collect_rollouts(
+        self, env: Any, callback: Any, rollout_buffer: Any, n_rollout_steps: int, use_masking: bool = True
+    ) -> bool:
         """sb3-contrib's masked rollout collection (``MaskablePPO.collect_rollouts``), recording the
         supervisor's interventions for the teacher's loss."""
         callback = self.with_recorder(callback, n_rollout_steps, env.num_envs)
         return MaskablePPO.collect_rollouts(
-            self, env, callback, rollout_buffer, n_rollout_steps, use_masking=use_masking and self.action_masking
+            self,  # type: ignore[arg-type]
+            env,
+            callback,
+            rollout_buffer,
+            n_rollout_steps,
+            use_masking=use_masking and self.action_masking,
         )
 
     def predict(
@@ -212,7 +221,7 @@ class ActionMaskingMixin(SupervisorTeacher, MaskingLearner):
         """The policy's action; ``action_masks`` (batch, 5) bool restricts it to available actions
         (ignored when the model was trained with ``action_masking=False``)."""
         masks = action_masks if self.action_masking else None
-        return self.policy.predict(observation, state, episode_start, deterministic, action_masks=masks)
+        return self.policy.predict(observation, state, episode_start, deterministic, action_masks=masks)  # type: ignore[attr-defined]
 
 
 def _with_action_masking(cls: type, base: type, teacher: bool = True) -> None:
@@ -223,16 +232,16 @@ def _with_action_masking(cls: type, base: type, teacher: bool = True) -> None:
     extra = [inspect.Parameter("action_masking", inspect.Parameter.KEYWORD_ONLY, default=True, annotation=bool)]
     if teacher:
         extra.append(inspect.Parameter("safety_loss_coef", inspect.Parameter.KEYWORD_ONLY, default=0.0, annotation=float))
-    cls.__signature__ = signature.replace(parameters=[*signature.parameters.values(), *extra])
+    cls.__signature__ = signature.replace(parameters=[*signature.parameters.values(), *extra])  # type: ignore[attr-defined]
 
 
-class MaskedPPO(ActionMaskingMixin, MaskablePPO):
+class MaskedPPO(ActionMaskingMixin, MaskablePPO):  # type: ignore[misc]
     """sb3-contrib's ``MaskablePPO`` with the ``action_masking`` switch (see the module doc)."""
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = ACTOR_CRITIC_POLICIES
 
 
-class MaskableACKTR(ActionMaskingMixin, ACKTR):
+class MaskableACKTR(ActionMaskingMixin, ACKTR):  # type: ignore[misc]
     """Our :class:`~sb3_marl.algos.acktr.ACKTR` on sb3-contrib's maskable policy, rollout buffer and
     masked rollouts (see the module doc); ACKTR's update evaluates the actions under their masks."""
 
@@ -242,13 +251,18 @@ class MaskableACKTR(ActionMaskingMixin, ACKTR):
         """As ``MaskablePPO._setup_model`` (maskable policy and rollout buffer), then K-FAC."""
         self._setup_lr_schedule()
         self.set_random_seed(self.seed)
-        self.policy = self.policy_class(
-            self.observation_space, self.action_space, self.lr_schedule, **self.policy_kwargs
-        ).to(self.device)
+        self.policy = self.policy_class(self.observation_space, self.action_space, self.lr_schedule, **self.policy_kwargs).to(  # type: ignore[assignment]
+            self.device
+        )
         buffer_class = MaskableDictRolloutBuffer if isinstance(self.observation_space, spaces.Dict) else MaskableRolloutBuffer
         self.rollout_buffer = buffer_class(
-            self.n_steps, self.observation_space, self.action_space, self.device,
-            gamma=self.gamma, gae_lambda=self.gae_lambda, n_envs=self.n_envs,
+            self.n_steps,
+            self.observation_space,  # type: ignore[arg-type]
+            self.action_space,
+            self.device,
+            gamma=self.gamma,
+            gae_lambda=self.gae_lambda,
+            n_envs=self.n_envs,
         )
         self._setup_optimizer()
 
@@ -273,22 +287,36 @@ class MaskedReplayBuffer(ReplayBuffer):
     returns; after an episode end, of the terminal observation; without one: all available), and
     the action the safety supervisor executed where it replaced the stored one (-1 elsewhere)."""
 
-    def __init__(self, buffer_size: int, observation_space: spaces.Space, action_space: spaces.Discrete,
-                 device: th.device | str = "auto", n_envs: int = 1, optimize_memory_usage: bool = False,
-                 handle_timeout_termination: bool = True) -> None:
+    def __init__(
+        self,
+        buffer_size: int,
+        observation_space: spaces.Space,
+        action_space: spaces.Discrete,
+        device: th.device | str = "auto",
+        n_envs: int = 1,
+        optimize_memory_usage: bool = False,
+        handle_timeout_termination: bool = True,
+    ) -> None:
         if optimize_memory_usage:
             raise ValueError("MaskedReplayBuffer does not support optimize_memory_usage=True.")
         super().__init__(buffer_size, observation_space, action_space, device, n_envs, False, handle_timeout_termination)
         self.next_action_masks = np.ones((self.buffer_size, self.n_envs, int(action_space.n)), dtype=bool)
         self.executed_actions = np.full((self.buffer_size, self.n_envs), -1, dtype=np.int64)
 
-    def add(self, obs: np.ndarray, next_obs: np.ndarray, action: np.ndarray, reward: np.ndarray,
-            done: np.ndarray, infos: list[dict[str, Any]]) -> None:
+    def add(
+        self,
+        obs: np.ndarray,
+        next_obs: np.ndarray,
+        action: np.ndarray,
+        reward: np.ndarray,
+        done: np.ndarray,
+        infos: list[dict[str, Any]],
+    ) -> None:
         self.next_action_masks[self.pos] = [info.get("action_mask", True) for info in infos]
         self.executed_actions[self.pos] = executed_labels(infos)
         super().add(obs, next_obs, action, reward, done, infos)
 
-    def _get_samples(self, batch_inds: np.ndarray, env: Any = None) -> MaskedReplayBufferSamples:
+    def _get_samples(self, batch_inds: np.ndarray, env: Any = None) -> MaskedReplayBufferSamples:  # type: ignore[override]
         """SB3's ``ReplayBuffer._get_samples`` (without the memory-optimised layout) plus the masks."""
         env_indices = np.random.randint(0, high=self.n_envs, size=(len(batch_inds),))
         data = (
@@ -323,8 +351,15 @@ class MaskableDQN(MaskingLearner, DQN):
     #: DQfD's margin of the supervisor's action over the others (Hester et al. 2018: 0.8)
     SAFETY_MARGIN = 0.8
 
-    def __init__(self, policy: Any, env: GymEnv | str | None, *args: Any, action_masking: bool = True,
-                 safety_loss_coef: float = 0.0, **kwargs: Any):
+    def __init__(
+        self,
+        policy: Any,
+        env: GymEnv | str | None,
+        *args: Any,
+        action_masking: bool = True,
+        safety_loss_coef: float = 0.0,
+        **kwargs: Any,
+    ):
         if (action_masking or safety_loss_coef) and kwargs.get("replay_buffer_class") is None:
             kwargs["replay_buffer_class"] = MaskedReplayBuffer
         super().__init__(policy, env, *args, action_masking=action_masking, safety_loss_coef=safety_loss_coef, **kwargs)
@@ -339,7 +374,7 @@ class MaskableDQN(MaskingLearner, DQN):
         margins = th.full_like(q, self.SAFETY_MARGIN).scatter(1, labels[:, None], 0.0)
         return ((q + margins).max(dim=1).values - q.gather(1, labels[:, None]).squeeze(1)).mean()
 
-    def predict(
+    def predict(  # type: ignore[override]
         self,
         observation: np.ndarray,
         state: tuple[np.ndarray, ...] | None = None,
@@ -351,7 +386,7 @@ class MaskableDQN(MaskingLearner, DQN):
         of ``action_masks`` (batch, n_actions); without masks, SB3's DQN ``predict``."""
         if action_masks is None or not self.action_masking:
             return super().predict(observation, state, episode_start, deterministic)
-        masks = np.asarray(action_masks, dtype=bool).reshape(-1, int(self.action_space.n))
+        masks = np.asarray(action_masks, dtype=bool).reshape(-1, int(self.action_space.n))  # type: ignore[attr-defined]
         if not deterministic and np.random.rand() < self.exploration_rate:
             return _random_available(masks), state
         obs_tensor, vectorized = self.policy.obs_to_tensor(observation)
@@ -363,11 +398,12 @@ class MaskableDQN(MaskingLearner, DQN):
     def _sample_action(self, learning_starts: int, action_noise: Any = None, n_envs: int = 1) -> tuple[np.ndarray, np.ndarray]:
         if not self.action_masking:
             return super()._sample_action(learning_starts, action_noise, n_envs)
+        assert self.env is not None and self._last_obs is not None, "the DQN collects on its env"
         masks = get_action_masks(self.env)
         if self.num_timesteps < learning_starts:
             actions = _random_available(masks)
         else:
-            actions, _ = self.predict(self._last_obs, deterministic=False, action_masks=masks)
+            actions, _ = self.predict(self._last_obs, deterministic=False, action_masks=masks)  # type: ignore[arg-type]
         return actions, actions
 
     def train(self, gradient_steps: int, batch_size: int = 100) -> None:
@@ -377,8 +413,9 @@ class MaskableDQN(MaskingLearner, DQN):
         self.policy.set_training_mode(True)
         self._update_learning_rate(self.policy.optimizer)
         losses, safety_losses = [], []
+        assert self.replay_buffer is not None
         for _ in range(gradient_steps):
-            replay_data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)
+            replay_data: Any = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)
             discounts = replay_data.discounts if replay_data.discounts is not None else self.gamma
             with th.no_grad():
                 next_q_values = self.q_net_target(replay_data.next_observations)
@@ -441,7 +478,7 @@ class PerAgentDictRolloutBuffer(MaskableDictRolloutBuffer):
         return per_agent_batches(self, super().get)
 
 
-class MaskableA2C(ActionMaskingMixin, MaskablePPO):
+class MaskableA2C(ActionMaskingMixin, MaskablePPO):  # type: ignore[misc]
     """A2C (SB3's arguments and defaults) with invalid-action masking (see the module doc).
 
     :param action_masking: sample only available meta-actions (the authors' MA2C) or all of them
@@ -523,12 +560,21 @@ class MaskableA2C(ActionMaskingMixin, MaskablePPO):
             self.rollout_buffer_class = PerAgentDictRolloutBuffer if dict_obs else PerAgentRolloutBuffer
         super()._setup_model()
 
-    def learn(self, total_timesteps: int, callback: Any = None, log_interval: int = 10, tb_log_name: str = "MA2C",
-              reset_num_timesteps: bool = True, use_masking: bool = True, progress_bar: bool = False) -> MaskableA2C:
+    def learn(  # type: ignore[override]
+        self,
+        total_timesteps: int,
+        callback: Any = None,
+        log_interval: int = 10,
+        tb_log_name: str = "MA2C",
+        reset_num_timesteps: bool = True,
+        use_masking: bool = True,
+        progress_bar: bool = False,
+    ) -> MaskableA2C:
         """sb3-contrib's ``learn``; the logger is dumped every ``log_interval`` updates (10: A2C's
         updates are many and small; MaskablePPO's default of 1 floods the console)."""
-        return super().learn(total_timesteps, callback, log_interval, tb_log_name, reset_num_timesteps, use_masking,
-                             progress_bar)
+        return super().learn(
+            total_timesteps, callback, log_interval, tb_log_name, reset_num_timesteps, use_masking, progress_bar
+        )
 
     def train(self) -> None:
         """One A2C update; also logs the advantages' mean and std (learning diagnostics)."""

@@ -69,8 +69,10 @@ EXPERIMENTS: dict[str, dict[str, tuple[str, str]]] = {
 
 #: Grid name -> the experiments it runs.
 #: The "paper" grid: the paper's five experiments and our intervention-penalty one (81 trials with 3 seeds).
-GRIDS: dict[str, tuple[str, ...]] = {"paper": tuple(e for e in EXPERIMENTS if e not in ("safety", "ctde")),
-                                     **{name: (name,) for name in EXPERIMENTS}}
+GRIDS: dict[str, tuple[str, ...]] = {
+    "paper": tuple(e for e in EXPERIMENTS if e not in ("safety", "ctde")),
+    **{name: (name,) for name in EXPERIMENTS},
+}
 
 
 @dataclass(frozen=True)
@@ -129,7 +131,7 @@ def check_budget(budget: float) -> float:
     return float(budget)
 
 
-def make_grid(grid: str = "paper", densities: tuple[int, ...] = (1, 2, 3), seeds: int = PAPER_SEEDS) -> list[TrialSpec]:
+def make_grid(grid: str = "paper", densities: tuple[int, ...] = tuple(DENSITIES), seeds: int = PAPER_SEEDS) -> list[TrialSpec]:
     """The trials of ``grid`` on ``densities`` with seeds ``0 .. seeds-1``, each trial once.
 
     :raises ValueError: naming the bad grid name, density or seed count
@@ -150,6 +152,16 @@ def make_grid(grid: str = "paper", densities: tuple[int, ...] = (1, 2, 3), seeds
 
 
 __all__ = [
-    "EPISODE_STEPS", "EXPERIMENTS", "GRIDS", "PAPER_ENV_STEPS", "PAPER_EVAL_EPISODES", "PAPER_EVAL_EVERY_EPISODES",
-    "PAPER_SEEDS", "VARIANTS", "TrialSpec", "check_budget", "check_choice", "make_grid",
+    "EPISODE_STEPS",
+    "EXPERIMENTS",
+    "GRIDS",
+    "PAPER_ENV_STEPS",
+    "PAPER_EVAL_EPISODES",
+    "PAPER_EVAL_EVERY_EPISODES",
+    "PAPER_SEEDS",
+    "VARIANTS",
+    "TrialSpec",
+    "check_budget",
+    "check_choice",
+    "make_grid",
 ]

@@ -28,6 +28,7 @@ from sb3_marl.benchmark.grid import (
     make_grid,
 )
 from sb3_marl.benchmark.trial import CHECKPOINT, RESULT, checkpoint_timesteps, final_evaluation, run_trial, trial_folder
+from sb3_marl.envs import DENSITIES
 
 SETTINGS_FILE = "benchmark.json"
 
@@ -53,8 +54,10 @@ def check_settings(log_folder: Path, settings: dict[str, Any]) -> None:
         changed = {key: (recorded.get(key), value) for key, value in settings.items() if recorded.get(key) != value}
         if changed:
             details = ", ".join(f"{key}={new!r} (it has {old!r})" for key, (old, new) in changed.items())
-            raise ValueError(f"{log_folder} holds a benchmark with other settings: {details}; "
-                             "use another --log-folder or the same settings.")
+            raise ValueError(
+                f"{log_folder} holds a benchmark with other settings: {details}; "
+                "use another --log-folder or the same settings."
+            )
 
 
 def run_benchmark(
@@ -62,7 +65,7 @@ def run_benchmark(
     log_folder: str | Path = "logs/benchmark",
     budget: float = 1.0,
     seeds: int = PAPER_SEEDS,
-    densities: tuple[int, ...] = (1, 2, 3),
+    densities: tuple[int, ...] = tuple(DENSITIES),
     eval_every_episodes: float = PAPER_EVAL_EVERY_EPISODES,
     eval_episodes: int = PAPER_EVAL_EPISODES,
     address: str | None = None,
@@ -103,9 +106,11 @@ def run_benchmark(
         else:
             todo.append(spec)
     if verbose:
-        print(f"Benchmark grid {grid!r}: {len(trials)} trials, {len(outcome.skipped)} finished before, {len(todo)} to run "
-              f"(budget {budget:g} x 1M env steps, evaluation: {eval_episodes} episodes every {eval_every_episodes:g} "
-              f"training episodes) in {log_folder}")
+        print(
+            f"Benchmark grid {grid!r}: {len(trials)} trials, {len(outcome.skipped)} finished before, {len(todo)} to run "
+            f"(budget {budget:g} x 1M env steps, evaluation: {eval_episodes} episodes every {eval_every_episodes:g} "
+            f"training episodes) in {log_folder}"
+        )
     if not todo:
         return outcome
 
@@ -115,15 +120,21 @@ def run_benchmark(
         import ray
         from ray import tune
     except ImportError as error:
-        raise ModuleNotFoundError(f"The benchmark runs on Ray Tune, which is not installed ({error}): "
-                                  "pip install 'sb3-marl[ray]' (ray[tune] 2.60).") from None
+        raise ModuleNotFoundError(
+            f"The benchmark runs on Ray Tune, which is not installed ({error}): pip install 'sb3-marl[ray]' (ray[tune] 2.60)."
+        ) from None
 
     log_folder.mkdir(parents=True, exist_ok=True)
     (log_folder / SETTINGS_FILE).write_text(json.dumps(settings, indent=2) + "\n")
     started_ray = not ray.is_initialized()
     if started_ray:
-        ray.init(address=address, num_cpus=None if address else os.cpu_count(), include_dashboard=False,
-                 configure_logging=verbose > 0, log_to_driver=verbose > 1)
+        ray.init(
+            address=address,
+            num_cpus=None if address else os.cpu_count(),
+            include_dashboard=False,
+            configure_logging=verbose > 0,
+            log_to_driver=verbose > 1,
+        )
     if verbose:
         cpus = ray.cluster_resources().get("CPU", 0)
         print(f"Ray cluster at {ray.get_runtime_context().gcs_address}: {cpus:g} CPUs, one per trial")
@@ -131,11 +142,15 @@ def run_benchmark(
     try:
         tuner = tune.Tuner(
             tune.with_resources(run_trial, {"cpu": 1}),
-            param_space={"spec": tune.grid_search([spec.to_dict() for spec in todo]),
-                         "log_folder": str(log_folder), **settings},
+            param_space={
+                "spec": tune.grid_search([spec.to_dict() for spec in todo]),
+                "log_folder": str(log_folder),
+                **settings,
+            },
             tune_config=tune.TuneConfig(
                 max_concurrent_trials=max_concurrent,
-                trial_name_creator=_trial_id, trial_dirname_creator=_trial_id,
+                trial_name_creator=_trial_id,
+                trial_dirname_creator=_trial_id,
             ),
             run_config=tune.RunConfig(
                 name=f"{grid}-{time.strftime('%Y%m%d-%H%M%S')}",
@@ -150,7 +165,7 @@ def run_benchmark(
         if started_ray:
             ray.shutdown()
     outcome.wall_time_s = time.perf_counter() - start
-    errors = {TrialSpec(**r.config["spec"]).trial_id: r.error for r in results if r.error is not None}
+    errors = {TrialSpec(**r.config["spec"]).trial_id: r.error for r in results if r.error is not None}  # type: ignore[attr-defined]
     for spec in todo:
         if (trial_folder(log_folder, spec) / RESULT).is_file():
             outcome.completed.append(spec.trial_id)
@@ -176,8 +191,9 @@ class TrialStatus:
     problem: str | None = None  # why an "unreadable" trial's result could not be read
 
 
-def grid_status(grid: str, log_folder: str | Path, seeds: int = PAPER_SEEDS,
-                densities: tuple[int, ...] = (1, 2, 3)) -> list[TrialStatus]:
+def grid_status(
+    grid: str, log_folder: str | Path, seeds: int = PAPER_SEEDS, densities: tuple[int, ...] = tuple(DENSITIES)
+) -> list[TrialStatus]:
     """Each trial of ``grid`` (as :func:`run_benchmark` would run it into ``log_folder``), in order.
 
     :raises FileNotFoundError: if ``log_folder`` holds no benchmark (no ``benchmark.json``)
@@ -186,8 +202,9 @@ def grid_status(grid: str, log_folder: str | Path, seeds: int = PAPER_SEEDS,
     trials = make_grid(grid, tuple(densities), seeds)
     settings_path = Path(log_folder) / SETTINGS_FILE
     if not settings_path.is_file():
-        raise FileNotFoundError(f"No benchmark in {log_folder}/ (no {SETTINGS_FILE}): run `sb3-marl benchmark "
-                                f"-f {log_folder}` first.")
+        raise FileNotFoundError(
+            f"No benchmark in {log_folder}/ (no {SETTINGS_FILE}): run `sb3-marl benchmark -f {log_folder}` first."
+        )
     budget = json.loads(settings_path.read_text())["budget"]
     statuses = []
     for spec in trials:

@@ -10,7 +10,8 @@ on it. Beside them:
   Tune as the trial's checkpoint, from which Ray restarts a trial whose worker died;
 - ``trial.json``: the trial and its settings, with one entry per attempt (start, host, pid);
 - ``result.json`` (written last): the last periodic evaluation and the paper's final evaluation
-  of the trained model (``paper_evaluation``, :data:`FINAL_EVAL_EPISODES` seeded episodes). A trial with it is finished and skipped
+  of the trained model (``paper_evaluation``, :data:`FINAL_EVAL_EPISODES` seeded episodes).
+  A trial with it is finished and skipped
   when the benchmark runs again; one without it continues from ``checkpoint/``.
 """
 
@@ -75,9 +76,12 @@ class CheckpointAndReport(BaseCallback):
     def _on_step(self) -> bool:
         from ray import tune
 
-        checkpoint = write_checkpoint(self.model, self.folder, self.parent.log_path / "evaluations.npz")
-        tune.report(trial_metrics(self.spec, self.model.num_timesteps, self.parent.last_summary),
-                    checkpoint=tune.Checkpoint.from_directory(str(checkpoint)))
+        evaluation: Any = self.parent  # the ScenarioEvalCallback that calls this one after each evaluation
+        checkpoint = write_checkpoint(self.model, self.folder, evaluation.log_path / "evaluations.npz")
+        tune.report(
+            trial_metrics(self.spec, self.model.num_timesteps, evaluation.last_summary),
+            checkpoint=tune.Checkpoint.from_directory(str(checkpoint)),
+        )
         return True
 
 
@@ -104,8 +108,11 @@ def write_checkpoint(model: Any, folder: Path, evaluations: Path) -> Path:
 
 def trial_metrics(spec: TrialSpec, num_timesteps: int, summary: dict[str, float]) -> dict[str, Any]:
     """What the trial reports to Ray Tune: progress in AV-steps and env steps, and the evaluation."""
-    return {"timesteps": int(num_timesteps), "env_steps": int(spec.env_steps(num_timesteps)),
-            **{f"eval_{k}": v for k, v in summary.items()}}
+    return {
+        "timesteps": int(num_timesteps),
+        "env_steps": int(spec.env_steps(num_timesteps)),
+        **{f"eval_{k}": v for k, v in summary.items()},
+    }
 
 
 def run_trial(config: dict[str, Any]) -> None:
@@ -137,26 +144,59 @@ def run_trial(config: dict[str, Any]) -> None:
         (folder / PREVIOUS_CHECKPOINT).rename(checkpoint)
     resumed_at = checkpoint_timesteps(checkpoint) if checkpoint.is_dir() else 0
 
-    info = json.loads((folder / TRIAL).read_text()) if (folder / TRIAL).is_file() else {
-        "trial": spec.to_dict(), "trial_id": spec.trial_id, "env_id": spec.env_id, "hyperparams": spec.hyperparams,
-        **{key: config[key] for key in SETTINGS}, "attempts": [],
-    }
-    info["attempts"].append({"started": time.strftime("%Y-%m-%dT%H:%M:%S"), "host": socket.gethostname(),
-                             "pid": os.getpid(), "resumed_at_timesteps": resumed_at})
+    info = (
+        json.loads((folder / TRIAL).read_text())
+        if (folder / TRIAL).is_file()
+        else {
+            "trial": spec.to_dict(),
+            "trial_id": spec.trial_id,
+            "env_id": spec.env_id,
+            "hyperparams": spec.hyperparams,
+            **{key: config[key] for key in SETTINGS},
+            "attempts": [],
+        }
+    )
+    info["attempts"].append(
+        {
+            "started": time.strftime("%Y-%m-%dT%H:%M:%S"),
+            "host": socket.gethostname(),
+            "pid": os.getpid(),
+            "resumed_at_timesteps": resumed_at,
+        }
+    )
     write_json(folder / TRIAL, info)
 
-    args = argparse.Namespace(algo=spec.algo, env=spec.env_id, seed=spec.seed, trial_id=spec.trial_id,
-                              variant=spec.variant, **{key: config[key] for key in SETTINGS})
-    manager = MARLExperimentManager(
-        args, spec.algo, spec.env_id, str(folder), run_id=RUN_ID,
-        monitor_file="monitor.csv" if not resumed_at else f"resumed_at_{resumed_at}.monitor.csv",
-        callback_after_eval=CheckpointAndReport(folder, spec), evaluate_at_end=True,
-        tensorboard_log=str(folder / "tensorboard"), n_timesteps=spec.n_timesteps(config["budget"]),
-        eval_freq=spec.eval_freq(config["eval_every_episodes"]), n_eval_episodes=config["eval_episodes"],
-        save_freq=-1, hyperparams=spec.hyperparams, trained_agent=str(checkpoint / "model.zip") if resumed_at else "",
-        seed=spec.seed, log_interval=-1, verbose=0, device="cpu", own_checkpoint=True,
+    args = argparse.Namespace(
+        algo=spec.algo,
+        env=spec.env_id,
+        seed=spec.seed,
+        trial_id=spec.trial_id,
+        variant=spec.variant,
+        **{key: config[key] for key in SETTINGS},
     )
-    model, _ = manager.setup_experiment()
+    manager = MARLExperimentManager(
+        args,
+        spec.algo,
+        spec.env_id,
+        str(folder),
+        run_id=RUN_ID,
+        monitor_file="monitor.csv" if not resumed_at else f"resumed_at_{resumed_at}.monitor.csv",
+        callback_after_eval=CheckpointAndReport(folder, spec),
+        evaluate_at_end=True,
+        tensorboard_log=str(folder / "tensorboard"),
+        n_timesteps=spec.n_timesteps(config["budget"]),
+        eval_freq=spec.eval_freq(config["eval_every_episodes"]),
+        n_eval_episodes=config["eval_episodes"],
+        save_freq=-1,
+        hyperparams=spec.hyperparams,
+        trained_agent=str(checkpoint / "model.zip") if resumed_at else "",
+        seed=spec.seed,
+        log_interval=-1,
+        verbose=0,
+        device="cpu",
+        own_checkpoint=True,
+    )
+    model, _ = manager.setup_experiment()  # type: ignore[misc]
     evaluation = next(c for c in manager.callbacks if isinstance(c, ScenarioEvalCallback))
     if resumed_at:
         evaluation.load_history(checkpoint / "evaluations.npz", resumed_at)
@@ -167,11 +207,14 @@ def run_trial(config: dict[str, Any]) -> None:
     manager.save_trained_model(model)
     wall_time = round(time.perf_counter() - start, 1)
     result = {
-        **info, "num_timesteps": int(model.num_timesteps), "env_steps": int(spec.env_steps(model.num_timesteps)),
+        **info,
+        "num_timesteps": int(model.num_timesteps),
+        "env_steps": int(spec.env_steps(model.num_timesteps)),
         "final_evaluation": evaluation.final_summary(),
         "final_returns": [float(r) for r in evaluation.evaluations["results"][-1]],
         "paper_evaluation": paper_evaluation(model, spec.env_id, manager.scenario.get("env_config")),
-        "wall_time_s": wall_time, "machine": f"{platform.node()} ({os.cpu_count()} cores)",
+        "wall_time_s": wall_time,
+        "machine": f"{platform.node()} ({os.cpu_count()} cores)",
     }
     write_json(folder / RESULT, result)
 
@@ -182,9 +225,12 @@ def paper_evaluation(model: Any, env_id: str, config: dict[str, Any] | None) -> 
     from sb3_marl.evaluation import evaluate_protocols, model_policy, protocol_label
     from sb3_marl.experiment import EVAL_SEED_OFFSET
 
-    return {"episodes": FINAL_EVAL_EPISODES, "seeds": [EVAL_SEED_OFFSET, EVAL_SEED_OFFSET + FINAL_EVAL_EPISODES - 1],
-            "protocol": protocol_label(False, model),
-            **evaluate_protocols(model_policy(model), env_id, FINAL_EVAL_EPISODES, EVAL_SEED_OFFSET, config)}
+    return {
+        "episodes": FINAL_EVAL_EPISODES,
+        "seeds": [EVAL_SEED_OFFSET, EVAL_SEED_OFFSET + FINAL_EVAL_EPISODES - 1],
+        "protocol": protocol_label(False, model),
+        **evaluate_protocols(model_policy(model), env_id, FINAL_EVAL_EPISODES, EVAL_SEED_OFFSET, config),
+    }
 
 
 def reevaluate_trial(folder: Path) -> bool:
@@ -204,8 +250,10 @@ def reevaluate_trial(folder: Path) -> bool:
     if "note" in earlier:
         evaluation["note"] = earlier["note"]
     if earlier and abs(earlier["return_mean"] - evaluation["return_mean"]) > 1e-9:
-        evaluation["note"] = (evaluation.get("note", "") + f" Before the re-evaluation under both supervisor "
-                              f"protocols: return {earlier['return_mean']:.4f}.").strip()
+        evaluation["note"] = (
+            evaluation.get("note", "") + f" Before the re-evaluation under both supervisor "
+            f"protocols: return {earlier['return_mean']:.4f}."
+        ).strip()
     write_json(folder / RESULT, {**result, "paper_evaluation": evaluation})
     return True
 

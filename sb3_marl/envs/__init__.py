@@ -1,11 +1,14 @@
 """The lane-change scenario; importing this module registers its gymnasium ids."""
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 from gymnasium.envs.registration import register, registry
 
 from sb3_marl.envs.config import DENSITIES, default_config, validate_config
+
+if TYPE_CHECKING:
+    from sb3_marl.envs.lane_change_env import LaneChangeEnv
 
 ENV_IDS = {density: f"sb3_marl/LaneChange-density{density}-v0" for density in DENSITIES}
 
@@ -16,6 +19,12 @@ for _density, _env_id in ENV_IDS.items():
             entry_point="sb3_marl.envs.lane_change_env:LaneChangeEnv",
             kwargs={"density": _density},
         )
+
+
+def make_scenario(env_id: str, config: dict[str, Any] | None = None, render_mode: str | None = None) -> "LaneChangeEnv":
+    """The unwrapped scenario env of ``env_id`` with ``config`` overrides (no gymnasium wrappers:
+    the multi-agent runners step it directly)."""
+    return gym.make(env_id, config=dict(config or {}), render_mode=render_mode).unwrapped  # type: ignore[return-value]
 
 
 def __getattr__(name: str) -> Any:
@@ -75,4 +84,16 @@ def av_steps_per_env_step(env_id: str, config: dict[str, Any] | None = None, n_c
     return sum(counts) / len(counts)
 
 
-__all__ = ["ACTIONS", "LaneChangeParallelEnv", "parallel_env", "av_steps_per_env_step", "DENSITIES", "ENV_IDS", "LaneChangeEnv", "av_counts", "copy_av_counts", "default_config", "validate_config"]
+__all__ = [
+    "ACTIONS",
+    "DENSITIES",
+    "ENV_IDS",
+    "LaneChangeEnv",
+    "LaneChangeParallelEnv",
+    "av_counts",
+    "av_steps_per_env_step",
+    "copy_av_counts",
+    "default_config",
+    "parallel_env",
+    "validate_config",
+]

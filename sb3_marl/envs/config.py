@@ -8,6 +8,7 @@ and what is allowed.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Callable
 from numbers import Integral, Real
@@ -107,7 +108,7 @@ def _number(lo: float | None = None, hi: float | None = None, strict_lo: bool = 
 
 def _integer(lo: int, hi: int | None = None) -> tuple[Check, str]:
     def check(v: Any) -> bool:
-        return not isinstance(v, bool) and isinstance(v, Integral) and v >= lo and (hi is None or v <= hi)
+        return not isinstance(v, bool) and isinstance(v, Integral) and lo <= int(v) and (hi is None or int(v) <= hi)
 
     return check, f"an integer >= {lo}" + ("" if hi is None else f" and <= {hi}")
 
@@ -135,8 +136,9 @@ def _speeds() -> tuple[Check, str]:
             return False
         if any(isinstance(x, bool) or not isinstance(x, Real) or not math.isfinite(x) or x < 0 for x in v):
             return False
-        steps = [b - a for a, b in zip(v[:-1], v[1:])]
+        steps = [b - a for a, b in itertools.pairwise(v)]
         return all(s > 0 for s in steps) and max(steps) - min(steps) < 1e-6
+
     return check, "an increasing, evenly spaced list of >= 2 speeds >= 0 (highway-env's MDPVehicle assumes even spacing)"
 
 
@@ -209,9 +211,7 @@ def validate_config(config: dict[str, Any]) -> None:
     """
     unknown = sorted(set(config) - set(_SCHEMA))
     if unknown:
-        raise ValueError(
-            f"Unknown config key(s) {unknown}: allowed keys are {sorted(_SCHEMA)}."
-        )
+        raise ValueError(f"Unknown config key(s) {unknown}: allowed keys are {sorted(_SCHEMA)}.")
     for key, (check, allowed) in _SCHEMA.items():
         value = config[key]
         if key in ("n_avs", "hdv_count_range") and value is None:
@@ -222,13 +222,15 @@ def validate_config(config: dict[str, Any]) -> None:
     avs_lo, avs_hi = DENSITIES[config["density"]]["avs"]
     if config["n_avs"] is not None and not avs_lo <= config["n_avs"] <= avs_hi:
         raise _fail(
-            "n_avs", config["n_avs"],
+            "n_avs",
+            config["n_avs"],
             f"an integer in [{avs_lo}, {avs_hi}], the AV range of density {config['density']}",
         )
     frames = config["simulation_frequency"] / config["policy_frequency"]
     if frames != int(frames):
         raise _fail(
-            "simulation_frequency", config["simulation_frequency"],
+            "simulation_frequency",
+            config["simulation_frequency"],
             f"a multiple of policy_frequency = {config['policy_frequency']}",
         )
     lo, hi = config["reward_speed_range"]
@@ -238,7 +240,8 @@ def validate_config(config: dict[str, Any]) -> None:
     if road_width > config["obs_y_range"]:
         most_lanes = int(config["obs_y_range"] // config["lane_width"]) + 1
         raise _fail(
-            "lanes_count", config["lanes_count"],
+            "lanes_count",
+            config["lanes_count"],
             f"at most {most_lanes} lanes: the observation normalises y by obs_y_range = {config['obs_y_range']} m "
             f"and clips it, so lanes more than {config['obs_y_range']} m from lane 0 would look the same "
             "(raise obs_y_range with lanes_count)",
@@ -248,13 +251,15 @@ def validate_config(config: dict[str, Any]) -> None:
     most_hdvs = resolved_hdv_range(config)[1]
     if n_avs + most_hdvs > slots:
         raise _fail(
-            "spawn_slots_per_lane", config["spawn_slots_per_lane"],
+            "spawn_slots_per_lane",
+            config["spawn_slots_per_lane"],
             f"enough slots for {n_avs} AVs + {most_hdvs} HDVs on {config['lanes_count']} lanes "
             f"(at least {-(-(n_avs + most_hdvs) // config['lanes_count'])} per lane)",
         )
     if config["spawn_spacing"] < 5.0 + 2 * config["spawn_position_noise"] + 1e-9:
         raise _fail(
-            "spawn_position_noise", config["spawn_position_noise"],
+            "spawn_position_noise",
+            config["spawn_position_noise"],
             f"at most (spawn_spacing - 5 m vehicle length) / 2 = {(config['spawn_spacing'] - 5.0) / 2} m "
             "so that spawned vehicles never overlap",
         )

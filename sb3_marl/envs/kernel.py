@@ -54,8 +54,28 @@ LANE_VEHICLE_LENGTH = float(AbstractLane.VEHICLE_LENGTH)  # [m], lanes' end marg
 ON_LANE_MARGIN = 1.0  # [m], highway-env's margin of "on the lane" in its neighbour search
 
 #: Columns of the state array, one row per vehicle in ``road.vehicles`` order.
-(X, Y, HEADING, SPEED, LANE, TARGET_LANE, TARGET_SPEED, IS_HDV, TIMER, CRASHED, COLLIDABLE, PRESENT,
- IMPACT_X, IMPACT_Y, HAS_IMPACT, STEERING, ACCELERATION, POLITENESS, MAX_BRAKING_IMPOSED, MIN_ACC_GAIN) = range(20)
+(
+    X,
+    Y,
+    HEADING,
+    SPEED,
+    LANE,
+    TARGET_LANE,
+    TARGET_SPEED,
+    IS_HDV,
+    TIMER,
+    CRASHED,
+    COLLIDABLE,
+    PRESENT,
+    IMPACT_X,
+    IMPACT_Y,
+    HAS_IMPACT,
+    STEERING,
+    ACCELERATION,
+    POLITENESS,
+    MAX_BRAKING_IMPOSED,
+    MIN_ACC_GAIN,
+) = range(20)
 COLUMNS = 20
 
 
@@ -178,15 +198,22 @@ def _mobil(state: np.ndarray, on_lane: np.ndarray, k: int, lane: int, speed_limi
     self_a = _idm(state, k, old_preceding, speed_limit)
     old_following_a = _idm(state, old_following, k, speed_limit)
     old_following_pred_a = _idm(state, old_following, old_preceding, speed_limit)
-    jerk = self_pred_a - self_a + state[k, POLITENESS] * (
-        new_following_pred_a - new_following_a + old_following_pred_a - old_following_a
+    jerk = (
+        self_pred_a
+        - self_a
+        + state[k, POLITENESS] * (new_following_pred_a - new_following_a + old_following_pred_a - old_following_a)
     )
     return not jerk < state[k, MIN_ACC_GAIN]
 
 
 @numba.njit(cache=True)
 def _change_lane_policy(
-    state: np.ndarray, on_lane: np.ndarray, k: int, n_lanes: int, lane_width: float, road_length: float,
+    state: np.ndarray,
+    on_lane: np.ndarray,
+    k: int,
+    n_lanes: int,
+    lane_width: float,
+    road_length: float,
     speed_limit: float,
 ) -> None:
     """``IDMVehicle.change_lane_policy`` of HDV k (sets its target lane and timer)."""
@@ -199,7 +226,7 @@ def _change_lane_policy(
                     state[k, TARGET_LANE] = lane
                     break
         return
-    if not LANE_CHANGE_DELAY < state[k, TIMER]:
+    if not state[k, TIMER] > LANE_CHANGE_DELAY:
         return
     state[k, TIMER] = 0.0
     for side in (lane - 1, lane + 1):
@@ -367,8 +394,14 @@ def _handle_collision(state: np.ndarray, i: int, j: int, dt: float) -> None:
 
 @numba.njit(cache=True)
 def simulate(
-    state: np.ndarray, frames: int, dt: float, n_lanes: int, lane_width: float, road_length: float,
-    speed_limit: float, exit_x: float,
+    state: np.ndarray,
+    frames: int,
+    dt: float,
+    n_lanes: int,
+    lane_width: float,
+    road_length: float,
+    speed_limit: float,
+    exit_x: float,
 ) -> None:
     """Run ``frames`` frames of ``dt`` s (``Road.act``, ``Road.step``) on ``state`` in place.
 

@@ -49,6 +49,8 @@ class LaneChangeEnv(AbstractEnv):
     episode is truncated early once every AV has left, since nothing remains to decide.
     """
 
+    viewer: EnvViewer | None  # highway-env's renderer (AbstractEnv sets it)
+
     metadata = {"render_modes": ["human", "rgb_array"]}
     #: Classes the scenario is built from (compiled frames); ``simulator.STOCK`` (highway-env's own) and
     #: ``simulator.FAST`` give the same episodes, within rounding (tests/envs/test_kernel.py), slower.
@@ -68,9 +70,7 @@ class LaneChangeEnv(AbstractEnv):
         if density is not None:
             config = {"density": density, **(config or {})}
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(
-                f"Invalid render_mode={render_mode!r}: expected one of {self.metadata['render_modes']} or None."
-            )
+            raise ValueError(f"Invalid render_mode={render_mode!r}: expected one of {self.metadata['render_modes']} or None.")
         self.avs: list[MDPVehicle] = []
         self.n_hdvs = 0
         super().__init__(config=config, render_mode=render_mode)
@@ -126,9 +126,7 @@ class LaneChangeEnv(AbstractEnv):
         self.road = make_road(self.config, self.np_random, self.simulator)
         lo, hi = cfg.resolved_hdv_range(self.config)
         self.n_hdvs = int(self.np_random.integers(lo, hi + 1))
-        self.avs, _ = spawn_vehicles(
-            self.road, self.config, self.n_avs, self.n_hdvs, self.np_random, self.simulator
-        )
+        self.avs, _ = spawn_vehicles(self.road, self.config, self.n_avs, self.n_hdvs, self.np_random, self.simulator)
         self.controlled_vehicles = list(self.avs)
         self._exited = np.zeros(self.n_avs, dtype=bool)
 
@@ -159,7 +157,13 @@ class LaneChangeEnv(AbstractEnv):
         self.done = terminated or truncated
         if self.render_mode == "human":
             self.render()
-        return observe(snapshot, self.config, self._target_speeds()), float(info["rewards"].mean()), terminated, truncated, info
+        return (
+            observe(snapshot, self.config, self._target_speeds()),
+            float(info["rewards"].mean()),
+            terminated,
+            truncated,
+            info,
+        )
 
     def _simulate(self, actions: np.ndarray) -> None:
         """Apply the executed meta-actions and simulate the frames of one policy step.
@@ -219,8 +223,7 @@ class LaneChangeEnv(AbstractEnv):
             _from, _to, lane_id = av.lane_index
             lanes = graph[_from][_to]  # RoadNetwork.side_lanes: the neighbouring ids of this segment
             left, right = (
-                0 <= side < len(lanes) and lanes[side].is_reachable_from(av.position)
-                for side in (lane_id - 1, lane_id + 1)
+                0 <= side < len(lanes) and lanes[side].is_reachable_from(av.position) for side in (lane_id - 1, lane_id + 1)
             )
             rows.append((left, True, right, av.speed_index < av.target_speeds.size - 1, av.speed_index > 0))
         return np.array(rows, dtype=bool).reshape(self.n_avs, len(ACTIONS))
@@ -245,9 +248,7 @@ class LaneChangeEnv(AbstractEnv):
             if not self._exited[i] and av.position[0] > road_length:
                 self._exited[i] = True
                 av.collidable = False
-        self.road.vehicles = [
-            v for v in self.road.vehicles if v.position[0] <= road_length or v in self.controlled_vehicles
-        ]
+        self.road.vehicles = [v for v in self.road.vehicles if v.position[0] <= road_length or v in self.controlled_vehicles]
 
     def _snapshot(self) -> TrafficSnapshot:
         return TrafficSnapshot.capture(self.road.vehicles, self.n_avs, self.config["road_length"])

@@ -48,29 +48,51 @@ def observe(snapshot: TrafficSnapshot, config: dict[str, Any], target_speeds: np
     :param target_speeds: [m/s] the AVs' target speeds, needed with ``obs_target_speed``
     """
     obs = _observe(
-        snapshot.x, snapshot.y, snapshot.vx, snapshot.vy, snapshot.visible, snapshot.n_avs,
-        config["obs_vehicles_count"], float(config["road_length"]), float(config["obs_x_range"]),
-        float(config["obs_y_range"]), float(config["obs_speed_range"]),
+        snapshot.x,
+        snapshot.y,
+        snapshot.vx,
+        snapshot.vy,
+        snapshot.visible,
+        snapshot.n_avs,
+        config["obs_vehicles_count"],
+        float(config["road_length"]),
+        float(config["obs_x_range"]),
+        float(config["obs_y_range"]),
+        float(config["obs_speed_range"]),
     )
     if not config["obs_target_speed"]:
         return obs
-    column = np.zeros(obs.shape[:2] + (1,), dtype=np.float32)
+    column = np.zeros((*obs.shape[:2], 1), dtype=np.float32)
     column[:, 0, 0] = np.clip(np.asarray(target_speeds, dtype=float) / config["obs_speed_range"], -1.0, 1.0)
     return np.concatenate([obs, column], axis=2)
 
 
 @numba.njit(cache=True)
 def _observe(
-    x: np.ndarray, y: np.ndarray, vx: np.ndarray, vy: np.ndarray, visible: np.ndarray, n_avs: int, rows: int,
-    road_length: float, x_range: float, y_range: float, v_range: float,
+    x: np.ndarray,
+    y: np.ndarray,
+    vx: np.ndarray,
+    vy: np.ndarray,
+    visible: np.ndarray,
+    n_avs: int,
+    rows: int,
+    road_length: float,
+    x_range: float,
+    y_range: float,
+    v_range: float,
 ) -> np.ndarray:
     """:func:`observe` on the snapshot's arrays (compiled: a dozen vehicles, called every step).
     Other vehicles are ranked by |dx|, equal distances by index."""
     obs = np.zeros((n_avs, rows, 5), dtype=np.float32)
     distance = np.empty(x.size)
     for i in range(n_avs):
-        obs[i, 0] = (1.0, clip(x[i] / road_length, 0.0, 1.0), clip(y[i] / y_range), clip(vx[i] / v_range),
-                     clip(vy[i] / v_range))
+        obs[i, 0] = (
+            1.0,
+            clip(x[i] / road_length, 0.0, 1.0),
+            clip(y[i] / y_range),
+            clip(vx[i] / v_range),
+            clip(vy[i] / v_range),
+        )
         count = 0
         for j in range(x.size):
             distance[j] = abs(x[j] - x[i])
@@ -80,8 +102,13 @@ def _observe(
                 distance[j] = np.inf
         nearest = np.argsort(distance, kind="mergesort")[: min(count, rows - 1)]  # stable: ties by index
         for row, j in enumerate(nearest):
-            obs[i, row + 1] = (1.0, clip((x[j] - x[i]) / x_range), clip((y[j] - y[i]) / y_range),
-                               clip((vx[j] - vx[i]) / v_range), clip((vy[j] - vy[i]) / v_range))
+            obs[i, row + 1] = (
+                1.0,
+                clip((x[j] - x[i]) / x_range),
+                clip((y[j] - y[i]) / y_range),
+                clip((vx[j] - vx[i]) / v_range),
+                clip((vy[j] - vy[i]) / v_range),
+            )
     return obs
 
 
@@ -94,10 +121,12 @@ def centralised_observation_space(agent_space: spaces.Box, max_avs: int) -> spac
     """Per-AV Dict space of :func:`centralised_observations`: ``observation`` (``agent_space``) and
     ``state``, shape (max_avs, 2 + vehicles * features) in [-1, 1]."""
     state_shape = (max_avs, 2 + int(np.prod(agent_space.shape)))
-    return spaces.Dict({
-        LOCAL_KEY: agent_space,
-        STATE_KEY: spaces.Box(low=-1.0, high=1.0, shape=state_shape, dtype=np.float32),
-    })
+    return spaces.Dict(
+        {
+            LOCAL_KEY: agent_space,
+            STATE_KEY: spaces.Box(low=-1.0, high=1.0, shape=state_shape, dtype=np.float32),
+        }
+    )
 
 
 def centralised_observations(copy_obs: np.ndarray, max_avs: int) -> dict[str, np.ndarray]:

@@ -35,12 +35,11 @@ from __future__ import annotations
 import functools
 from typing import Any
 
-import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
-from sb3_marl.envs import ENV_IDS
+from sb3_marl.envs import ENV_IDS, make_scenario
 from sb3_marl.envs.lane_change_env import ACTIONS, LaneChangeEnv
 from sb3_marl.envs.reward import REWARD_MODES, apply_reward_mode
 
@@ -54,9 +53,14 @@ class LaneChangeParallelEnv(ParallelEnv):
     metadata = {"name": "sb3_marl_lane_change_v0", "render_modes": ["human", "rgb_array"], "is_parallelizable": True}
 
     def __init__(
-        self, density: int = 1, reward_mode: str = "local", render_mode: str | None = None,
-        flatten_observations: bool = False, action_mask_in_observation: bool = False,
-        observation_key: str = "observation", **config: Any
+        self,
+        density: int = 1,
+        reward_mode: str = "local",
+        render_mode: str | None = None,
+        flatten_observations: bool = False,
+        action_mask_in_observation: bool = False,
+        observation_key: str = "observation",
+        **config: Any,
     ) -> None:
         """
         :param density: traffic density, 1, 2 or 3
@@ -73,17 +77,21 @@ class LaneChangeParallelEnv(ParallelEnv):
             raise ValueError(f"Invalid density={density!r}: expected one of {sorted(ENV_IDS)}.")
         if reward_mode not in REWARD_MODES:
             raise ValueError(f"Invalid reward_mode={reward_mode!r}: expected one of {list(REWARD_MODES)}.")
-        for name, flag in (("flatten_observations", flatten_observations),
-                           ("action_mask_in_observation", action_mask_in_observation)):
+        for name, flag in (
+            ("flatten_observations", flatten_observations),
+            ("action_mask_in_observation", action_mask_in_observation),
+        ):
             if not isinstance(flag, bool):
                 raise ValueError(f"Invalid {name}={flag!r}: expected True or False.")
         if not isinstance(observation_key, str) or observation_key in ("", "action_mask"):
-            raise ValueError(f"Invalid observation_key={observation_key!r}: expected a name other than 'action_mask', "
-                             "e.g. 'observation' (PettingZoo's) or 'observations' (RLlib's).")
+            raise ValueError(
+                f"Invalid observation_key={observation_key!r}: expected a name other than 'action_mask', "
+                "e.g. 'observation' (PettingZoo's) or 'observations' (RLlib's)."
+            )
         self.observation_key = observation_key
         self.flatten_observations = flatten_observations
         self.action_mask_in_observation = action_mask_in_observation
-        self.env: LaneChangeEnv = gym.make(ENV_IDS[density], config=config, render_mode=render_mode).unwrapped
+        self.env: LaneChangeEnv = make_scenario(ENV_IDS[density], config, render_mode)
         self.reward_mode = reward_mode
         self.render_mode = render_mode
         self.possible_agents = [f"av_{i}" for i in range(self.env.n_avs)]
@@ -92,21 +100,24 @@ class LaneChangeParallelEnv(ParallelEnv):
         low, high = per_agent.low[0], per_agent.high[0]
         if flatten_observations:
             low, high = low.reshape(-1), high.reshape(-1)
-        self._observation_space = spaces.Box(low=low, high=high, dtype=per_agent.dtype)
-        self.state_space = spaces.Box(low=-1.0, high=1.0, shape=(int(np.prod(per_agent.shape)),), dtype=per_agent.dtype)
+        self._observation_space = spaces.Box(low=low, high=high, dtype=per_agent.dtype)  # type: ignore[arg-type]
+        self.state_space = spaces.Box(low=-1.0, high=1.0, shape=(int(np.prod(per_agent.shape)),), dtype=per_agent.dtype)  # type: ignore[arg-type]
         self._last_obs: np.ndarray | None = None
 
-    @functools.lru_cache(maxsize=None)
+    @functools.cache  # noqa: B019  (PettingZoo's convention: the same space object per agent)
     def observation_space(self, agent: str) -> spaces.Space:
         """The AV's kinematic observation: (obs_vehicles_count, 5) in [-1, 1] (flattened with
         ``flatten_observations``; in a Dict beside ``action_mask`` with ``action_mask_in_observation``)."""
-        box = spaces.Box(low=self._observation_space.low, high=self._observation_space.high,
-                         dtype=self._observation_space.dtype)
+        box = spaces.Box(
+            low=self._observation_space.low,
+            high=self._observation_space.high,
+            dtype=self._observation_space.dtype,  # type: ignore[arg-type]
+        )
         if not self.action_mask_in_observation:
             return box
         return spaces.Dict({self.observation_key: box, "action_mask": spaces.Box(0, 1, (len(ACTIONS),), dtype=np.int8)})
 
-    @functools.lru_cache(maxsize=None)
+    @functools.cache  # noqa: B019  (PettingZoo's convention: the same space object per agent)
     def action_space(self, agent: str) -> spaces.Discrete:
         """The 5 meta-actions (:data:`~sb3_marl.envs.lane_change_env.ACTIONS`)."""
         return spaces.Discrete(len(ACTIONS))
@@ -142,13 +153,17 @@ class LaneChangeParallelEnv(ParallelEnv):
         unknown = sorted(set(actions) - set(self.agents), key=str)
         missing = [agent for agent in self.agents if agent not in actions]
         if unknown or missing:
-            raise ValueError(f"Invalid actions: unknown agent(s) {unknown}, no action for agent(s) {missing}; "
-                             f"expected one per agent in {self.agents}.")
+            raise ValueError(
+                f"Invalid actions: unknown agent(s) {unknown}, no action for agent(s) {missing}; "
+                f"expected one per agent in {self.agents}."
+            )
         for agent, action in actions.items():
-            if isinstance(action, (bool, np.bool_)) or not isinstance(action, (int, np.integer)) or \
-                    not 0 <= action < len(ACTIONS):
-                raise ValueError(f"Invalid action {action!r} for {agent}: expected an integer meta-action in "
-                                 f"{dict(ACTIONS)}.")
+            if (
+                isinstance(action, (bool, np.bool_))
+                or not isinstance(action, (int, np.integer))
+                or not 0 <= action < len(ACTIONS)
+            ):
+                raise ValueError(f"Invalid action {action!r} for {agent}: expected an integer meta-action in {dict(ACTIONS)}.")
         return np.array([int(actions[agent]) for agent in self.possible_agents], dtype=np.int64)
 
     def state(self) -> np.ndarray:
@@ -168,21 +183,26 @@ class LaneChangeParallelEnv(ParallelEnv):
         if not self.action_mask_in_observation:
             return {agent: rows[i] for i, agent in enumerate(self.possible_agents)}
         masks = info["action_mask"].astype(np.int8)
-        return {agent: {self.observation_key: rows[i], "action_mask": masks[i]} for i, agent in enumerate(self.possible_agents)}
+        return {
+            agent: {self.observation_key: rows[i], "action_mask": masks[i]} for i, agent in enumerate(self.possible_agents)
+        }
 
     def _infos(self, info: dict[str, Any]) -> dict[str, dict[str, Any]]:
         """Per-agent infos; the action mask here unless it is in the observation (one place, as
         PettingZoo's masked envs: TorchRL reads whichever it finds)."""
         masks = info["action_mask"].astype(np.int8)
         return {
-            agent: {**({} if self.action_mask_in_observation else {"action_mask": masks[i]}),
-                    **{key: info[key][i] for key in AGENT_INFO}}
+            agent: {
+                **({} if self.action_mask_in_observation else {"action_mask": masks[i]}),
+                **{key: info[key][i] for key in AGENT_INFO},
+            }
             for i, agent in enumerate(self.possible_agents)
         }
 
 
-def parallel_env(density: int = 1, reward_mode: str = "local", render_mode: str | None = None,
-                 **kwargs: Any) -> LaneChangeParallelEnv:
+def parallel_env(
+    density: int = 1, reward_mode: str = "local", render_mode: str | None = None, **kwargs: Any
+) -> LaneChangeParallelEnv:
     """The lane-change scenario as a PettingZoo ``ParallelEnv`` (PettingZoo's constructor name);
     ``kwargs``: ``flatten_observations``, ``action_mask_in_observation``, ``observation_key`` and
     scenario config keys."""

@@ -12,10 +12,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import gymnasium as gym
 import numpy as np
 
-from sb3_marl.envs import ENV_IDS
+from sb3_marl.envs import ENV_IDS, make_scenario
 from sb3_marl.envs.simulator import Simulator
 
 #: Meta-action probabilities (LANE_LEFT, IDLE, LANE_RIGHT, FASTER, SLOWER). Uniform random actions
@@ -29,8 +28,16 @@ def vehicle_states(env) -> np.ndarray:
     steering [rad] and acceleration [m/s²] of the low-level action, road order."""
     return np.array(
         [
-            [*v.position, v.heading, v.speed, v.lane_index[2], v.target_lane_index[2], v.crashed,
-             v.action["steering"], v.action["acceleration"]]
+            [
+                *v.position,
+                v.heading,
+                v.speed,
+                v.lane_index[2],
+                v.target_lane_index[2],
+                v.crashed,
+                v.action["steering"],
+                v.action["acceleration"],
+            ]
             for v in env.road.vehicles
         ],
         dtype=np.float64,
@@ -55,7 +62,7 @@ class Episode:
 def run_episode(simulator: Simulator, density: int, seed: int, policy: str, **config) -> Episode:
     """An episode of ``density`` from ``reset(seed=seed)`` under ``simulator``, the AVs' actions
     drawn from :data:`ACTION_PROBABILITIES` ``[policy]`` by a generator seeded with ``seed``."""
-    env = gym.make(ENV_IDS[density], config=config).unwrapped
+    env = make_scenario(ENV_IDS[density], config)
     env.simulator = simulator
     rng = np.random.default_rng(seed)
     obs, _ = env.reset(seed=seed)
@@ -84,9 +91,7 @@ class Comparison:
     hdv_lane_changes: int = 0
 
 
-def compare(
-    reference: Simulator, candidate: Simulator, density: int, seeds: range, policy: str, **config
-) -> Comparison:
+def compare(reference: Simulator, candidate: Simulator, density: int, seeds: range, policy: str, **config) -> Comparison:
     """Run each seed under both simulators (scenario ``config`` overrides) and compare states,
     observations and events."""
     result = Comparison()

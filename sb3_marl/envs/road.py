@@ -82,7 +82,8 @@ def spawn_vehicles(
     per_lane = config["spawn_slots_per_lane"]
     slots = np_random.choice(len(lanes) * per_lane, size=n_avs + n_hdvs, replace=False)
     noise = np_random.uniform(-1.0, 1.0, size=slots.size) * config["spawn_position_noise"]
-    speeds = np_random.uniform(*config["spawn_speed_range"], size=slots.size)
+    low, high = config["spawn_speed_range"]
+    speeds = np_random.uniform(low, high, size=slots.size)
 
     avs: list[MDPVehicle] = []
     hdvs: list[IDMVehicle] = []

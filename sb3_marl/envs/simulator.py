@@ -309,12 +309,12 @@ class FastControlledVehicle(ControlledVehicle):
         """highway-env's kinematic bicycle step, on floats."""
         self.clip_actions()
         beta = arctan(1 / 2 * tan(self.action["steering"]))
-        heading, speed = self.heading, self.speed
+        heading, speed = self.heading, self.speed  # type: ignore[has-type]
         x, y = xy(self.position)
         self.position[0] = x + speed * cos(heading + beta) * dt
         self.position[1] = y + speed * sin(heading + beta) * dt
-        if self.impact is not None:
-            self.position += self.impact
+        if self.impact is not None:  # type: ignore[has-type]
+            self.position += self.impact  # type: ignore[has-type]
             self.crashed = True
             self.impact = None
         self.heading = heading + speed * sin(beta) / (self.LENGTH / 2) * dt
@@ -342,7 +342,7 @@ class FastMDPVehicle(MDPVehicle, FastControlledVehicle):
             self.target_speed = self.index_to_speed(self.speed_index)
         elif action in ("LANE_LEFT", "LANE_RIGHT"):
             self.follow_road()
-            _from, _to, _id = self.target_lane_index
+            _from, _to, _id = self.target_lane_index  # type: ignore[has-type]
             side = 1 if action == "LANE_RIGHT" else -1
             target = (_from, _to, np.clip(_id + side, 0, len(self.road.network.graph[_from][_to]) - 1))
             if self.road.network.get_lane(target).is_reachable_from(self.position):
@@ -363,13 +363,13 @@ class FastIDMVehicle(IDMVehicle, FastControlledVehicle):
         acceleration = self.acceleration(ego_vehicle=self, front_vehicle=front_vehicle, rear_vehicle=rear_vehicle)
         if self.lane_index != self.target_lane_index:
             front_vehicle, rear_vehicle = self.road.neighbour_vehicles(self, self.target_lane_index)
-            target_acceleration = self.acceleration(
-                ego_vehicle=self, front_vehicle=front_vehicle, rear_vehicle=rear_vehicle
-            )
+            target_acceleration = self.acceleration(ego_vehicle=self, front_vehicle=front_vehicle, rear_vehicle=rear_vehicle)
             acceleration = min(acceleration, target_acceleration)
         Vehicle.act(self, {"steering": steering, "acceleration": clip(acceleration, -self.ACC_MAX, self.ACC_MAX)})
 
-    def acceleration(self, ego_vehicle: ControlledVehicle, front_vehicle: Vehicle = None, rear_vehicle: Vehicle = None) -> float:
+    def acceleration(
+        self, ego_vehicle: ControlledVehicle, front_vehicle: Vehicle = None, rear_vehicle: Vehicle = None
+    ) -> float:
         """IDM acceleration [m/s²] of ``ego_vehicle`` behind ``front_vehicle``."""
         if not ego_vehicle or not isinstance(ego_vehicle, Vehicle):
             return 0
@@ -398,11 +398,7 @@ class FastIDMVehicle(IDMVehicle, FastControlledVehicle):
         else:
             dv = ego_vehicle.speed - front_vehicle.speed
         ab = -self.COMFORT_ACC_MAX * self.COMFORT_ACC_MIN
-        return (
-            self.DISTANCE_WANTED
-            + ego_vehicle.speed * self.TIME_WANTED
-            + ego_vehicle.speed * dv / (2 * float(np.sqrt(ab)))
-        )
+        return self.DISTANCE_WANTED + ego_vehicle.speed * self.TIME_WANTED + ego_vehicle.speed * dv / (2 * float(np.sqrt(ab)))
 
 
 class CompiledRoad(FastRoad):
@@ -415,7 +411,7 @@ class CompiledRoad(FastRoad):
     limit, on one segment; :meth:`compiled_geometry` says whether this road is one.
     """
 
-    _geometry: tuple[int, float, float, float] | None | bool = False  # False: not checked yet
+    _geometry: tuple[int, float, float, float] | bool | None = False  # False: not checked yet
 
     def compiled_geometry(self) -> tuple[int, float, float, float] | None:
         """(lanes, lane width [m], length [m], speed limit [m/s]) of the road, or None if the
@@ -427,18 +423,22 @@ class CompiledRoad(FastRoad):
             if len(segments) == 1 and all(isinstance(lane, FastStraightLane) for lane in lanes):
                 width, length, limit = lanes[0].width, lanes[0]._length, lanes[0].speed_limit
                 if limit is not None and all(
-                    lane._start == [0.0, k * width] and lane._direction == [1.0, 0.0] and lane.width == width
-                    and lane._length == length and lane.speed_limit == limit and not lane.forbidden
+                    lane._start == [0.0, k * width]
+                    and lane._direction == [1.0, 0.0]
+                    and lane.width == width
+                    and lane._length == length
+                    and lane.speed_limit == limit
+                    and not lane.forbidden
                     for k, lane in enumerate(lanes)
                 ):
                     self._geometry = (len(lanes), float(width), float(length), float(limit))
-        return self._geometry
+        return self._geometry  # type: ignore[return-value]
 
     def simulate(self, frames: int, dt: float, exit_x: float) -> None:
         """``frames`` × (``act``, ``step(dt)``) in compiled code; vehicles whose centre passes
         ``exit_x`` m leave after the frame (HDVs are removed, AVs stop colliding)."""
-        n_lanes, lane_width, length, speed_limit = self.compiled_geometry()
-        vehicles = self.vehicles
+        n_lanes, lane_width, length, speed_limit = self.compiled_geometry()  # type: ignore[misc]
+        vehicles = self.vehicles  # type: ignore[has-type]
         state = np.array([_kernel_row(v) for v in vehicles], dtype=np.float64).reshape(-1, kernel.COLUMNS)
         kernel.simulate(state, frames, dt, n_lanes, lane_width, length, speed_limit, exit_x)
         lanes = self.network.lanes_list()
@@ -467,10 +467,21 @@ def _kernel_row(v: Vehicle) -> tuple:
     hdv = isinstance(v, IDMVehicle)
     impact = v.impact
     return (
-        *xy(v.position), v.heading, v.speed, v.lane_index[2], v.target_lane_index[2], v.target_speed, hdv,
-        v.timer if hdv else 0.0, v.crashed, v.collidable, True,
-        *((0.0, 0.0) if impact is None else xy(impact)), impact is not None,
-        v.action["steering"], v.action["acceleration"],
+        *xy(v.position),
+        v.heading,
+        v.speed,
+        v.lane_index[2],
+        v.target_lane_index[2],
+        v.target_speed,
+        hdv,
+        v.timer if hdv else 0.0,
+        v.crashed,
+        v.collidable,
+        True,
+        *((0.0, 0.0) if impact is None else xy(impact)),
+        impact is not None,
+        v.action["steering"],
+        v.action["acceleration"],
         *((v.POLITENESS, v.LANE_CHANGE_MAX_BRAKING_IMPOSED, v.LANE_CHANGE_MIN_ACC_GAIN) if hdv else (0.0, 0.0, 0.0)),
     )
 
@@ -492,6 +503,4 @@ STOCK = Simulator(road=Road, network=RoadNetwork, lane=StraightLane, av=MDPVehic
 FAST = Simulator(road=FastRoad, network=FastRoadNetwork, lane=FastStraightLane, av=FastMDPVehicle, hdv=FastIDMVehicle)
 #: FAST with whole policy steps in compiled code (:class:`CompiledRoad`): equal to highway-env within
 #: a per-step tolerance (see :mod:`sb3_marl.envs.kernel`).
-COMPILED = Simulator(
-    road=CompiledRoad, network=FastRoadNetwork, lane=FastStraightLane, av=FastMDPVehicle, hdv=FastIDMVehicle
-)
+COMPILED = Simulator(road=CompiledRoad, network=FastRoadNetwork, lane=FastStraightLane, av=FastMDPVehicle, hdv=FastIDMVehicle)

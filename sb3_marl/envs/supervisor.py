@@ -50,10 +50,10 @@ from sb3_marl.envs.kernel import (
     KP_A,
     KP_HEADING,
     KP_LATERAL,
+    LANE_VEHICLE_LENGTH,
     LENGTH,
     MAX_SPEED,
     MAX_STEERING_ANGLE,
-    LANE_VEHICLE_LENGTH,
     ON_LANE_MARGIN,
     TIME_WANTED,
     WIDTH,
@@ -83,9 +83,9 @@ def _leader(k: int, lane_y: float, x: np.ndarray, y: np.ndarray, lane_width: flo
     """Index of the nearest vehicle at or ahead of vehicle k on the lane at ``lane_y`` m, or -1."""
     best, best_x = -1, 0.0
     for j in range(x.size):
-        if j != k and abs(y[j] - lane_y) <= lane_width / 2 + ON_LANE_MARGIN and x[j] >= x[k]:
-            if best < 0 or x[j] < best_x:
-                best, best_x = j, x[j]
+        on_lane_ahead = j != k and abs(y[j] - lane_y) <= lane_width / 2 + ON_LANE_MARGIN and x[j] >= x[k]
+        if on_lane_ahead and (best < 0 or x[j] < best_x):
+            best, best_x = j, x[j]
     return best
 
 
@@ -95,8 +95,10 @@ def _idm(k: int, front: int, x: np.ndarray, v: np.ndarray, desired_speed: float,
     ratio = max(v[k], 0.0) / abs(not_zero(desired_speed))
     acceleration = COMFORT_ACC_MAX * (1.0 - ratio**delta)
     if front >= 0:
-        gap = DISTANCE_WANTED + v[k] * TIME_WANTED + v[k] * (v[k] - v[front]) / (
-            2.0 * np.sqrt(-COMFORT_ACC_MAX * COMFORT_ACC_MIN)
+        gap = (
+            DISTANCE_WANTED
+            + v[k] * TIME_WANTED
+            + v[k] * (v[k] - v[front]) / (2.0 * np.sqrt(-COMFORT_ACC_MAX * COMFORT_ACC_MIN))
         )
         acceleration -= COMFORT_ACC_MAX * (gap / not_zero(x[front] - x[k])) ** 2
     return acceleration
@@ -104,10 +106,25 @@ def _idm(k: int, front: int, x: np.ndarray, v: np.ndarray, desired_speed: float,
 
 @numba.njit(cache=True)
 def _predict(
-    x0: np.ndarray, y0: np.ndarray, h0: np.ndarray, v0: np.ndarray, target_y: np.ndarray,
-    target_speed: np.ndarray, is_hdv: np.ndarray, delta: np.ndarray, crashed: np.ndarray, frames: int,
-    dt: float, lane_width: float, n_lanes: int, speed_step: np.ndarray, ladder: np.ndarray,
-    frames_per_step: int, ego: int, collidable: np.ndarray, floor: float,
+    x0: np.ndarray,
+    y0: np.ndarray,
+    h0: np.ndarray,
+    v0: np.ndarray,
+    target_y: np.ndarray,
+    target_speed: np.ndarray,
+    is_hdv: np.ndarray,
+    delta: np.ndarray,
+    crashed: np.ndarray,
+    frames: int,
+    dt: float,
+    lane_width: float,
+    n_lanes: int,
+    speed_step: np.ndarray,
+    ladder: np.ndarray,
+    frames_per_step: int,
+    ego: int,
+    collidable: np.ndarray,
+    floor: float,
 ) -> tuple[np.ndarray, float]:
     """(frames, 4, n) x, y [m], heading [rad] and speed [m/s] of every vehicle after each of
     ``frames`` frames of ``dt`` s, every vehicle driving towards its targets, and the room [m] of
@@ -210,8 +227,14 @@ def _half_extents(heading: float) -> tuple[float, float]:
 
 @numba.njit(cache=True)
 def _set_action(
-    i: int, action: int, target_y: np.ndarray, target_speed: np.ndarray, speed_step: np.ndarray,
-    candidate_y: np.ndarray, candidate_speed: np.ndarray, repeat_actions: bool,
+    i: int,
+    action: int,
+    target_y: np.ndarray,
+    target_speed: np.ndarray,
+    speed_step: np.ndarray,
+    candidate_y: np.ndarray,
+    candidate_speed: np.ndarray,
+    repeat_actions: bool,
 ) -> None:
     """Predict AV ``i`` under meta-action ``action``: its target lane centre [m], target speed [m/s]
     and, with ``repeat_actions``, the speed change repeated at each policy step of the horizon."""
@@ -221,11 +244,28 @@ def _set_action(
 
 @numba.njit(cache=True)
 def supervise_arrays(
-    x: np.ndarray, y: np.ndarray, h: np.ndarray, v: np.ndarray, target_y: np.ndarray,
-    target_speed: np.ndarray, is_hdv: np.ndarray, delta: np.ndarray, crashed: np.ndarray,
-    collidable: np.ndarray, candidate_y: np.ndarray, candidate_speed: np.ndarray,
-    available: np.ndarray, proposed: np.ndarray, frames: int, dt: float, lane_width: float,
-    n_lanes: int, headway_time: float, min_gap: float, ladder: np.ndarray, frames_per_step: int,
+    x: np.ndarray,
+    y: np.ndarray,
+    h: np.ndarray,
+    v: np.ndarray,
+    target_y: np.ndarray,
+    target_speed: np.ndarray,
+    is_hdv: np.ndarray,
+    delta: np.ndarray,
+    crashed: np.ndarray,
+    collidable: np.ndarray,
+    candidate_y: np.ndarray,
+    candidate_speed: np.ndarray,
+    available: np.ndarray,
+    proposed: np.ndarray,
+    frames: int,
+    dt: float,
+    lane_width: float,
+    n_lanes: int,
+    headway_time: float,
+    min_gap: float,
+    ladder: np.ndarray,
+    frames_per_step: int,
     repeat_actions: bool,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The supervisor on arrays (AVs first). Returns the executed actions and each AV's room [m]
@@ -249,8 +289,27 @@ def supervise_arrays(
         margin[i] = (x[front] - x[i] if front >= 0 else NO_LEADER_GAP) - v[i] * headway_time
     order = np.argsort(margin, kind="mergesort")
     # the road predicted under the AVs' current actions, shared by every AV's room until one changes
-    path = _predict(x, y, h, v, target_y, target_speed, is_hdv, delta, crashed, frames, dt, lane_width, n_lanes,
-                    speed_step, ladder, frames_per_step, -1, collidable, -np.inf)[0]
+    path = _predict(
+        x,
+        y,
+        h,
+        v,
+        target_y,
+        target_speed,
+        is_hdv,
+        delta,
+        crashed,
+        frames,
+        dt,
+        lane_width,
+        n_lanes,
+        speed_step,
+        ladder,
+        frames_per_step,
+        -1,
+        collidable,
+        -np.inf,
+    )[0]
     for _ in range(PASSES):
         changed = False
         for i in order:
@@ -265,8 +324,25 @@ def supervise_arrays(
                         _set_action(i, a, target_y, target_speed, speed_step, candidate_y, candidate_speed, repeat_actions)
                         # stopped once it cannot beat the best: such a candidate is never chosen
                         candidate_path, candidate_room = _predict(
-                            x, y, h, v, target_y, target_speed, is_hdv, delta, crashed, frames, dt, lane_width,
-                            n_lanes, speed_step, ladder, frames_per_step, i, collidable, best_room,
+                            x,
+                            y,
+                            h,
+                            v,
+                            target_y,
+                            target_speed,
+                            is_hdv,
+                            delta,
+                            crashed,
+                            frames,
+                            dt,
+                            lane_width,
+                            n_lanes,
+                            speed_step,
+                            ladder,
+                            frames_per_step,
+                            i,
+                            collidable,
+                            best_room,
                         )
                         if candidate_room > best_room:
                             best, best_room, best_path = a, candidate_room, candidate_path
@@ -288,8 +364,27 @@ def supervise_arrays(
         for i in range(n_avs):
             if stuck[i]:
                 _set_action(i, IDLE, trial_y, trial_speed, trial_step, candidate_y, candidate_speed, repeat_actions)
-        trial_path = _predict(x, y, h, v, trial_y, trial_speed, is_hdv, delta, crashed, frames, dt, lane_width,
-                              n_lanes, trial_step, ladder, frames_per_step, -1, collidable, -np.inf)[0]
+        trial_path = _predict(
+            x,
+            y,
+            h,
+            v,
+            trial_y,
+            trial_speed,
+            is_hdv,
+            delta,
+            crashed,
+            frames,
+            dt,
+            lane_width,
+            n_lanes,
+            trial_step,
+            ladder,
+            frames_per_step,
+            -1,
+            collidable,
+            -np.inf,
+        )[0]
         trial_rooms = rooms.copy()
         before, after = np.inf, np.inf
         for i in order:
@@ -306,8 +401,15 @@ def supervise_arrays(
 
 @numba.njit(cache=True)
 def candidate_targets(
-    x: np.ndarray, y: np.ndarray, v: np.ndarray, target_lane: np.ndarray, target_speed: np.ndarray,
-    ladder: np.ndarray, n_lanes: int, lane_width: float, road_length: float,
+    x: np.ndarray,
+    y: np.ndarray,
+    v: np.ndarray,
+    target_lane: np.ndarray,
+    target_speed: np.ndarray,
+    ladder: np.ndarray,
+    n_lanes: int,
+    lane_width: float,
+    road_length: float,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(n_avs, 5) target lane centre y [m] and (n_avs, 5) target speed [m/s] of each AV under each
     meta-action, as highway-env's ``MDPVehicle.act`` would set them (LANE_LEFT 0, IDLE 1,
@@ -348,9 +450,15 @@ def supervise(
     state = np.array(
         [
             (
-                *xy(v.position), v.heading, v.speed, v.target_lane_index[2],
+                *xy(v.position),
+                v.heading,
+                v.speed,
+                v.target_lane_index[2],
                 min(max(v.target_speed, 0.0), speed_limit) if isinstance(v, IDMVehicle) else v.target_speed,
-                isinstance(v, IDMVehicle), getattr(v, "DELTA", 4.0), v.crashed, v.collidable,
+                isinstance(v, IDMVehicle),
+                getattr(v, "DELTA", 4.0),
+                v.crashed,
+                v.collidable,
             )
             for v in vehicles
         ],
@@ -361,17 +469,39 @@ def supervise(
     )
     ladder = np.asarray(config["target_speeds"], dtype=np.float64)
     candidate_y, candidate_speed = candidate_targets(
-        x[:n_avs], y[:n_avs], v[:n_avs], target_lane[:n_avs], target_speed[:n_avs], ladder, n_lanes, lane_width,
+        x[:n_avs],
+        y[:n_avs],
+        v[:n_avs],
+        target_lane[:n_avs],
+        target_speed[:n_avs],
+        ladder,
+        n_lanes,
+        lane_width,
         float(config["road_length"]),
     )
     frames = max(int(round(config["supervisor_horizon"] * config["simulation_frequency"])), 1)
     return supervise_arrays(
-        x, y, h, v, target_lane * lane_width, target_speed, is_hdv > 0, delta, crashed > 0, collidable > 0,
-        candidate_y, candidate_speed,
+        x,
+        y,
+        h,
+        v,
+        target_lane * lane_width,
+        target_speed,
+        is_hdv > 0,
+        delta,
+        crashed > 0,
+        collidable > 0,
+        candidate_y,
+        candidate_speed,
         np.asarray(available, dtype=np.bool_),
         np.asarray(proposed, dtype=np.int64),
-        frames, 1.0 / config["simulation_frequency"], lane_width, n_lanes,
-        float(config["headway_time"]), float(config["supervisor_min_gap"]), ladder,
+        frames,
+        1.0 / config["simulation_frequency"],
+        lane_width,
+        n_lanes,
+        float(config["headway_time"]),
+        float(config["supervisor_min_gap"]),
+        ladder,
         max(config["simulation_frequency"] // config["policy_frequency"], 1),
         bool(config["supervisor_repeat_actions"]),
     )

@@ -40,8 +40,10 @@ class TrafficSnapshot:
         :param road_length: [m] vehicles whose centre is past it are not visible
         """
         state = np.array(
-            [(*xy(v.position), v.speed * cos(v.heading), v.speed * sin(v.heading), v.speed, v.lane_index[2])
-             for v in vehicles],
+            [
+                (*xy(v.position), v.speed * cos(v.heading), v.speed * sin(v.heading), v.speed, v.lane_index[2])
+                for v in vehicles
+            ],
             dtype=np.float64,
         ).reshape(-1, 6)
         x = state[:, 0]

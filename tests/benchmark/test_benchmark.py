@@ -17,7 +17,9 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 
 from sb3_marl.benchmark import GRIDS, make_grid
 from sb3_marl.benchmark.grid import VARIANTS
-from sb3_marl.benchmark.report import acceleration_traces, load_trials, write_report
+from sb3_marl.benchmark.figures import acceleration_traces
+from sb3_marl.benchmark.report import write_report
+from sb3_marl.benchmark.statistics import load_trials
 from sb3_marl.benchmark.runner import run_benchmark
 from sb3_marl.cli import main
 
@@ -50,7 +52,8 @@ def test_grids_hold_each_trial_once():
     # the paper grid shares the default MA2C trials between experiments: 4 algos + 5 MA2C variants
     paper = make_grid("paper")
     assert len(paper) == (4 + 5) * 3 * 2 == len({spec.trial_id for spec in paper})
-    assert set(GRIDS) == {"paper", "baselines", "reward", "sharing", "comfort", "politeness", "penalty", "safety"}
+    assert set(GRIDS) == {"paper", "baselines", "reward", "sharing", "comfort", "politeness", "penalty", "safety",
+                          "ctde"}
     safety = make_grid("safety", seeds=1)
     assert [spec.variant for spec in safety] == ["default"] * 3 + ["safety-training"] * 3
     assert safety[-1].hyperparams == VARIANTS["safety-training"] and safety[-1].hyperparams["supervisor_dropout"] > 0
@@ -253,7 +256,7 @@ def test_without_ray_installed_the_command_says_how_to_install_it(monkeypatch, t
 def test_iqm_and_its_bootstrap_interval_follow_rliable():
     from scipy.stats import trim_mean
 
-    from sb3_marl.benchmark.report import interquartile_mean, iqm_with_ci
+    from sb3_marl.benchmark.statistics import interquartile_mean, iqm_with_ci
 
     rng = np.random.default_rng(3)
     for size in (1, 3, 4, 30, 90, 91):

@@ -217,7 +217,7 @@ def test_one_unreadable_trial_is_named_and_the_rest_listed(tmp_path, capsys):
     assert re.search(r"ma2c_density1_default_seed1 +unreadable", captured.out)
     npz = next((copy / "trials" / "ma2c_density1_default_seed0").glob("ma2c/*_1/evaluations.npz"))
     npz.write_bytes(npz.read_bytes()[:200])
-    from sb3_marl.benchmark.report import load_trials
+    from sb3_marl.benchmark.statistics import load_trials
 
     problems: list[str] = []
     assert load_trials(copy, problems) == [] and any(str(npz) in p for p in problems)

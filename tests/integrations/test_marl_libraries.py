@@ -61,13 +61,22 @@ class RecordingEnv(LaneChangeParallelEnv):
         return (observations, *rest)
 
 
-def test_the_rllib_example_trains_two_iterations_of_shared_masked_ppo(capsys):
+@pytest.fixture
+def ray_shut_down_after():
+    """RLlib starts a local Ray instance; the tests after these must not inherit it."""
+    yield
+    import ray
+
+    ray.shutdown()
+
+
+def test_the_rllib_example_trains_two_iterations_of_shared_masked_ppo(capsys, ray_shut_down_after):
     exec(compile(readme_example("RLlib"), "README.md", "exec"), {})
     lines = [line.split() for line in capsys.readouterr().out.splitlines() if re.fullmatch(r"[01] \d+(\.\d+)?", line)]
     assert [line[0] for line in lines] == ["0", "1"] and float(lines[1][1]) > float(lines[0][1]) > 0
 
 
-def test_rllib_with_the_action_masking_module_never_takes_a_masked_action():
+def test_rllib_with_the_action_masking_module_never_takes_a_masked_action(ray_shut_down_after):
     code = readme_example("RLlib").replace("ParallelPettingZooEnv(parallel_env(", "ParallelPettingZooEnv(RecordingEnv(")
     RecordingEnv.masked_taken = RecordingEnv.actions_seen = 0
     exec(compile(code, "README.md", "exec"), {"RecordingEnv": RecordingEnv})

@@ -62,7 +62,7 @@ def test_episode_records_from_slot_infos_equal_those_from_the_copy():
 
     from sb3_marl.envs import LaneChangeEnv
     from sb3_marl.evaluation import EpisodeRecord
-    from wrappers.parameter_sharing import split_info
+    from wrappers.copies import split_info
 
     env = LaneChangeEnv(config={"density": 3, "safety_supervisor": True})
     env.reset(seed=3)

@@ -1,0 +1,178 @@
+"""Benchmark statistics: the trials' logs, interquartile means with stratified-bootstrap CIs,
+the final evaluation over seeds of every curve, and the hand-written reference policies' summaries."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sb3_marl.benchmark.grid import EPISODE_STEPS, EXPERIMENTS, TrialSpec
+from sb3_marl.benchmark.trial import RESULT, TRIAL, final_evaluation
+from sb3_marl.envs import DENSITIES
+from sb3_marl.files import read_evaluations
+
+#: Driving metrics of the final evaluation, averaged over seeds in the table.
+DRIVING_METRICS = ("collision_rate", "lane_changes_per_episode", "speed_mean", "acceleration_std", "intervention_rate")
+#: Bootstrap resamples of the IQM's confidence interval (rliable's default).
+BOOTSTRAP_REPS = 50_000
+
+
+@dataclass
+class TrialLog:
+    """A trial's logs: its evaluations (``evaluations.npz`` arrays) and its result if finished."""
+
+    spec: TrialSpec
+    evaluations: dict[str, np.ndarray]
+    result: dict[str, Any] | None
+
+    def training_episodes(self) -> np.ndarray:
+        """Evaluation points in training episodes of 100 steps (env steps / 100)."""
+        return self.spec.env_steps(self.evaluations["timesteps"]) / EPISODE_STEPS
+
+    def eval_returns(self) -> np.ndarray:
+        """Mean return of each evaluation."""
+        return self.evaluations["results"].mean(axis=1)
+
+    def final(self) -> dict[str, Any]:
+        """The finished trial's final evaluation: the paper's (30 seeded episodes of the trained
+        model, ``paper_evaluation``) where the trial has it, else its last periodic evaluation."""
+        assert self.result is not None, f"{self.spec.trial_id} has not finished"
+        return final_evaluation(self.result)
+
+
+def load_trials(log_folder: str | Path, problems: list[str] | None = None) -> list[TrialLog]:
+    """Every trial under ``<log_folder>/trials/`` that has evaluated at least once. A trial whose
+    files cannot be read (truncated, edited) is left out, its file and error appended to ``problems``."""
+    trials = []
+    for info_path in sorted(Path(log_folder).glob(f"trials/*/{TRIAL}")):
+        try:
+            spec = TrialSpec(**json.loads(info_path.read_text())["trial"])
+            npz = sorted(info_path.parent.glob(f"{spec.algo}/*_1/evaluations.npz"))
+            if not npz:
+                continue
+            evaluations = read_evaluations(npz[0])
+            result_path = info_path.parent / RESULT
+            try:
+                result = json.loads(result_path.read_text()) if result_path.is_file() else None
+            except ValueError as error:
+                raise ValueError(f"{result_path}: {error}") from None
+        except (ValueError, KeyError, TypeError) as error:
+            if problems is None:
+                raise
+            problems.append(f"{info_path.parent.name}: {error}")
+            continue
+        trials.append(TrialLog(spec, evaluations, result))
+    return trials
+
+
+def select_trials(trials: list[TrialLog], algo: str, variant: str, density: int) -> list[TrialLog]:
+    return sorted(
+        (t for t in trials if (t.spec.algo, t.spec.variant, t.spec.density) == (algo, variant, density)),
+        key=lambda t: t.spec.seed,
+    )
+
+
+def interquartile_mean(scores: np.ndarray, axis: int | None = None) -> np.ndarray:
+    """rliable's IQM: the mean of the middle 50 % of ``scores`` (``scipy.stats.trim_mean`` with
+    0.25 cut from each end, ``int(0.25 n)`` values each side), over ``axis`` (None: all values)."""
+    scores = np.asarray(scores, dtype=float)
+    if axis is None:
+        scores, axis = scores.reshape(-1), 0
+    n = scores.shape[axis]
+    cut = int(0.25 * n)
+    return np.sort(scores, axis=axis).take(np.arange(cut, n - cut), axis=axis).mean(axis=axis)
+
+
+def iqm_with_ci(
+    scores: np.ndarray, reps: int = BOOTSTRAP_REPS, confidence: float = 0.95, seed: int = 0
+) -> tuple[float, float, float]:
+    """IQM of a (runs, tasks) score matrix and its percentile confidence interval by rliable's
+    stratified bootstrap (runs resampled with replacement independently within each task).
+
+    Here runs are a curve's seeds and tasks the 30 seeded evaluation episodes that every seed plays.
+    Seeded, so the same scores give the same interval. (rliable itself is not a dependency: its
+    pinned ``arch<8`` fails to import under pandas 3.)
+    """
+    scores = np.asarray(scores, dtype=float)
+    runs, tasks = scores.shape
+    rows = np.random.default_rng(seed).integers(0, runs, size=(reps, runs, tasks))
+    resampled = np.take_along_axis(np.broadcast_to(scores, (reps, runs, tasks)), rows, axis=1)
+    estimates = interquartile_mean(resampled.reshape(reps, -1), axis=1)
+    tail = 100 * (1 - confidence) / 2
+    low, high = np.percentile(estimates, [tail, 100 - tail])
+    return float(interquartile_mean(scores)), float(low), float(high)
+
+
+def final_over_seeds(trials: list[TrialLog]) -> dict[str, Any] | None:
+    """Mean ± std over seeds of the finished trials' final evaluation return, the IQM of their
+    episode returns with its 95 % CI (where every seed has the paper's final evaluation), and the
+    seed means of the driving metrics; None without a finished trial."""
+    finished = [t for t in trials if t.result is not None]
+    if not finished:
+        return None
+    finals = [t.final() for t in finished]
+    returns = np.array([f["return_mean"] for f in finals])
+    summary: dict[str, Any] = {"seeds": len(finals), "return_mean": float(returns.mean()), "return_std": float(returns.std())}
+    if all("returns" in f for f in finals) and len({len(f["returns"]) for f in finals}) == 1:
+        iqm, low, high = iqm_with_ci(np.array([f["returns"] for f in finals]))
+        summary.update(iqm=iqm, iqm_low=low, iqm_high=high)
+    for metric in DRIVING_METRICS:
+        summary[metric] = float(np.mean([f[metric] for f in finals]))
+    accelerations = [f["acceleration_std"] for f in finals]
+    summary.update(acceleration_std_min=float(min(accelerations)), acceleration_std_max=float(max(accelerations)))
+    summary["env_steps"] = int(np.mean([t.result["env_steps"] for t in finished if t.result is not None]))
+    alone: list[dict[str, Any]] = [f["supervisor_off"] for f in finals if f.get("supervisor_off")]
+    if len(alone) == len(finals):  # the policy alone, where every seed was evaluated without the supervisor
+        returns = np.array([a["return_mean"] for a in alone])
+        summary["supervisor_off"] = {
+            "return_mean": float(returns.mean()),
+            "return_std": float(returns.std()),
+            **{metric: float(np.mean([a[metric] for a in alone])) for metric in ("collision_rate", "yields_per_episode")},
+        }
+        summary["yields_per_episode"] = float(np.mean([f["yields_per_episode"] for f in finals]))
+    return summary
+
+
+def curve_summaries(trials: list[TrialLog]) -> dict[tuple[str, str, int], dict[str, Any] | None]:
+    """:func:`final_over_seeds` of every (algorithm, variant, density) of the experiments, each once
+    (the default MA2C curve appears in every experiment)."""
+    return {
+        (algo, variant, density): final_over_seeds(select_trials(trials, algo, variant, density))
+        for curves in EXPERIMENTS.values()
+        for algo, variant in curves.values()
+        for density in DENSITIES
+    }
+
+
+def reference_summaries(trials: list[TrialLog], log_folder: str | Path, seed: int) -> dict[tuple[str, int], dict[str, Any]]:
+    """Each hand-written policy of :data:`sb3_marl.baselines.BASELINES`, keyed by (name, density), on
+    the final evaluation's episodes (seeds ``seed ..``, the same AV counts) at each density with a
+    finished default MA2C trial, in that trial's scenario config (the zoo's: safety supervisor on).
+
+    The IQM's confidence interval resamples the 30 episodes (a fixed policy: its only randomness
+    is the episodes'), where the learners' resamples seeds."""
+    from sb3_marl.baselines import BASELINES
+    from sb3_marl.benchmark.trial import FINAL_EVAL_EPISODES
+    from sb3_marl.evaluation import protocol_records, summarize
+    from sb3_marl.runs import find_run
+
+    summaries = {}
+    for density in DENSITIES:
+        finished = [t for t in select_trials(trials, "ma2c", "default", density) if t.result is not None]
+        if not finished:
+            continue
+        spec = finished[0].spec
+        config = find_run(Path(log_folder) / "trials" / spec.trial_id, spec.algo, spec.env_id).env_config
+        for name, policy_class in BASELINES.items():
+            protocols = protocol_records(policy_class(), spec.env_id, FINAL_EVAL_EPISODES, seed, config)
+            records = protocols["on"]
+            summary = summarize(records)
+            alone = summarize(protocols["off"])
+            alone["return_std"] = 0.0  # a std over seeds: one fixed policy, like the learners' cells
+            iqm, low, high = iqm_with_ci(np.array([[r.episode_return] for r in records]))
+            summaries[name, density] = {**summary, "iqm": iqm, "iqm_low": low, "iqm_high": high, "supervisor_off": alone}
+    return summaries
