@@ -27,7 +27,7 @@ from tqdm import tqdm
 
 from sb3_marl.baselines import IDMMobilPolicy
 from sb3_marl.benchmark.grid import TrialSpec
-from sb3_marl.benchmark.report import iqm_with_ci
+from sb3_marl.benchmark.statistics import iqm_with_ci
 from sb3_marl.envs import ENV_IDS
 from sb3_marl.evaluation import evaluate_protocols, model_policy
 from sb3_marl.runs import find_run
