@@ -14,13 +14,17 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 import time
+from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 from sb3_marl.envs import DENSITIES
-from sb3_marl.envs.parity import compare
 from sb3_marl.envs.simulator import COMPILED, FAST
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "envs"))  # the parity helpers (test support)
+from parity import compare  # noqa: E402
 
 MIXES = {"uniform": ("uniform", {}), "cruise": ("cruise", {}), "cruise_supervised": ("cruise", {"safety_supervisor": True})}
 

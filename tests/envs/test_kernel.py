@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from helpers import make
 
-from sb3_marl.envs.parity import compare, run_episode
+from parity import compare, run_episode
 from sb3_marl.envs.simulator import COMPILED, FAST, CompiledRoad
 
 #: [m, rad, m/s, m/s²] largest state difference accepted: numpy's SIMD arcsin / arctan / tan /
