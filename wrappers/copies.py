@@ -72,7 +72,8 @@ class CopyRunner:
         self.copy = copy
         self.reward_mode = reward_mode
         self.supervisor_dropout = supervisor_dropout
-        self.scenario_config: dict[str, Any] = self.env.get_wrapper_attr("config")  # the dropout switches its supervisor
+        # the scenario's config, whose safety supervisor the dropout switches (none: not a scenario env)
+        self.scenario_config: dict[str, Any] = getattr(self.env.unwrapped, "config", {})
         self._supervised = bool(self.scenario_config.get("safety_supervisor", False)) if supervisor_dropout else False
         self._dropout_rng = np.random.default_rng()
 
