@@ -314,7 +314,7 @@ def build_parser() -> argparse.ArgumentParser:
         choices=["run", "report", "status", "evaluate"],
         default="run",
         help="run the grid (default), report on it, list where its trials stand, or evaluate "
-        "its finished trials under both supervisor protocols where they lack one",
+        "its finished trials under both supervisor protocols where they lack one or predate the current supervisor",
     )
     benchmark.add_argument(
         "--grid",
@@ -778,7 +778,8 @@ def benchmark(args: argparse.Namespace) -> int:
 
 
 def _benchmark_evaluate(args: argparse.Namespace) -> int:
-    """Re-evaluate every finished trial under ``-f`` that lacks the policy-alone protocol (progress bar)."""
+    """Re-evaluate every finished trial under ``-f`` that lacks the policy-alone protocol or was
+    evaluated under another version of the safety supervisor (progress bar)."""
     from tqdm import tqdm
 
     from sb3_marl.benchmark.trial import RESULT, reevaluate_trial
@@ -788,7 +789,9 @@ def _benchmark_evaluate(args: argparse.Namespace) -> int:
         raise UsageError(f"-f/--log-folder: no finished trial (trials/*/{RESULT}) under {args.log_folder!r}.")
     _set_num_threads(argparse.Namespace(num_threads=1))
     done = [path.parent.name for path in tqdm(results, desc="trials", unit="trial") if reevaluate_trial(path.parent)]
-    print(f"re-evaluated {len(done)} of {len(results)} finished trials under both supervisor protocols")
+    print(
+        f"re-evaluated {len(done)} of {len(results)} finished trials under both supervisor protocols (the current supervisor)"
+    )
     return 0
 
 

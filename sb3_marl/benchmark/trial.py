@@ -222,10 +222,12 @@ def run_trial(config: dict[str, Any]) -> None:
 def paper_evaluation(model: Any, env_id: str, config: dict[str, Any] | None) -> dict[str, Any]:
     """The paper's final evaluation of a trained model: :data:`FINAL_EVAL_EPISODES` seeded
     episodes (seeds 10000..), sampled actions, under both supervisor protocols."""
+    from sb3_marl.envs.supervisor import VERSION
     from sb3_marl.evaluation import evaluate_protocols, model_policy, protocol_label
     from sb3_marl.experiment import EVAL_SEED_OFFSET
 
     return {
+        "supervisor_version": VERSION,
         "episodes": FINAL_EVAL_EPISODES,
         "seeds": [EVAL_SEED_OFFSET, EVAL_SEED_OFFSET + FINAL_EVAL_EPISODES - 1],
         "protocol": protocol_label(False, model),
@@ -236,13 +238,15 @@ def paper_evaluation(model: Any, env_id: str, config: dict[str, Any] | None) -> 
 def reevaluate_trial(folder: Path) -> bool:
     """Replace a finished trial's final evaluation (``paper_evaluation`` of its ``result.json``) by
     one under both supervisor protocols (same model, seeds and episodes) where it lacks the
-    policy-alone protocol or the yields; the supervisor-on return of an earlier evaluation is kept
-    in ``note`` if it differs. Returns whether the trial was re-evaluated."""
+    policy-alone protocol or the yields, or was made under another version of the safety
+    supervisor; the supervisor-on return of an earlier evaluation is kept in ``note`` if it
+    differs. Returns whether the trial was re-evaluated."""
+    from sb3_marl.envs.supervisor import VERSION
     from sb3_marl.runs import find_run
 
     result = json.loads((folder / RESULT).read_text())
     earlier = result.get("paper_evaluation") or {}
-    if "yields_per_episode" in earlier.get("supervisor_off", {}):
+    if earlier.get("supervisor_version") == VERSION and "yields_per_episode" in earlier.get("supervisor_off", {}):
         return False
     spec = TrialSpec(**result["trial"])
     run = find_run(folder, spec.algo, spec.env_id, RUN_ID)
@@ -250,9 +254,9 @@ def reevaluate_trial(folder: Path) -> bool:
     if "note" in earlier:
         evaluation["note"] = earlier["note"]
     if earlier and abs(earlier["return_mean"] - evaluation["return_mean"]) > 1e-9:
+        before = f"supervisor v{earlier.get('supervisor_version', 2)}"
         evaluation["note"] = (
-            evaluation.get("note", "") + f" Before the re-evaluation under both supervisor "
-            f"protocols: return {earlier['return_mean']:.4f}."
+            evaluation.get("note", "") + f" Before the re-evaluation ({before}): return {earlier['return_mean']:.4f}."
         ).strip()
     write_json(folder / RESULT, {**result, "paper_evaluation": evaluation})
     return True

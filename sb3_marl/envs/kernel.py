@@ -242,10 +242,11 @@ def _change_lane_policy(
 
 
 @numba.njit(cache=True)
-def _act(state: np.ndarray, n_lanes: int, lane_width: float, road_length: float, speed_limit: float) -> None:
-    """``Road.act``: every vehicle, in road order, decides steering and acceleration."""
+def lane_occupancy(state: np.ndarray, n_lanes: int, lane_width: float, road_length: float) -> np.ndarray:
+    """(n_lanes, n) bool: which vehicles are on each lane (highway-env's ``lane.on_lane`` with its
+    1 m margin), the membership ``Road.neighbour_vehicles`` searches."""
     n = state.shape[0]
-    on_lane = np.zeros((n_lanes, n), dtype=np.bool_)  # positions are frozen during the act phase
+    on_lane = np.zeros((n_lanes, n), dtype=np.bool_)
     for j in range(n):
         if state[j, PRESENT]:
             for lane in range(n_lanes):
@@ -253,6 +254,20 @@ def _act(state: np.ndarray, n_lanes: int, lane_width: float, road_length: float,
                 on_lane[lane, j] = abs(lateral) <= lane_width / 2 + ON_LANE_MARGIN and (
                     -LANE_VEHICLE_LENGTH <= state[j, X] < road_length + LANE_VEHICLE_LENGTH
                 )
+    return on_lane
+
+
+@numba.njit(cache=True)
+def leader(state: np.ndarray, on_lane: np.ndarray, k: int) -> int:
+    """The vehicle ahead of vehicle k on its own lane (``Road.neighbour_vehicles``' front; -1: none)."""
+    return _neighbours(state, on_lane, k, int(state[k, LANE]))[0]
+
+
+@numba.njit(cache=True)
+def _act(state: np.ndarray, n_lanes: int, lane_width: float, road_length: float, speed_limit: float) -> None:
+    """``Road.act``: every vehicle, in road order, decides steering and acceleration."""
+    n = state.shape[0]
+    on_lane = lane_occupancy(state, n_lanes, lane_width, road_length)  # positions are frozen during the act phase
     for k in range(n):
         if not state[k, PRESENT]:
             continue
@@ -393,6 +408,15 @@ def _handle_collision(state: np.ndarray, i: int, j: int, dt: float) -> None:
 
 
 @numba.njit(cache=True)
+def drive(state: np.ndarray, dt: float, n_lanes: int, lane_width: float, road_length: float, speed_limit: float) -> None:
+    """One frame of the road's driving (``Road.act``, then ``Vehicle.step`` of every vehicle) on
+    ``state`` in place, without the collision test and the road end: the safety supervisor's
+    prediction, with the same equations as :func:`simulate`."""
+    _act(state, n_lanes, lane_width, road_length, speed_limit)
+    _move(state, dt, n_lanes, lane_width, road_length)
+
+
+@numba.njit(cache=True)
 def simulate(
     state: np.ndarray,
     frames: int,
@@ -414,8 +438,7 @@ def simulate(
     """
     n = state.shape[0]
     for _ in range(frames):
-        _act(state, n_lanes, lane_width, road_length, speed_limit)
-        _move(state, dt, n_lanes, lane_width, road_length)
+        drive(state, dt, n_lanes, lane_width, road_length, speed_limit)
         for i in range(n):
             if state[i, PRESENT]:
                 for j in range(i + 1, n):

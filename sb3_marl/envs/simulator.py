@@ -439,7 +439,7 @@ class CompiledRoad(FastRoad):
         ``exit_x`` m leave after the frame (HDVs are removed, AVs stop colliding)."""
         n_lanes, lane_width, length, speed_limit = self.compiled_geometry()  # type: ignore[misc]
         vehicles = self.vehicles  # type: ignore[has-type]
-        state = np.array([_kernel_row(v) for v in vehicles], dtype=np.float64).reshape(-1, kernel.COLUMNS)
+        state = np.array([kernel_row(v) for v in vehicles], dtype=np.float64).reshape(-1, kernel.COLUMNS)
         kernel.simulate(state, frames, dt, n_lanes, lane_width, length, speed_limit, exit_x)
         lanes = self.network.lanes_list()
         kept = []
@@ -462,7 +462,7 @@ class CompiledRoad(FastRoad):
         self.vehicles = kept
 
 
-def _kernel_row(v: Vehicle) -> tuple:
+def kernel_row(v: Vehicle) -> tuple:
     """One vehicle's row of the kernel's state array (see the column names in :mod:`~sb3_marl.envs.kernel`)."""
     hdv = isinstance(v, IDMVehicle)
     impact = v.impact

@@ -6,10 +6,12 @@ speed [m/s] × ``headway_time`` [s]; equal margins: the lower AV index first, so
 reproducible without drawing random numbers). For the AV being served it predicts the next
 ``supervisor_horizon`` s of the whole road, frame by frame at ``simulation_frequency`` Hz:
 
-- every vehicle with highway-env's own controllers and kinematic bicycle model (the equations of
-  :mod:`sb3_marl.envs.simulator`, on a light array copy of the vehicle states: no env copy);
-- HDVs follow their leader by IDM (highway-env's ``IDMVehicle`` parameters, the leader in their
-  lane and, while they change lanes, in the target lane); MOBIL decisions are not predicted;
+- every vehicle with the road's own equations (:func:`sb3_marl.envs.kernel.drive`: highway-env's
+  controllers, the HDVs' IDM and MOBIL lane changes with their timers and abort rule, the
+  kinematic bicycle model and the lane update), on a copy of the road's state array (the kernel's
+  layout, :func:`sb3_marl.envs.simulator.kernel_row`): the prediction is exact for the HDVs as
+  long as the AVs drive as predicted; collisions and the road end are not simulated (the room
+  measures how close the vehicles come);
 - AVs already served keep their (possibly replaced) action, the others their proposed action;
   with ``supervisor_repeat_actions`` (default) every AV repeats its action at each policy step of
   the horizon, as it would if the policy (or the supervisor) chose it again: SLOWER keeps braking
@@ -35,38 +37,34 @@ pays the compile time only once.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, NamedTuple
 
 import numba
 import numpy as np
-from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.kinematics import Vehicle
 
 from sb3_marl.envs.kernel import (
-    ACC_MAX,
-    COMFORT_ACC_MAX,
-    COMFORT_ACC_MIN,
-    DISTANCE_WANTED,
-    KP_A,
-    KP_HEADING,
-    KP_LATERAL,
+    COLLIDABLE,
+    HEADING,
     LANE_VEHICLE_LENGTH,
     LENGTH,
-    MAX_SPEED,
-    MAX_STEERING_ANGLE,
-    ON_LANE_MARGIN,
-    TIME_WANTED,
+    SPEED,
+    TARGET_LANE,
+    TARGET_SPEED,
     WIDTH,
-    arcsin,
-    arctan,
+    X,
+    Y,
     cos,
-    not_zero,
+    drive,
+    lane_occupancy,
+    leader,
     sin,
-    tan,
-    wrap_to_pi,
 )
-from sb3_marl.envs.simulator import xy
+from sb3_marl.envs.simulator import kernel_row
 
+#: Version of the supervisor's decisions; evaluations record it, and ``sb3-marl benchmark evaluate``
+#: re-evaluates trials evaluated under another (history in CHANGELOG.md; 3: the road's own equations).
+VERSION = 3
 NO_LEADER_GAP = 1e6  # [m], headway of an AV without leader (priority only)
 #: Replacement candidates in tie order: IDLE, SLOWER, FASTER, LANE_LEFT, LANE_RIGHT
 #: (highway-env's meta-action indices).
@@ -78,102 +76,50 @@ LANE_LEFT, IDLE, LANE_RIGHT = 0, 1, 2
 PASSES = 2
 
 
-@numba.njit(cache=True)
-def _leader(k: int, lane_y: float, x: np.ndarray, y: np.ndarray, lane_width: float) -> int:
-    """Index of the nearest vehicle at or ahead of vehicle k on the lane at ``lane_y`` m, or -1."""
-    best, best_x = -1, 0.0
-    for j in range(x.size):
-        on_lane_ahead = j != k and abs(y[j] - lane_y) <= lane_width / 2 + ON_LANE_MARGIN and x[j] >= x[k]
-        if on_lane_ahead and (best < 0 or x[j] < best_x):
-            best, best_x = j, x[j]
-    return best
+class Horizon(NamedTuple):
+    """The road and the prediction's time grid (compiled code takes it as one argument)."""
 
-
-@numba.njit(cache=True)
-def _idm(k: int, front: int, x: np.ndarray, v: np.ndarray, desired_speed: float, delta: float) -> float:
-    """highway-env's IDM acceleration [m/s²] of vehicle k behind ``front`` (-1: free road)."""
-    ratio = max(v[k], 0.0) / abs(not_zero(desired_speed))
-    acceleration = COMFORT_ACC_MAX * (1.0 - ratio**delta)
-    if front >= 0:
-        gap = (
-            DISTANCE_WANTED
-            + v[k] * TIME_WANTED
-            + v[k] * (v[k] - v[front]) / (2.0 * np.sqrt(-COMFORT_ACC_MAX * COMFORT_ACC_MIN))
-        )
-        acceleration -= COMFORT_ACC_MAX * (gap / not_zero(x[front] - x[k])) ** 2
-    return acceleration
+    n_lanes: int
+    lane_width: float  # [m]
+    road_length: float  # [m]
+    speed_limit: float  # [m/s]
+    dt: float  # [s] one frame
+    frames: int  # frames predicted
+    frames_per_step: int  # frames of one policy step
+    ladder: np.ndarray  # [m/s] the AVs' target speeds (MDPVehicle.target_speeds)
 
 
 @numba.njit(cache=True)
 def _predict(
-    x0: np.ndarray,
-    y0: np.ndarray,
-    h0: np.ndarray,
-    v0: np.ndarray,
-    target_y: np.ndarray,
-    target_speed: np.ndarray,
-    is_hdv: np.ndarray,
-    delta: np.ndarray,
-    crashed: np.ndarray,
-    frames: int,
-    dt: float,
-    lane_width: float,
-    n_lanes: int,
-    speed_step: np.ndarray,
-    ladder: np.ndarray,
-    frames_per_step: int,
-    ego: int,
-    collidable: np.ndarray,
-    floor: float,
+    state0: np.ndarray, horizon: Horizon, speed_step: np.ndarray, ego: int, collidable: np.ndarray, floor: float
 ) -> tuple[np.ndarray, float]:
-    """(frames, 4, n) x, y [m], heading [rad] and speed [m/s] of every vehicle after each of
-    ``frames`` frames of ``dt`` s, every vehicle driving towards its targets, and the room [m] of
+    """(frames, 4, n) x, y [m], heading [rad] and speed [m/s] of every vehicle after each frame of
+    the road driven from ``state0`` (the kernel's layout, the AVs' targets set), and the room [m] of
     vehicle ``ego`` along it (see :func:`_room`; inf for ``ego`` -1). The prediction stops as soon
     as that room is at most ``floor`` m (it can only shrink): the rest of the path is then unset.
 
-    ``speed_step`` (+1 FASTER, -1 SLOWER, 0 otherwise, per vehicle) repeats a speed change at every
-    policy step (``frames_per_step`` frames) of the horizon, as ``MDPVehicle.act`` would on the
-    speed ``ladder`` [m/s]: the AV keeps its action over the horizon."""
-    n = x0.size
-    x, y, h, v = x0.copy(), y0.copy(), h0.copy(), v0.copy()
-    target_speed = target_speed.copy()
-    acceleration, steering = np.zeros(n), np.zeros(n)
-    path = np.empty((frames, 4, n))
+    ``speed_step`` (+1 FASTER, -1 SLOWER, 0 otherwise, per AV) repeats a speed change at every
+    policy step of the horizon, as ``MDPVehicle.act`` would on the speed ladder: the AV keeps its
+    action over the horizon."""
+    state = state0.copy()
+    n = state.shape[0]
+    path = np.empty((horizon.frames, 4, n))
     room = np.inf
+    ladder = horizon.ladder
     top = ladder.size - 1
-    for frame in range(frames):
-        if frame > 0 and frame % frames_per_step == 0:
-            for k in range(n):
+    for frame in range(horizon.frames):
+        if frame > 0 and frame % horizon.frames_per_step == 0:
+            for k in range(speed_step.size):
                 if speed_step[k] != 0:
-                    target_speed[k] = ladder[min(max(_speed_index(v[k], ladder) + speed_step[k], 0), top)]
-        for k in range(n):  # act: every vehicle decides on the same frozen positions
-            if crashed[k]:
-                acceleration[k], steering[k] = -v[k], 0.0
-                continue
-            lateral_speed = -KP_LATERAL * (y[k] - target_y[k])
-            heading_ref = min(max(arcsin(min(max(lateral_speed / not_zero(v[k]), -1.0), 1.0)), -np.pi / 4), np.pi / 4)
-            heading_rate = KP_HEADING * wrap_to_pi(heading_ref - h[k])
-            slip = arcsin(min(max(LENGTH / 2 / not_zero(v[k]) * heading_rate, -1.0), 1.0))
-            steering[k] = min(max(arctan(2 * tan(slip)), -MAX_STEERING_ANGLE), MAX_STEERING_ANGLE)
-            if is_hdv[k]:
-                lane = min(max(int(np.floor(y[k] / lane_width + 0.5)), 0), n_lanes - 1)
-                a = _idm(k, _leader(k, lane * lane_width, x, y, lane_width), x, v, target_speed[k], delta[k])
-                if abs(target_y[k] - lane * lane_width) > 1e-9:
-                    a = min(a, _idm(k, _leader(k, target_y[k], x, y, lane_width), x, v, target_speed[k], delta[k]))
-                acceleration[k] = min(max(a, -ACC_MAX), ACC_MAX)
-            else:
-                acceleration[k] = KP_A * (target_speed[k] - v[k])
-            if v[k] > MAX_SPEED:
-                acceleration[k] = min(acceleration[k], MAX_SPEED - v[k])
-        for k in range(n):  # step: kinematic bicycle model
-            beta = arctan(0.5 * tan(steering[k]))
-            x[k] += v[k] * cos(h[k] + beta) * dt
-            y[k] += v[k] * sin(h[k] + beta) * dt
-            h[k] += v[k] * sin(beta) / (LENGTH / 2) * dt
-            v[k] += acceleration[k] * dt
-        path[frame, 0], path[frame, 1], path[frame, 2], path[frame, 3] = x, y, h, v
+                    index = min(max(_speed_index(state[k, SPEED], ladder) + speed_step[k], 0), top)
+                    state[k, TARGET_SPEED] = ladder[index]
+        drive(state, horizon.dt, horizon.n_lanes, horizon.lane_width, horizon.road_length, horizon.speed_limit)
+        path[frame, 0], path[frame, 1] = state[:, X], state[:, Y]
+        path[frame, 2], path[frame, 3] = state[:, HEADING], state[:, SPEED]
         if ego >= 0:
-            room = min(room, _frame_room(ego, x, y, h, v, collidable, dt))
+            room = min(
+                room, _frame_room(ego, path[frame, 0], path[frame, 1], path[frame, 2], path[frame, 3], collidable, horizon.dt)
+            )
             if room <= floor:
                 break
     return path, room
@@ -227,89 +173,59 @@ def _half_extents(heading: float) -> tuple[float, float]:
 
 @numba.njit(cache=True)
 def _set_action(
+    state: np.ndarray,
     i: int,
     action: int,
-    target_y: np.ndarray,
-    target_speed: np.ndarray,
     speed_step: np.ndarray,
-    candidate_y: np.ndarray,
+    candidate_lane: np.ndarray,
     candidate_speed: np.ndarray,
     repeat_actions: bool,
 ) -> None:
-    """Predict AV ``i`` under meta-action ``action``: its target lane centre [m], target speed [m/s]
-    and, with ``repeat_actions``, the speed change repeated at each policy step of the horizon."""
-    target_y[i], target_speed[i] = candidate_y[i, action], candidate_speed[i, action]
+    """Predict AV ``i`` under meta-action ``action``: its target lane and target speed [m/s] in
+    ``state`` and, with ``repeat_actions``, the speed change repeated at each policy step."""
+    state[i, TARGET_LANE], state[i, TARGET_SPEED] = candidate_lane[i, action], candidate_speed[i, action]
     speed_step[i] = SPEED_STEP[action] if repeat_actions else 0
 
 
 @numba.njit(cache=True)
 def supervise_arrays(
-    x: np.ndarray,
-    y: np.ndarray,
-    h: np.ndarray,
-    v: np.ndarray,
-    target_y: np.ndarray,
-    target_speed: np.ndarray,
-    is_hdv: np.ndarray,
-    delta: np.ndarray,
-    crashed: np.ndarray,
-    collidable: np.ndarray,
-    candidate_y: np.ndarray,
+    state0: np.ndarray,
+    candidate_lane: np.ndarray,
     candidate_speed: np.ndarray,
     available: np.ndarray,
     proposed: np.ndarray,
-    frames: int,
-    dt: float,
-    lane_width: float,
-    n_lanes: int,
+    horizon: Horizon,
     headway_time: float,
     min_gap: float,
-    ladder: np.ndarray,
-    frames_per_step: int,
     repeat_actions: bool,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The supervisor on arrays (AVs first). Returns the executed actions and each AV's room [m]
-    under them (NaN for AVs not served: those past the road end).
+    """The supervisor on the road's state array (the kernel's layout, AVs first). Returns the
+    executed actions and each AV's room [m] under them (NaN for AVs not served: past the road end).
 
-    :param candidate_y: (n_avs, 5) target lane centre y [m] of each AV under each meta-action
+    :param candidate_lane: (n_avs, 5) target lane of each AV under each meta-action
     :param candidate_speed: (n_avs, 5) target speed [m/s] under each meta-action
     :param available: (n_avs, 5) the action mask
     :param proposed: (n_avs,) the policy's meta-actions
+    :param headway_time: [s] of the priority's headway margin
+    :param min_gap: [m] the smallest room an action may leave
     """
     n_avs = proposed.size
     executed = proposed.copy()
     rooms = np.full(n_avs, np.nan)
-    target_y, target_speed = target_y.copy(), target_speed.copy()
-    speed_step = np.zeros(x.size, dtype=np.int64)
+    state = state0.copy()  # the AVs' targets under the actions being checked
+    collidable = state[:, COLLIDABLE] > 0
+    dt = horizon.dt
+    speed_step = np.zeros(n_avs, dtype=np.int64)
+    on_lane = lane_occupancy(state, horizon.n_lanes, horizon.lane_width, horizon.road_length)
     margin = np.empty(n_avs)
     for i in range(n_avs):
-        _set_action(i, proposed[i], target_y, target_speed, speed_step, candidate_y, candidate_speed, repeat_actions)
-        lane = min(max(int(np.floor(y[i] / lane_width + 0.5)), 0), n_lanes - 1)
-        front = _leader(i, lane * lane_width, x, y, lane_width)
-        margin[i] = (x[front] - x[i] if front >= 0 else NO_LEADER_GAP) - v[i] * headway_time
+        _set_action(state, i, proposed[i], speed_step, candidate_lane, candidate_speed, repeat_actions)
+        front = leader(state, on_lane, i)
+        gap = state[front, X] - state[i, X] if front >= 0 else NO_LEADER_GAP
+        margin[i] = gap - state[i, SPEED] * headway_time
     order = np.argsort(margin, kind="mergesort")
     # the road predicted under the AVs' current actions, shared by every AV's room until one changes
-    path = _predict(
-        x,
-        y,
-        h,
-        v,
-        target_y,
-        target_speed,
-        is_hdv,
-        delta,
-        crashed,
-        frames,
-        dt,
-        lane_width,
-        n_lanes,
-        speed_step,
-        ladder,
-        frames_per_step,
-        -1,
-        collidable,
-        -np.inf,
-    )[0]
+    path = _predict(state, horizon, speed_step, -1, collidable, -np.inf)[0]
     for _ in range(PASSES):
         changed = False
         for i in order:
@@ -321,34 +237,14 @@ def supervise_arrays(
                 best, best_room, best_path = current, room, path
                 for a in PREFERENCE:
                     if available[i, a] and a != current:
-                        _set_action(i, a, target_y, target_speed, speed_step, candidate_y, candidate_speed, repeat_actions)
+                        _set_action(state, i, a, speed_step, candidate_lane, candidate_speed, repeat_actions)
                         # stopped once it cannot beat the best: such a candidate is never chosen
-                        candidate_path, candidate_room = _predict(
-                            x,
-                            y,
-                            h,
-                            v,
-                            target_y,
-                            target_speed,
-                            is_hdv,
-                            delta,
-                            crashed,
-                            frames,
-                            dt,
-                            lane_width,
-                            n_lanes,
-                            speed_step,
-                            ladder,
-                            frames_per_step,
-                            i,
-                            collidable,
-                            best_room,
-                        )
+                        candidate_path, candidate_room = _predict(state, horizon, speed_step, i, collidable, best_room)
                         if candidate_room > best_room:
                             best, best_room, best_path = a, candidate_room, candidate_path
                 changed = changed or best != current
                 executed[i], room, path = best, best_room, best_path
-                _set_action(i, best, target_y, target_speed, speed_step, candidate_y, candidate_speed, repeat_actions)
+                _set_action(state, i, best, speed_step, candidate_lane, candidate_speed, repeat_actions)
             rooms[i] = room
         if not changed:
             break  # another pass would see the same actions and find the same rooms
@@ -360,31 +256,11 @@ def supervise_arrays(
     for i in order:
         stuck[i] = collidable[i] and rooms[i] < min_gap and (executed[i] == LANE_LEFT or executed[i] == LANE_RIGHT)
     if stuck.any():
-        trial_y, trial_speed, trial_step = target_y.copy(), target_speed.copy(), speed_step.copy()
+        trial, trial_step = state.copy(), speed_step.copy()
         for i in range(n_avs):
             if stuck[i]:
-                _set_action(i, IDLE, trial_y, trial_speed, trial_step, candidate_y, candidate_speed, repeat_actions)
-        trial_path = _predict(
-            x,
-            y,
-            h,
-            v,
-            trial_y,
-            trial_speed,
-            is_hdv,
-            delta,
-            crashed,
-            frames,
-            dt,
-            lane_width,
-            n_lanes,
-            trial_step,
-            ladder,
-            frames_per_step,
-            -1,
-            collidable,
-            -np.inf,
-        )[0]
+                _set_action(trial, i, IDLE, trial_step, candidate_lane, candidate_speed, repeat_actions)
+        trial_path = _predict(trial, horizon, trial_step, -1, collidable, -np.inf)[0]
         trial_rooms = rooms.copy()
         before, after = np.inf, np.inf
         for i in order:
@@ -400,35 +276,27 @@ def supervise_arrays(
 
 
 @numba.njit(cache=True)
-def candidate_targets(
-    x: np.ndarray,
-    y: np.ndarray,
-    v: np.ndarray,
-    target_lane: np.ndarray,
-    target_speed: np.ndarray,
-    ladder: np.ndarray,
-    n_lanes: int,
-    lane_width: float,
-    road_length: float,
-) -> tuple[np.ndarray, np.ndarray]:
-    """(n_avs, 5) target lane centre y [m] and (n_avs, 5) target speed [m/s] of each AV under each
-    meta-action, as highway-env's ``MDPVehicle.act`` would set them (LANE_LEFT 0, IDLE 1,
-    LANE_RIGHT 2, FASTER 3, SLOWER 4; a lane change to a lane not reachable from the AV's position
-    and a speed change past the ``ladder`` [m/s] change nothing). Arguments: the AVs' rows."""
-    n_avs, top = x.size, ladder.size - 1
-    candidate_y, candidate_speed = np.empty((n_avs, 5)), np.empty((n_avs, 5))
+def candidate_targets(state: np.ndarray, n_avs: int, horizon: Horizon) -> tuple[np.ndarray, np.ndarray]:
+    """(n_avs, 5) target lane and (n_avs, 5) target speed [m/s] of each AV (the first ``n_avs``
+    rows of ``state``) under each meta-action, as highway-env's ``MDPVehicle.act`` would set them
+    (LANE_LEFT 0, IDLE 1, LANE_RIGHT 2, FASTER 3, SLOWER 4; a lane change to a lane not reachable
+    from the AV's position and a speed change past the ladder change nothing)."""
+    ladder, top = horizon.ladder, horizon.ladder.size - 1
+    lane_width = horizon.lane_width
+    candidate_lane, candidate_speed = np.empty((n_avs, 5)), np.empty((n_avs, 5))
     for i in range(n_avs):
-        lane = int(target_lane[i])
-        candidate_y[i, :] = lane * lane_width
+        lane = int(state[i, TARGET_LANE])
+        candidate_lane[i, :] = lane
         for action, side in ((LANE_LEFT, -1), (LANE_RIGHT, 1)):
-            other = min(max(lane + side, 0), n_lanes - 1)  # StraightLane.is_reachable_from:
-            if abs(y[i] - other * lane_width) <= 2 * lane_width and 0 <= x[i] < road_length + LANE_VEHICLE_LENGTH:
-                candidate_y[i, action] = other * lane_width
-        candidate_speed[i, :] = target_speed[i]
-        index = _speed_index(v[i], ladder)
+            other = min(max(lane + side, 0), horizon.n_lanes - 1)  # StraightLane.is_reachable_from:
+            reachable = abs(state[i, Y] - other * lane_width) <= 2 * lane_width
+            if reachable and 0 <= state[i, X] < horizon.road_length + LANE_VEHICLE_LENGTH:
+                candidate_lane[i, action] = other
+        candidate_speed[i, :] = state[i, TARGET_SPEED]
+        index = _speed_index(state[i, SPEED], ladder)
         candidate_speed[i, 3] = ladder[min(index + 1, top)]
         candidate_speed[i, 4] = ladder[max(index - 1, 0)]
-    return candidate_y, candidate_speed
+    return candidate_lane, candidate_speed
 
 
 def supervise(
@@ -442,66 +310,26 @@ def supervise(
     :param config: the scenario config (lanes, frequencies, ``supervisor_horizon`` [s],
         ``supervisor_min_gap`` [m], ``headway_time`` [s])
     """
-    n_lanes, lane_width = config["lanes_count"], float(config["lane_width"])
-    speed_limit = float(config["speed_limit"])
-    # one row per vehicle; the columns, in order: x, y [m], heading [rad], speed [m/s], target lane,
-    # target speed [m/s] (an HDV's capped by the speed limit, as its IDM does), is HDV, IDM exponent,
-    # crashed, collidable
-    state = np.array(
-        [
-            (
-                *xy(v.position),
-                v.heading,
-                v.speed,
-                v.target_lane_index[2],
-                min(max(v.target_speed, 0.0), speed_limit) if isinstance(v, IDMVehicle) else v.target_speed,
-                isinstance(v, IDMVehicle),
-                getattr(v, "DELTA", 4.0),
-                v.crashed,
-                v.collidable,
-            )
-            for v in vehicles
-        ],
-        dtype=np.float64,
-    ).reshape(-1, 10)
-    x, y, h, v, target_lane, target_speed, is_hdv, delta, crashed, collidable = (
-        np.ascontiguousarray(column) for column in state.T
+    state = np.array([kernel_row(v) for v in vehicles], dtype=np.float64)
+    horizon = Horizon(
+        n_lanes=int(config["lanes_count"]),
+        lane_width=float(config["lane_width"]),
+        road_length=float(config["road_length"]),
+        speed_limit=float(config["speed_limit"]),
+        dt=1.0 / config["simulation_frequency"],
+        frames=max(int(round(config["supervisor_horizon"] * config["simulation_frequency"])), 1),
+        frames_per_step=max(config["simulation_frequency"] // config["policy_frequency"], 1),
+        ladder=np.asarray(config["target_speeds"], dtype=np.float64),
     )
-    ladder = np.asarray(config["target_speeds"], dtype=np.float64)
-    candidate_y, candidate_speed = candidate_targets(
-        x[:n_avs],
-        y[:n_avs],
-        v[:n_avs],
-        target_lane[:n_avs],
-        target_speed[:n_avs],
-        ladder,
-        n_lanes,
-        lane_width,
-        float(config["road_length"]),
-    )
-    frames = max(int(round(config["supervisor_horizon"] * config["simulation_frequency"])), 1)
+    candidate_lane, candidate_speed = candidate_targets(state, n_avs, horizon)
     return supervise_arrays(
-        x,
-        y,
-        h,
-        v,
-        target_lane * lane_width,
-        target_speed,
-        is_hdv > 0,
-        delta,
-        crashed > 0,
-        collidable > 0,
-        candidate_y,
+        state,
+        candidate_lane,
         candidate_speed,
         np.asarray(available, dtype=np.bool_),
         np.asarray(proposed, dtype=np.int64),
-        frames,
-        1.0 / config["simulation_frequency"],
-        lane_width,
-        n_lanes,
+        horizon,
         float(config["headway_time"]),
         float(config["supervisor_min_gap"]),
-        ladder,
-        max(config["simulation_frequency"] // config["policy_frequency"], 1),
         bool(config["supervisor_repeat_actions"]),
     )
