@@ -29,6 +29,7 @@ from sb3_marl.baselines import IDMMobilPolicy
 from sb3_marl.benchmark.grid import TrialSpec
 from sb3_marl.benchmark.statistics import iqm_with_ci
 from sb3_marl.envs import ENV_IDS
+from sb3_marl.envs.supervisor import VERSION as SUPERVISOR_VERSION
 from sb3_marl.evaluation import evaluate_protocols, model_policy
 from sb3_marl.runs import find_run
 
@@ -45,9 +46,12 @@ def evaluate_all(args: argparse.Namespace) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     path = out / "heldout.json"
     results = json.loads(path.read_text()) if path.is_file() else {}
+    if results.get("protocol", {}).get("supervisor_version") != SUPERVISOR_VERSION:
+        results = {}  # evaluated under another safety supervisor: start afresh
     results["protocol"] = {"episodes": args.episodes, "seeds": [args.seed, args.seed + args.episodes - 1],
                            "actions": "sampled (the authors' protocol), action masks",
-                           "supervisor": "on (top level) and off (supervisor_off)"}
+                           "supervisor": "on (top level) and off (supervisor_off)",
+                           "supervisor_version": SUPERVISOR_VERSION}
     jobs = [(f"idm-mobil_density{d}", None, d) for d in args.densities]
     jobs += [(TrialSpec(args.algo, d, v, s).trial_id, TrialSpec(args.algo, d, v, s), d)
              for v in args.variants for d in args.densities for s in range(args.seeds)]
