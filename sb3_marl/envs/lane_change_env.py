@@ -138,12 +138,14 @@ class LaneChangeEnv(AbstractEnv):
             raise RuntimeError("The episode is over (terminated or truncated): call reset() before step().")
         proposed = self._check_actions(action)
         actions = proposed
+        # the road's state, captured once per step: the supervisor predicts from it, the compiled road moves it
+        state = self.road.capture() if self._compiled() else None
         if self.config["safety_supervisor"]:
-            actions, _ = supervise(self.road.vehicles, self.n_avs, proposed, self.action_masks(), self.config)
+            actions, _ = supervise(self.road.vehicles, self.n_avs, proposed, self.action_masks(), self.config, state)
         speed_before = np.array([av.speed for av in self.avs])
         lanes_before = [av.target_lane_index for av in self.avs]
 
-        self._simulate(actions)
+        self._simulate(actions, state)
         self.time += 1.0 / self.config["policy_frequency"]
 
         snapshot = self._snapshot()
@@ -165,8 +167,20 @@ class LaneChangeEnv(AbstractEnv):
             info,
         )
 
-    def _simulate(self, actions: np.ndarray) -> None:
-        """Apply the executed meta-actions and simulate the frames of one policy step.
+    def _compiled(self) -> bool:
+        """Whether this step runs in compiled code: a :class:`~sb3_marl.envs.simulator.CompiledRoad`
+        of the scenario's geometry, and nothing to draw between frames (no viewer, no history)."""
+        road = self.road
+        return (
+            isinstance(road, CompiledRoad)
+            and self.viewer is None
+            and not road.record_history
+            and bool(road.compiled_geometry())
+        )
+
+    def _simulate(self, actions: np.ndarray, state: np.ndarray | None = None) -> None:
+        """Apply the executed meta-actions and simulate the frames of one policy step (``state``:
+        the road's state captured this step, for the compiled road).
 
         With a :class:`~sb3_marl.envs.simulator.CompiledRoad` and nothing to draw between frames
         (no viewer, no trajectory history) the frames run in compiled code; otherwise frame by
@@ -175,10 +189,10 @@ class LaneChangeEnv(AbstractEnv):
         frames = self.config["simulation_frequency"] // self.config["policy_frequency"]
         dt = 1.0 / self.config["simulation_frequency"]
         road = self.road
-        if isinstance(road, CompiledRoad) and self.viewer is None and not road.record_history and road.compiled_geometry():
+        if self._compiled():
             for av, a in zip(self.avs, actions):
                 av.decide(ACTIONS[int(a)])
-            road.simulate(frames, dt, exit_x=self.config["road_length"])
+            road.simulate(frames, dt, exit_x=self.config["road_length"], state=state)
             self.steps += frames
             self._remove_exited()
             return

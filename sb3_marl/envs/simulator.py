@@ -434,12 +434,25 @@ class CompiledRoad(FastRoad):
                     self._geometry = (len(lanes), float(width), float(length), float(limit))
         return self._geometry  # type: ignore[return-value]
 
-    def simulate(self, frames: int, dt: float, exit_x: float) -> None:
+    def capture(self) -> np.ndarray:
+        """The vehicles' state array (:func:`kernel_row` of each, ``road.vehicles`` order)."""
+        return np.array([kernel_row(v) for v in self.vehicles], dtype=np.float64).reshape(-1, kernel.COLUMNS)
+
+    def simulate(self, frames: int, dt: float, exit_x: float, state: np.ndarray | None = None) -> None:
         """``frames`` × (``act``, ``step(dt)``) in compiled code; vehicles whose centre passes
-        ``exit_x`` m leave after the frame (HDVs are removed, AVs stop colliding)."""
+        ``exit_x`` m leave after the frame (HDVs are removed, AVs stop colliding).
+
+        :param state: the :meth:`capture` of this step (the safety supervisor's), whose target
+            lanes and speeds are refreshed from the vehicles (the AVs' meta-actions set them
+            since); None: captured now
+        """
         n_lanes, lane_width, length, speed_limit = self.compiled_geometry()  # type: ignore[misc]
         vehicles = self.vehicles  # type: ignore[has-type]
-        state = np.array([kernel_row(v) for v in vehicles], dtype=np.float64).reshape(-1, kernel.COLUMNS)
+        if state is None:
+            state = self.capture()
+        else:
+            state[:, kernel.TARGET_LANE] = [v.target_lane_index[2] for v in vehicles]
+            state[:, kernel.TARGET_SPEED] = [v.target_speed for v in vehicles]
         kernel.simulate(state, frames, dt, n_lanes, lane_width, length, speed_limit, exit_x)
         lanes = self.network.lanes_list()
         kept = []

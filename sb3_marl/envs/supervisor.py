@@ -300,7 +300,12 @@ def candidate_targets(state: np.ndarray, n_avs: int, horizon: Horizon) -> tuple[
 
 
 def supervise(
-    vehicles: list[Vehicle], n_avs: int, proposed: np.ndarray, available: np.ndarray, config: dict[str, Any]
+    vehicles: list[Vehicle],
+    n_avs: int,
+    proposed: np.ndarray,
+    available: np.ndarray,
+    config: dict[str, Any],
+    state: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Executed meta-actions (n_avs,) and each AV's predicted room [m] (see the module doc).
 
@@ -309,8 +314,10 @@ def supervise(
     :param available: (n_avs, 5) bool action mask
     :param config: the scenario config (lanes, frequencies, ``supervisor_horizon`` [s],
         ``supervisor_min_gap`` [m], ``headway_time`` [s])
+    :param state: the vehicles' state array if already captured (the road's, this step); not modified
     """
-    state = np.array([kernel_row(v) for v in vehicles], dtype=np.float64)
+    if state is None:
+        state = np.array([kernel_row(v) for v in vehicles], dtype=np.float64)
     horizon = Horizon(
         n_lanes=int(config["lanes_count"]),
         lane_width=float(config["lane_width"]),
