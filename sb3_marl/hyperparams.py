@@ -46,7 +46,7 @@ from sb3_marl.policies import (
     ma2c_policy_kwargs,
     ma2c_q_policy_kwargs,
 )
-from wrappers.parameter_sharing import check_reward_scale, check_sharing_options
+from wrappers.parameter_sharing import check_penalty, check_reward_scale, check_sharing_options, check_supervisor_dropout
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "zoo_configs"
 #: Algorithms registered under two names share one file: ``acktr`` reads ``maacktr.yml``.
@@ -162,9 +162,6 @@ VALUE_RANGES: dict[str, tuple[str, float | None, float | None, tuple]] = {
     "stat_decay": ("float", 0, 1, ()),
     "damping": ("float", 0, None, ()),
     "kl_clip": ("float", 0, None, ()),
-    "intervention_penalty": ("float", 0, None, ()),
-    "supervisor_dropout": ("float", 0, 1, ()),
-    "safety_loss_coef": ("float", 0, None, ()),
 }
 
 
@@ -239,6 +236,16 @@ def validate_hyperparams(algo: str, hyperparams: dict[str, Any], env_id: str | N
         raise ValueError(f"Unknown hyperparameter(s) {unknown} for {algo!r}: valid keys are {valid}.")
     for key, value in hyperparams.items():
         check_value(key, value)
+    # keys whose check lives beside the code that uses them (one check each)
+    from sb3_marl.algos.masking import check_safety_loss_coef
+
+    for key, check in (
+        ("intervention_penalty", lambda value: check_penalty(value, "intervention_penalty")),
+        ("supervisor_dropout", check_supervisor_dropout),
+        ("safety_loss_coef", check_safety_loss_coef),
+    ):
+        if key in hyperparams:
+            check(hyperparams[key])
     masking = hyperparams.get("action_masking", True)
     if not isinstance(masking, bool):
         raise ValueError(f"Invalid action_masking={masking!r} for {algo!r}: expected true or false.")

@@ -113,9 +113,9 @@ def test_supervisor_dropout_turns_the_supervisor_off_per_episode_reproducibly():
 @pytest.mark.parametrize(
     ("algo", "params", "message"),
     [
-        ("ma2c", "safety_loss_coef:-1", "Invalid hyperparameter safety_loss_coef=-1"),
-        ("madqn", "safety_loss_coef:'x'", "Invalid hyperparameter safety_loss_coef='x'"),
-        ("ma2c", "supervisor_dropout:1.5", "Invalid hyperparameter supervisor_dropout=1.5"),
+        ("ma2c", "safety_loss_coef:-1", "Invalid safety_loss_coef=-1"),
+        ("madqn", "safety_loss_coef:'x'", "Invalid safety_loss_coef='x'"),
+        ("ma2c", "supervisor_dropout:1.5", "Invalid supervisor_dropout=1.5"),
         ("maacktr", "safety_loss_coef:1.0", "Unknown hyperparameter(s) ['safety_loss_coef']"),
     ],
 )
