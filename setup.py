@@ -1,5 +1,7 @@
 """sb3-marl: multi-agent RL for cooperative lane changing of connected AVs, on Stable-Baselines3."""
 
+from pathlib import Path
+
 from setuptools import find_packages, setup
 
 RAY = ["ray[tune]>=2.60,<2.61"]
@@ -14,7 +16,7 @@ setup(
     name="sb3-marl",
     version="0.1.0",
     description="Stable-Baselines3 extension for multi-agent RL of cooperative AV lane changes in mixed traffic",
-    long_description=open("README.md", encoding="utf-8").read(),
+    long_description=Path("README.md").read_text(encoding="utf-8"),
     long_description_content_type="text/markdown",
     python_requires=">=3.10",
     # zoo_configs/ ships beside the packages, so sb3_marl finds it installed as in a checkout

@@ -8,8 +8,9 @@ Two tasks:
   (the same rollouts, losses and network; only the optimiser differs).
 
 ``--evaluations`` times per run, at even intervals of env steps, each model plays
-``--eval-episodes`` seeded deterministic episodes (CartPole seeds 100...; the scenario's seeds 10000..., the paper's metric). Prints one
-line per evaluation and ``name: value unit`` lines for the final returns and wall times.
+``--eval-episodes`` seeded deterministic episodes (CartPole seeds 100...; the scenario's seeds
+10000..., the paper's metric). Prints one line per evaluation and ``name: value unit`` lines for
+the final returns and wall times.
 
     python benchmarks/acktr_vs_a2c.py [--task cartpole lanechange] [--seeds 0 1] [--cartpole-steps 80000]
         [--lanechange-steps 100000] [--evaluations 4] [--eval-episodes 10]

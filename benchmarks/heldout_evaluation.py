@@ -94,11 +94,11 @@ def table(results: dict, variants: list[str], densities: list[int], seeds: int, 
             if not found:
                 continue
 
-            def cell(metric: str, off: bool = False, spread: bool = True) -> str:
+            def cell(metric: str, off: bool = False, spread: bool = True, found: list = found) -> str:
                 values = np.array([(e["supervisor_off"] if off else e)[metric] for e in found])
                 return f"{values.mean():.2f} ± {values.std():.2f}" if spread else f"{values.mean():.3f}"
 
-            def iqm(off: bool = False) -> str:
+            def iqm(off: bool = False, found: list = found) -> str:
                 returns = [(e["supervisor_off"] if off else e).get("returns") for e in found]
                 if not all(returns):
                     return "—"

@@ -24,7 +24,7 @@ from sb3_marl.envs import DENSITIES
 from sb3_marl.envs.simulator import COMPILED, FAST
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "envs"))  # the parity helpers (test support)
-from parity import compare  # noqa: E402
+from parity import compare
 
 MIXES = {"uniform": ("uniform", {}), "cruise": ("cruise", {}), "cruise_supervised": ("cruise", {"safety_supervisor": True})}
 

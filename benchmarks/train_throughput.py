@@ -103,7 +103,8 @@ def main() -> None:
                     tag = f"{algo}_density{density}_{vec_env}" + ("" if copies is None else f"_{copies}copies")
                     print(f"{tag}_av_steps: {result['av_steps_per_s']:.0f} AV-steps/s")
                     print(f"{tag}_env_steps: {result['env_steps_per_s']:.0f} env-steps/s")
-                    print(f"{tag}_projected_1M_env_steps: {PAPER_ENV_STEPS / result['env_steps_per_s'] / 60:.1f} min", flush=True)
+                    minutes = PAPER_ENV_STEPS / result["env_steps_per_s"] / 60
+                    print(f"{tag}_projected_1M_env_steps: {minutes:.1f} min", flush=True)
 
 
 if __name__ == "__main__":

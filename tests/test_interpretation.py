@@ -12,7 +12,7 @@ from sb3_marl.runs import find_run
 
 #: A committed full-budget MA2C model at density 3 trained without the intervention penalty (it
 #: weaves: dozens of yields in 30 episodes; results/README.md)
-TRIAL = Path(__file__).resolve().parent.parent / "results" / "paper-grid" / "trials" / "ma2c_density3_no-intervention-penalty_seed0"
+TRIAL = Path(__file__).resolve().parents[1] / "results/paper-grid/trials/ma2c_density3_no-intervention-penalty_seed0"
 ENV_ID = "sb3_marl/LaneChange-density3-v0"
 
 

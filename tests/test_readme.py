@@ -72,7 +72,8 @@ def test_the_hyperparameter_search_section_runs_verbatim(tmp_path):
         argv = shlex.split(line)
         completed = subprocess.run([str(executable), *argv[1:]], cwd=tmp_path, capture_output=True, text=True, timeout=600)
         assert completed.returncode == 0, f"{line}\n{completed.stdout[-2000:]}\n{completed.stderr[-2000:]}"
-    storage = optuna.storages.JournalStorage(optuna.storages.journal.JournalFileBackend(str(tmp_path / "logs/ma2c-search.log")))
+    backend = optuna.storages.journal.JournalFileBackend(str(tmp_path / "logs/ma2c-search.log"))
+    storage = optuna.storages.JournalStorage(backend)
     study = optuna.load_study(study_name="ma2c-density1", storage=storage)
     assert len(study.trials) == 5 and study.trials[0].user_attrs["shipped_config"]
     assert (tmp_path / "logs/ma2c/sb3_marl-LaneChange-density1-v0_1/sb3_marl-LaneChange-density1-v0.zip").is_file()

@@ -16,11 +16,11 @@ import pytest
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from sb3_marl.benchmark import GRIDS, make_grid
-from sb3_marl.benchmark.grid import VARIANTS
 from sb3_marl.benchmark.figures import acceleration_traces
+from sb3_marl.benchmark.grid import VARIANTS
 from sb3_marl.benchmark.report import write_report
-from sb3_marl.benchmark.statistics import load_trials
 from sb3_marl.benchmark.runner import run_benchmark
+from sb3_marl.benchmark.statistics import load_trials
 from sb3_marl.cli import main
 
 ray = pytest.importorskip("ray")

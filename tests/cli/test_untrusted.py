@@ -3,6 +3,7 @@ clear message (issue: loading what others share). Each payload below is real: it
 file when unpickled or evaluated, as the tests with ``trust_remote_code`` show."""
 
 import base64
+import contextlib
 import json
 import os
 import re
@@ -79,11 +80,9 @@ def test_a_poisoned_model_zip_is_refused_by_every_command(run, tmp_path, capsys,
         get_algo("ma2c").load(model)
     assert not marker.exists()
     # the payload is real: trusting the file runs it (with a warning naming the file)
-    with pytest.warns(UserWarning, match="trust_remote_code=True"):
-        try:
-            get_algo("ma2c").load(model, trust_remote_code=True)
-        except Exception:
-            pass  # the payload is no policy class; what matters is that it ran
+    # the payload is no policy class (the load then fails): what matters is that it ran
+    with pytest.warns(UserWarning, match="trust_remote_code=True"), contextlib.suppress(Exception):
+        get_algo("ma2c").load(model, trust_remote_code=True)
     assert marker.exists()
 
 
@@ -240,7 +239,7 @@ def test_a_hub_repo_with_bad_results_is_one_message(results, tmp_path):
     snapshot = tmp_path / "snapshot"
     snapshot.mkdir()
     (snapshot / "results.json").write_text(results)
-    with pytest.raises(HubError, match="results.json"):
+    with pytest.raises(HubError, match=r"results\.json"):
         _place_run("org/name", snapshot, tmp_path / "logs")
     assert not (tmp_path / "logs").exists()
 

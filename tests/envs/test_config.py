@@ -64,7 +64,7 @@ def test_default_config_is_valid_and_politeness_one_supported():
 
 
 def test_bad_render_mode():
-    with pytest.raises(ValueError, match="render_mode.*rgb_array"):
+    with pytest.raises(ValueError, match=r"render_mode.*rgb_array"):
         make(1).__class__(render_mode="video")
 
 

@@ -9,8 +9,8 @@ same comparison over hundreds of episodes per density.
 import numpy as np
 import pytest
 from helpers import make
-
 from parity import compare, run_episode
+
 from sb3_marl.envs.simulator import COMPILED, FAST, CompiledRoad
 
 #: [m, rad, m/s, m/s²] largest state difference accepted: numpy's SIMD arcsin / arctan / tan /
@@ -56,7 +56,7 @@ def test_rendered_episodes_match_unrendered_ones():
     env.reset(seed=4)
     env.render()  # creates the viewer: from now on frames run one by one
     rng = np.random.default_rng(4)
-    for step, states in enumerate(plain.states[1:]):
+    for states in plain.states[1:]:
         env.step(rng.choice(5, env.n_avs, p=[0.04, 0.8, 0.04, 0.06, 0.06]))
         np.testing.assert_allclose(
             np.array([[*v.position, v.heading, v.speed] for v in env.road.vehicles]), states[:, :4], atol=TOLERANCE

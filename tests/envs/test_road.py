@@ -51,7 +51,7 @@ def test_mobil_parameters_on_every_hdv(politeness):
             hdvs = env.road.vehicles[env.n_avs :]
             assert hdvs
             for hdv in hdvs:
-                assert hdv.POLITENESS == politeness
+                assert politeness == hdv.POLITENESS
                 assert hdv.LANE_CHANGE_MAX_BRAKING_IMPOSED == 9.0
                 assert hdv.LANE_CHANGE_MIN_ACC_GAIN == 0.1
             *_, terminated, truncated, _ = env.step(np.ones(env.n_avs, dtype=int))

@@ -2,10 +2,10 @@
 
 import numpy as np
 import pytest
+from helpers import make, place
 
 from sb3_marl.envs.lane_change_env import ACTION_INDEX
 from sb3_marl.envs.supervisor import supervise
-from helpers import make, place
 
 FASTER, IDLE, SLOWER = ACTION_INDEX["FASTER"], ACTION_INDEX["IDLE"], ACTION_INDEX["SLOWER"]
 

@@ -16,7 +16,7 @@ from sb3_marl.algos.masking import MaskableA2C
 from sb3_marl.cli import main
 
 sys.path.insert(0, str(Path(__file__).parent))
-from fake_hub import FakeHub  # noqa: E402
+from fake_hub import FakeHub
 
 ENV_NAME = "sb3_marl-LaneChange-density1-v0"
 MODEL = f"ma2c-{ENV_NAME}.zip"

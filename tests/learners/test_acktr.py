@@ -218,7 +218,8 @@ def test_save_load_round_trip(tmp_path):
     assert isinstance(loaded.policy.optimizer, KFAC) and loaded.kl_clip == model.kl_clip
     for layer, loaded_layer in zip(model.policy.optimizer.layers, loaded.policy.optimizer.layers):
         for key in ("A", "G", "Q_A", "momentum_buffer"):
-            th.testing.assert_close(model.policy.optimizer.state[layer.weight][key], loaded.policy.optimizer.state[loaded_layer.weight][key])
+            saved, restored = model.policy.optimizer.state[layer.weight], loaded.policy.optimizer.state[loaded_layer.weight]
+            th.testing.assert_close(saved[key], restored[key])
     assert loaded.policy.optimizer.group["steps"] == model.policy.optimizer.group["steps"] == 20
     obs = env.reset()
     np.testing.assert_array_equal(model.predict(obs, deterministic=True)[0], loaded.predict(obs, deterministic=True)[0])

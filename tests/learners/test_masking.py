@@ -101,7 +101,7 @@ def test_loaded_model_drives_by_hand_with_the_env_masks(tmp_path):
         masks = env.action_masks()
         actions, _ = loaded.predict(obs, action_masks=masks)
         assert masks[np.arange(3), actions].all()
-        obs, _, terminated, truncated, info = env.step(actions)
+        obs, _, terminated, truncated, _ = env.step(actions)
         if terminated or truncated:
             break
     records = run_episodes(env, model_policy(loaded), 2, seed=5)

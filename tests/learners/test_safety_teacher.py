@@ -107,7 +107,7 @@ def test_supervisor_dropout_turns_the_supervisor_off_per_episode_reproducibly():
     assert off_interventions == 0 and off_crashes > 0
     _, half_crashes, first = _interventions_and_crashes(0.5)
     _, _, again = _interventions_and_crashes(0.5)
-    assert 0 < half_crashes and np.array_equal(np.array(first), np.array(again))
+    assert half_crashes > 0 and np.array_equal(np.array(first), np.array(again))
 
 
 @pytest.mark.parametrize(

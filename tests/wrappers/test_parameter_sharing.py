@@ -15,11 +15,11 @@ from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "envs"))
-from helpers import place  # noqa: E402
+from helpers import place
 
-from sb3_marl.envs import ENV_IDS  # noqa: E402
-from sb3_marl.envs.lane_change_env import ACTION_INDEX  # noqa: E402
-from wrappers import ParameterSharingVecEnv, VecRewardScale  # noqa: E402
+from sb3_marl.envs import ENV_IDS
+from sb3_marl.envs.lane_change_env import ACTION_INDEX
+from wrappers import ParameterSharingVecEnv, VecRewardScale
 
 IDLE = ACTION_INDEX["IDLE"]
 
@@ -219,7 +219,7 @@ def test_vec_normalize_round_trip(tmp_path):
     vec.reset()
     rng = np.random.default_rng(0)
     for _ in range(40):
-        obs, *_ = vec.step(rng.integers(0, 5, vec.num_envs))
+        vec.step(rng.integers(0, 5, vec.num_envs))
     vec.save(tmp_path / "vecnormalize.pkl")
     loaded = VecNormalize.load(tmp_path / "vecnormalize.pkl", ParameterSharingVecEnv(ENV_IDS[1], seed=0))
     np.testing.assert_array_equal(loaded.obs_rms.mean, vec.obs_rms.mean)
