@@ -268,7 +268,7 @@ def model_policy(model: Any, deterministic: bool = False) -> Policy:
     masked = uses_action_masks(model)
     # a centralised critic's model takes Dict observations; its actor reads only each AV's own view
     space = model.observation_space
-    state_slots = len(space[STATE_KEY].low) if isinstance(space, spaces.Dict) else 0  # type: ignore[attr-defined]
+    state_slots = int(space[STATE_KEY].shape[0]) if isinstance(space, spaces.Dict) else 0  # type: ignore[index]
 
     def act(env: LaneChangeEnv, obs: np.ndarray) -> np.ndarray:
         inputs = centralised_observations(obs, state_slots) if state_slots else obs

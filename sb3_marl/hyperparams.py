@@ -42,6 +42,7 @@ from sb3_marl.envs import av_counts, default_config, validate_config
 from sb3_marl.policies import (
     ACTOR_CRITIC_FUSED_ADAM,
     ARCHITECTURES,
+    CentralisedCriticPolicy,
     LocalViewExtractor,
     ma2c_policy_kwargs,
     ma2c_q_policy_kwargs,
@@ -70,8 +71,8 @@ ZOO_KEYS = ("n_timesteps", "policy")
 CRITICS = ("local", "centralised")
 #: The learners whose critic may be centralised (sb3-contrib's maskable actor-critic machinery).
 CENTRALISED_CRITIC_ALGOS = ("ma2c", "mappo", "maacktr", "acktr")
-#: The policy alias of a centralised critic (:class:`~sb3_marl.policies.CentralisedCriticPolicy`).
-CENTRALISED_POLICY = "CentralisedCriticPolicy"
+#: The policy alias of a centralised critic.
+CENTRALISED_POLICY = CentralisedCriticPolicy.__name__
 #: Constructor arguments the training code sets itself.
 RESERVED_KEYS = ("env", "seed", "device", "tensorboard_log", "verbose", "_init_setup_model")
 
@@ -293,9 +294,14 @@ def check_critic(algo: str, hyperparams: dict[str, Any]) -> None:
         )
 
 
+def is_centralised(hyperparams: dict[str, Any]) -> bool:
+    """Whether the entry trains a centralised critic (``critic: centralised``)."""
+    return hyperparams.get("critic", "local") == "centralised"
+
+
 def policy_for(hyperparams: dict[str, Any]) -> str:
     """The policy alias of an entry: :data:`CENTRALISED_POLICY` with ``critic: centralised``."""
-    if hyperparams.get("critic", "local") == "centralised":
+    if is_centralised(hyperparams):
         return CENTRALISED_POLICY
     return str(hyperparams.get("policy", "MlpPolicy"))
 
@@ -315,7 +321,7 @@ def check_policy_kwargs(algo: str, hyperparams: dict[str, Any], env_id: str) -> 
     per_av = observation_space(1, config)
     box = spaces.Box(per_av.low[0], per_av.high[0], dtype=per_av.dtype)  # type: ignore[arg-type]
     obs_space: spaces.Space = box
-    if hyperparams.get("critic", "local") == "centralised":
+    if is_centralised(hyperparams):
         obs_space = centralised_observation_space(box, max(av_counts(env_id, hyperparams.get("env_config"))))
     policy_class = get_algo(algo).policy_aliases[policy_for(hyperparams)]  # validated by validate_hyperparams
     try:
@@ -348,7 +354,7 @@ def policy_kwargs_for(algo: str, hyperparams: dict[str, Any]) -> dict[str, Any]:
     if architecture == "default":
         return kwargs
     preset = ma2c_q_policy_kwargs() if is_q_learning(algo) else ma2c_policy_kwargs(architecture)
-    if hyperparams.get("critic", "local") == "centralised":
+    if is_centralised(hyperparams):
         preset["features_extractor_class"] = LocalViewExtractor
     if algo in ADAM_ACTOR_CRITICS:
         preset["optimizer_kwargs"] = dict(ACTOR_CRITIC_FUSED_ADAM)

@@ -14,6 +14,7 @@ from sb3_marl.envs import av_counts
 from sb3_marl.hyperparams import (
     SCENARIO_KEYS,
     ZOO_KEYS,
+    is_centralised,
     policy_for,
     policy_kwargs_for,
     validate_hyperparams,
@@ -44,7 +45,7 @@ def make_venv(
         config=hyperparams.get("env_config"),
         supervisor_dropout=hyperparams.get("supervisor_dropout", 0.0),
     )
-    if hyperparams.get("critic", "local") == "centralised":
+    if is_centralised(hyperparams):
         venv = VecCentralisedState(venv, max(av_counts(env_id, hyperparams.get("env_config"))))
     if monitor_dir is not None:
         os.makedirs(monitor_dir, exist_ok=True)

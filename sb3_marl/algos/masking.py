@@ -47,7 +47,7 @@ from sb3_marl.policies import CentralisedCriticPolicy
 #: (``critic: centralised``, selected by the hyperparameters under this alias).
 ACTOR_CRITIC_POLICIES: dict[str, type[BasePolicy]] = {
     **MaskablePPO.policy_aliases,
-    "CentralisedCriticPolicy": CentralisedCriticPolicy,
+    CentralisedCriticPolicy.__name__: CentralisedCriticPolicy,
 }
 
 

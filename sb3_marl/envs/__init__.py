@@ -94,6 +94,7 @@ __all__ = [
     "av_steps_per_env_step",
     "copy_av_counts",
     "default_config",
+    "make_scenario",
     "parallel_env",
     "validate_config",
 ]

@@ -435,8 +435,8 @@ class CompiledRoad(FastRoad):
         return self._geometry  # type: ignore[return-value]
 
     def capture(self) -> np.ndarray:
-        """The vehicles' state array (:func:`kernel_row` of each, ``road.vehicles`` order)."""
-        return np.array([kernel_row(v) for v in self.vehicles], dtype=np.float64).reshape(-1, kernel.COLUMNS)
+        """The road's state array (:func:`capture` of its vehicles)."""
+        return capture(self.vehicles)
 
     def simulate(self, frames: int, dt: float, exit_x: float, state: np.ndarray | None = None) -> None:
         """``frames`` × (``act``, ``step(dt)``) in compiled code; vehicles whose centre passes
@@ -473,6 +473,11 @@ class CompiledRoad(FastRoad):
             if row[kernel.PRESENT]:
                 kept.append(v)
         self.vehicles = kept
+
+
+def capture(vehicles: list[Vehicle]) -> np.ndarray:
+    """The vehicles' state array, (n, :data:`~sb3_marl.envs.kernel.COLUMNS`): :func:`kernel_row` of each, in order."""
+    return np.array([kernel_row(v) for v in vehicles], dtype=np.float64).reshape(-1, kernel.COLUMNS)
 
 
 def kernel_row(v: Vehicle) -> tuple:

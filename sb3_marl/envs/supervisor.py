@@ -60,7 +60,7 @@ from sb3_marl.envs.kernel import (
     leader,
     sin,
 )
-from sb3_marl.envs.simulator import kernel_row
+from sb3_marl.envs.simulator import capture
 
 #: Version of the supervisor's decisions; evaluations record it, and ``sb3-marl benchmark evaluate``
 #: re-evaluates trials evaluated under another (history in CHANGELOG.md; 3: the road's own equations).
@@ -317,7 +317,7 @@ def supervise(
     :param state: the vehicles' state array if already captured (the road's, this step); not modified
     """
     if state is None:
-        state = np.array([kernel_row(v) for v in vehicles], dtype=np.float64)
+        state = capture(vehicles)
     horizon = Horizon(
         n_lanes=int(config["lanes_count"]),
         lane_width=float(config["lane_width"]),
