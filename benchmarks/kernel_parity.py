@@ -2,8 +2,8 @@
 
 For each density and action mix (uniform random, mostly-IDLE "cruise", and cruise with the safety
 supervisor on, whose episodes run to the time limit), the same seeded episodes run under
-:data:`~sb3_marl.envs.simulator.FAST` (bit-identical to highway-env's own classes, see
-tests/envs/test_simulator.py) and :data:`~sb3_marl.envs.simulator.COMPILED`; prints the largest
+:data:`~sb3_marl.envs.simulator.STOCK` (highway-env's own classes, frame by frame) and
+:data:`~sb3_marl.envs.simulator.COMPILED` (the default); prints the largest
 state and observation differences, the episodes whose events (crashes, lane changes, HDV lane
 decisions, lengths) differ, and what the episodes exercised. ``name: value unit`` lines.
 
@@ -21,7 +21,7 @@ from pathlib import Path
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 from sb3_marl.envs import DENSITIES
-from sb3_marl.envs.simulator import COMPILED, FAST
+from sb3_marl.envs.simulator import COMPILED, STOCK
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "envs"))  # the parity helpers (test support)
 from parity import compare
@@ -37,7 +37,7 @@ def main() -> None:
     for density in args.densities:
         for name, (policy, config) in MIXES.items():
             start = time.perf_counter()
-            result = compare(FAST, COMPILED, density, range(args.episodes), policy, **config)
+            result = compare(STOCK, COMPILED, density, range(args.episodes), policy, **config)
             tag = f"density{density}_{name}"
             print(f"{tag}_episodes: {result.episodes}")
             print(f"{tag}_different_outcomes: {len(result.different_outcomes)} {result.different_outcomes[:10]}")

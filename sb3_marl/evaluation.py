@@ -20,7 +20,7 @@ import torch as th
 from gymnasium import spaces
 
 from sb3_marl.algos.masking import uses_action_masks
-from sb3_marl.envs import av_counts, make_scenario
+from sb3_marl.envs import av_counts, kernel, make_scenario
 from sb3_marl.envs.lane_change_env import ACTION_INDEX, LaneChangeEnv
 from sb3_marl.envs.observation import STATE_KEY, centralised_observations
 from sb3_marl.policies import unchecked_distributions
@@ -67,10 +67,11 @@ class EpisodeTrace:
     lane_change: list[np.ndarray] = field(default_factory=list)
 
     def record(self, env: LaneChangeEnv, info: dict) -> None:
-        self.x.append(np.array([av.position[0] for av in env.avs]))
-        self.lane.append(np.array([av.lane_index[2] for av in env.avs]))
-        self.target_lane.append(np.array([av.target_lane_index[2] for av in env.avs]))
-        self.speed.append(np.array([av.speed for av in env.avs]))
+        avs = env.state[: env.n_avs]
+        self.x.append(avs[:, kernel.X].copy())
+        self.lane.append(avs[:, kernel.LANE].astype(np.int64))
+        self.target_lane.append(avs[:, kernel.TARGET_LANE].astype(np.int64))
+        self.speed.append(avs[:, kernel.SPEED].copy())
         self.executed.append(np.asarray(info.get("executed_action", np.full(env.n_avs, -1))))
         self.lane_change.append(np.asarray(info.get("lane_change", np.zeros(env.n_avs, dtype=bool))))
 

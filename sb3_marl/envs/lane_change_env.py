@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -10,13 +11,15 @@ from gymnasium import spaces
 from highway_env.envs.common.abstract import AbstractEnv
 from highway_env.envs.common.action import DiscreteMetaAction
 from highway_env.envs.common.graphics import EnvViewer
+from highway_env.road.road import Road
 from highway_env.vehicle.controller import MDPVehicle
 
 from sb3_marl.envs import config as cfg
+from sb3_marl.envs import kernel
 from sb3_marl.envs.observation import observation_space, observe
 from sb3_marl.envs.reward import neighbour_matrix, reward_terms, total_reward
-from sb3_marl.envs.road import make_road, spawn_vehicles
-from sb3_marl.envs.simulator import COMPILED, CompiledRoad, Simulator
+from sb3_marl.envs.road import make_road, spawn, vehicle_state
+from sb3_marl.envs.simulator import COMPILED, SIMULATORS, STOCK, capture, vehicle_objects
 from sb3_marl.envs.supervisor import supervise
 from sb3_marl.envs.traffic import TrafficSnapshot
 
@@ -47,14 +50,22 @@ class LaneChangeEnv(AbstractEnv):
     driving, on the straight continuation of its lane and still under its policy, so its slot
     goes on producing real transitions (its observation then shows no other vehicle ahead); the
     episode is truncated early once every AV has left, since nothing remains to decide.
+
+    State: :attr:`state`, one row per vehicle on the road (:mod:`~sb3_marl.envs.kernel`'s columns,
+    the AVs first), stepped by compiled code. :attr:`road` shows it as highway-env objects, built
+    when read; highway-env's own classes step those objects frame by frame instead while frames are
+    drawn (a viewer, ``show_trajectories``) or with ``simulator = "stock"`` (the parity reference,
+    same episodes within rounding: tests/envs/test_kernel.py).
     """
 
     viewer: EnvViewer | None  # highway-env's renderer (AbstractEnv sets it)
 
     metadata = {"render_modes": ["human", "rgb_array"]}
-    #: Classes the scenario is built from (compiled frames); ``simulator.STOCK`` (highway-env's own) and
-    #: ``simulator.FAST`` give the same episodes, within rounding (tests/envs/test_kernel.py), slower.
-    simulator: Simulator = COMPILED
+    #: ``"compiled"`` (default) or ``"stock"`` (see :mod:`~sb3_marl.envs.simulator`)
+    simulator: str = COMPILED
+    _state: np.ndarray = np.zeros((0, kernel.COLUMNS))  # AbstractEnv.__init__ resets the env
+    _road: Road | None = None
+    _road_current = False  # whether _road's vehicles are the current state
 
     def __init__(
         self,
@@ -71,7 +82,6 @@ class LaneChangeEnv(AbstractEnv):
             config = {"density": density, **(config or {})}
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"Invalid render_mode={render_mode!r}: expected one of {self.metadata['render_modes']} or None.")
-        self.avs: list[MDPVehicle] = []
         self.n_hdvs = 0
         super().__init__(config=config, render_mode=render_mode)
 
@@ -108,94 +118,120 @@ class LaneChangeEnv(AbstractEnv):
         gym.Env.reset(self, seed=seed)
         if options and "config" in options:
             self.configure(options["config"])
+        if self.simulator not in SIMULATORS:
+            raise ValueError(f"Invalid simulator={self.simulator!r}: expected one of {SIMULATORS}.")
         self.update_metadata()
         self.define_spaces()
         self.time = self.steps = 0
         self.done = False
-        self._reset()
-        snapshot = self._snapshot()
-        obs = observe(snapshot, self.config, self._target_speeds())
-        n = self.n_avs
-        zeros, none = np.zeros(n), np.full(n, -1, dtype=np.int64)
-        info = self._info(snapshot, zeros, np.zeros(n, dtype=bool), np.zeros(n, dtype=bool), none, none)
+        lo, hi = cfg.resolved_hdv_range(self.config)
+        self.n_hdvs = int(self.np_random.integers(lo, hi + 1))
+        self.state = spawn(self.config, self.n_avs, self.n_hdvs, self.np_random)
+        self._road = None
+        obs, info = self._observe(np.zeros(self.n_avs), np.zeros(self.n_avs, dtype=bool), np.full(self.n_avs, -1))
         if self.render_mode == "human":
             self.render()
         return obs, info
 
-    def _reset(self) -> None:
-        self.road = make_road(self.config, self.np_random, self.simulator)
-        lo, hi = cfg.resolved_hdv_range(self.config)
-        self.n_hdvs = int(self.np_random.integers(lo, hi + 1))
-        self.avs, _ = spawn_vehicles(self.road, self.config, self.n_avs, self.n_hdvs, self.np_random, self.simulator)
-        self.controlled_vehicles = list(self.avs)
-        self._exited = np.zeros(self.n_avs, dtype=bool)
+    def place(
+        self, avs: Sequence[tuple[float, int, float]], hdvs: Sequence[tuple[float, int, float]] = ()
+    ) -> tuple[np.ndarray, dict]:
+        """Replace the traffic of a reset env by ``n_avs`` AVs and any HDVs at (x [m], lane, speed
+        [m/s]), on their lane's centre, as a new episode's spawn would place them; returns the new
+        observation and info. For hand-made situations (tests, figures)."""
+        if len(avs) != self.n_avs:
+            raise ValueError(f"Invalid avs: expected {self.n_avs} (x, lane, speed) tuples, got {len(avs)}.")
+        x, lane, speed = np.array([*avs, *hdvs], dtype=np.float64).reshape(-1, 3).T
+        self.n_hdvs = len(hdvs)
+        self.state = vehicle_state(self.config, x, lane, speed, self.n_avs)
+        return self._observe(np.zeros(self.n_avs), np.zeros(self.n_avs, dtype=bool), np.full(self.n_avs, -1))
+
+    @property
+    def state(self) -> np.ndarray:
+        """(vehicles, :data:`~sb3_marl.envs.kernel.COLUMNS`) the road's vehicles, the AVs first."""
+        return self._state
+
+    @state.setter
+    def state(self, state: np.ndarray) -> None:
+        self._state, self._road_current = state, False
+
+    @property
+    def road(self) -> Road:
+        """highway-env's road with :attr:`state`'s vehicles as objects, the AVs first."""
+        if self._road is None:
+            self._road = make_road(self.config, self.np_random)
+        if not self._road_current:
+            self._road.vehicles = vehicle_objects(self._road, self.state, self.config)
+            self._road_current = True
+        return self._road
+
+    @road.setter
+    def road(self, road: None) -> None:
+        """Only highway-env's ``AbstractEnv.__init__`` sets it (to None): the road is built from :attr:`state`."""
+        self._road = road
+
+    @property
+    def avs(self) -> list[MDPVehicle]:
+        """The AVs as highway-env objects (the first vehicles of :attr:`road`)."""
+        return self.road.vehicles[: self.n_avs]
+
+    @property
+    def controlled_vehicles(self) -> list[MDPVehicle]:
+        """highway-env's name for the AVs (its viewer follows the first)."""
+        return self.avs
+
+    @controlled_vehicles.setter
+    def controlled_vehicles(self, vehicles: list) -> None:
+        """Only ``AbstractEnv.__init__`` sets it (to []): the AVs are the state's first rows."""
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
         """Apply one meta-action per AV for 1 / policy_frequency s of simulation."""
-        if self.road is None:
-            raise RuntimeError("Call reset() before step().")
         if self.done:
             raise RuntimeError("The episode is over (terminated or truncated): call reset() before step().")
+        n = self.n_avs
         proposed = self._check_actions(action)
         actions = proposed
-        # the road's state, captured once per step: the supervisor predicts from it, the compiled road moves it
-        state = self.road.capture() if self._compiled() else None
         if self.config["safety_supervisor"]:
-            actions, _ = supervise(self.road.vehicles, self.n_avs, proposed, self.action_masks(), self.config, state)
-        speed_before = np.array([av.speed for av in self.avs])
-        lanes_before = [av.target_lane_index for av in self.avs]
+            actions, _ = supervise(self.state, n, proposed, self.action_masks(), self.config)
+        speed_before = self.state[:n, kernel.SPEED].copy()
+        lanes_before = self.state[:n, kernel.TARGET_LANE].copy()
 
-        self._simulate(actions, state)
+        self._simulate(actions)
         self.time += 1.0 / self.config["policy_frequency"]
 
-        snapshot = self._snapshot()
-        acceleration = (snapshot.speed[: self.n_avs] - speed_before) * self.config["policy_frequency"]
-        lane_change = np.array([av.target_lane_index != before for av, before in zip(self.avs, lanes_before)])
-        crashed = np.array([av.crashed for av in self.avs])
-        info = self._info(snapshot, acceleration, lane_change, crashed, proposed, actions)
-
-        terminated = bool(crashed.any())
-        truncated = not terminated and (self.steps_done >= self.max_steps or bool(self._exited.all()))
+        state = self.state
+        acceleration = (state[:n, kernel.SPEED] - speed_before) * self.config["policy_frequency"]
+        obs, info = self._observe(acceleration, state[:n, kernel.TARGET_LANE] != lanes_before, proposed, actions)
+        terminated = bool(info["crashed"].any())
+        truncated = not terminated and (self.steps_done >= self.max_steps or bool(info["exited"].all()))
         self.done = terminated or truncated
         if self.render_mode == "human":
             self.render()
-        return (
-            observe(snapshot, self.config, self._target_speeds()),
-            float(info["rewards"].mean()),
-            terminated,
-            truncated,
-            info,
-        )
+        return obs, float(info["rewards"].mean()), terminated, truncated, info
 
-    def _compiled(self) -> bool:
-        """Whether this step runs in compiled code: a :class:`~sb3_marl.envs.simulator.CompiledRoad`
-        of the scenario's geometry, and nothing to draw between frames (no viewer, no history)."""
-        road = self.road
-        return (
-            isinstance(road, CompiledRoad)
-            and self.viewer is None
-            and not road.record_history
-            and bool(road.compiled_geometry())
-        )
+    def _uses_objects(self) -> bool:
+        """Whether highway-env's objects step the road frame by frame (drawn frames, or the stock reference)."""
+        return self.simulator == STOCK or self.viewer is not None or bool(self.config["show_trajectories"])
 
-    def _simulate(self, actions: np.ndarray, state: np.ndarray | None = None) -> None:
-        """Apply the executed meta-actions and simulate the frames of one policy step (``state``:
-        the road's state captured this step, for the compiled road).
-
-        With a :class:`~sb3_marl.envs.simulator.CompiledRoad` and nothing to draw between frames
-        (no viewer, no trajectory history) the frames run in compiled code; otherwise frame by
-        frame with highway-env's ``Road.act`` / ``Road.step``, rendering the frames in between.
-        """
-        frames = self.config["simulation_frequency"] // self.config["policy_frequency"]
-        dt = 1.0 / self.config["simulation_frequency"]
-        road = self.road
-        if self._compiled():
-            for av, a in zip(self.avs, actions):
-                av.decide(ACTIONS[int(a)])
-            road.simulate(frames, dt, exit_x=self.config["road_length"], state=state)
+    def _simulate(self, actions: np.ndarray) -> None:
+        """Apply the executed meta-actions and simulate the frames of one policy step: compiled on
+        the state array, or with highway-env's ``Road.act`` / ``Road.step`` frame by frame (the
+        frames in between drawn), captured into the state array after."""
+        config = self.config
+        frames = config["simulation_frequency"] // config["policy_frequency"]
+        dt = 1.0 / config["simulation_frequency"]
+        road_length = float(config["road_length"])
+        if not self._uses_objects():
+            state, n = self.state.copy(), self.n_avs
+            geometry = (int(config["lanes_count"]), float(config["lane_width"]), road_length)
+            lanes, speeds = kernel.meta_action_targets(state, n, *geometry, self._ladder())
+            state[:n, kernel.TARGET_LANE] = lanes[np.arange(n), actions]
+            state[:n, kernel.TARGET_SPEED] = speeds[np.arange(n), actions]
+            kernel.simulate(state, frames, dt, *geometry, float(config["speed_limit"]), road_length)
+            self.state = state[state[:, kernel.PRESENT] > 0]
             self.steps += frames
-            self._remove_exited()
             return
+        road = self.road
         for frame in range(frames):
             if frame == 0:
                 for av, a in zip(self.avs, actions):
@@ -203,10 +239,18 @@ class LaneChangeEnv(AbstractEnv):
             road.act()
             road.step(dt)
             self.steps += 1
-            self._remove_exited()
+            for av in road.vehicles[: self.n_avs]:  # past the road end: see the class docstring
+                av.collidable = av.collidable and av.position[0] <= road_length
+            road.vehicles = [v for k, v in enumerate(road.vehicles) if k < self.n_avs or v.position[0] <= road_length]
             if frame < frames - 1:
                 self._automatic_rendering()
         self.enable_auto_render = False
+        self.state = capture(road.vehicles)
+        self._road_current = True  # the objects stepped are the state
+
+    def _ladder(self) -> np.ndarray:
+        """[m/s] the AVs' target speeds (FASTER / SLOWER move along it)."""
+        return np.asarray(self.config["target_speeds"], dtype=np.float64)
 
     def render(self) -> np.ndarray | None:
         """Render with highway-env's viewer; ``rgb_array`` frames are drawn offscreen, headless.
@@ -231,16 +275,15 @@ class LaneChangeEnv(AbstractEnv):
         a lane change only towards an existing lane reachable from the AV's position; FASTER /
         SLOWER unless the AV already tracks the highest / lowest target speed.
         """
-        rows = []
-        graph = self.road.network.graph
-        for av in self.avs:
-            _from, _to, lane_id = av.lane_index
-            lanes = graph[_from][_to]  # RoadNetwork.side_lanes: the neighbouring ids of this segment
-            left, right = (
-                0 <= side < len(lanes) and lanes[side].is_reachable_from(av.position) for side in (lane_id - 1, lane_id + 1)
-            )
-            rows.append((left, True, right, av.speed_index < av.target_speeds.size - 1, av.speed_index > 0))
-        return np.array(rows, dtype=bool).reshape(self.n_avs, len(ACTIONS))
+        config = self.config
+        return kernel.available_actions(
+            self.state,
+            self.n_avs,
+            int(config["lanes_count"]),
+            float(config["lane_width"]),
+            float(config["road_length"]),
+            self._ladder(),
+        )
 
     def _check_actions(self, action: Any) -> np.ndarray:
         actions = np.asarray(action)
@@ -255,32 +298,10 @@ class LaneChangeEnv(AbstractEnv):
             raise ValueError(f"Invalid action {actions.tolist()}: each must be in {ACTIONS}.")
         return actions
 
-    def _remove_exited(self) -> None:
-        """Take vehicles past the road end out of the scenario (see the class docstring)."""
-        road_length = self.config["road_length"]
-        for i, av in enumerate(self.avs):
-            if not self._exited[i] and av.position[0] > road_length:
-                self._exited[i] = True
-                av.collidable = False
-        self.road.vehicles = [v for v in self.road.vehicles if v.position[0] <= road_length or v in self.controlled_vehicles]
-
-    def _snapshot(self) -> TrafficSnapshot:
-        return TrafficSnapshot.capture(self.road.vehicles, self.n_avs, self.config["road_length"])
-
-    def _target_speeds(self) -> np.ndarray | None:
-        """[m/s] the AVs' target speeds, for the ``obs_target_speed`` feature (None without it)."""
-        return np.array([av.target_speed for av in self.avs]) if self.config["obs_target_speed"] else None
-
-    def _info(
-        self,
-        snapshot: TrafficSnapshot,
-        acceleration: np.ndarray,
-        lane_change: np.ndarray,
-        crashed: np.ndarray,
-        proposed: np.ndarray,
-        executed: np.ndarray,
-    ) -> dict[str, Any]:
-        """Per-AV arrays of shape (n_avs,) unless stated.
+    def _observe(
+        self, acceleration: np.ndarray, lane_change: np.ndarray, proposed: np.ndarray, executed: np.ndarray | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        """The observation of :attr:`state` and the step's info, per-AV arrays of shape (n_avs,) unless stated.
 
         ``rewards`` (the weighted total), ``reward_terms`` (dict of unweighted terms, see
         :mod:`sb3_marl.envs.reward`), ``neighbours`` ((n_avs, n_avs) bool, the local reward's
@@ -290,23 +311,30 @@ class LaneChangeEnv(AbstractEnv):
         supervisor; both -1 after a reset), ``intervened`` (the supervisor replaced the action),
         and the scalars ``n_avs``, ``n_hdvs``, ``step``.
         """
+        state, n = self.state, self.n_avs
+        snapshot = TrafficSnapshot.capture(state, n, self.config["road_length"])
+        crashed = state[:n, kernel.CRASHED] > 0
         terms = reward_terms(snapshot, crashed, acceleration, lane_change, self.config)
         headway = terms.pop("headway_distance")
-        return {
+        proposed = np.asarray(proposed, dtype=np.int64)
+        executed = proposed if executed is None else np.asarray(executed, dtype=np.int64)
+        info = {
             "rewards": total_reward(terms, self.config),
             "reward_terms": terms,
             "neighbours": neighbour_matrix(snapshot),
             "crashed": crashed,
-            "speed": snapshot.speed[: self.n_avs].copy(),
+            "speed": state[:n, kernel.SPEED].copy(),
             "headway": headway,
             "acceleration": acceleration,
             "lane_change": lane_change,
-            "exited": self._exited.copy(),
+            "exited": state[:n, kernel.COLLIDABLE] == 0,
             "action_mask": self.action_masks(),
-            "proposed_action": np.asarray(proposed, dtype=np.int64),
-            "executed_action": np.asarray(executed, dtype=np.int64),
-            "intervened": np.asarray(proposed) != np.asarray(executed),
-            "n_avs": self.n_avs,
+            "proposed_action": proposed,
+            "executed_action": executed,
+            "intervened": proposed != executed,
+            "n_avs": n,
             "n_hdvs": self.n_hdvs,
             "step": self.steps_done,
         }
+        target_speeds = state[:n, kernel.TARGET_SPEED].copy() if self.config["obs_target_speed"] else None
+        return observe(snapshot, self.config, target_speeds), info

@@ -9,23 +9,22 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from highway_env.road.lane import LineType
-from highway_env.road.road import Road
+from highway_env.road.lane import LineType, StraightLane
+from highway_env.road.road import Road, RoadNetwork
 from highway_env.vehicle.behavior import IDMVehicle
-from highway_env.vehicle.controller import MDPVehicle
 
-from sb3_marl.envs.simulator import COMPILED, Simulator
+from sb3_marl.envs import kernel
+from sb3_marl.envs.simulator import SEGMENT
 
 
-def make_road(config: dict[str, Any], np_random: np.random.Generator, simulator: Simulator = COMPILED) -> Road:
-    """A one-way highway of ``lanes_count`` straight lanes of ``road_length`` m.
+def make_road(config: dict[str, Any], np_random: np.random.Generator) -> Road:
+    """highway-env's one-way highway of ``lanes_count`` straight lanes of ``road_length`` m, without
+    vehicles (see :func:`~sb3_marl.envs.simulator.vehicle_objects`).
 
     :param config: the scenario config
     :param np_random: the env's random generator, shared with the vehicles' behaviour
-    :param simulator: highway-env's classes (:data:`~sb3_marl.envs.simulator.STOCK`) or the faster
-        equivalents (:data:`~sb3_marl.envs.simulator.FAST`, :data:`~sb3_marl.envs.simulator.COMPILED`)
     """
-    network = simulator.network()
+    network = RoadNetwork()
     lanes = config["lanes_count"]
     width = config["lane_width"]
     for lane in range(lanes):
@@ -34,18 +33,11 @@ def make_road(config: dict[str, Any], np_random: np.random.Generator, simulator:
             LineType.CONTINUOUS_LINE if lane == 0 else LineType.STRIPED,
             LineType.CONTINUOUS_LINE if lane == lanes - 1 else LineType.NONE,
         )
-        network.add_lane(
-            "start",
-            "end",
-            simulator.lane(
-                [0.0, y],
-                [config["road_length"], y],
-                width=width,
-                line_types=line_types,
-                speed_limit=config["speed_limit"],
-            ),
+        lane_object = StraightLane(
+            [0.0, y], [config["road_length"], y], width=width, line_types=line_types, speed_limit=config["speed_limit"]
         )
-    return simulator.road(network=network, np_random=np_random, record_history=config["show_trajectories"])
+        network.add_lane(*SEGMENT, lane_object)
+    return Road(network=network, np_random=np_random, record_history=config["show_trajectories"])
 
 
 def configure_hdv(vehicle: IDMVehicle, config: dict[str, Any]) -> None:
@@ -60,44 +52,43 @@ def configure_hdv(vehicle: IDMVehicle, config: dict[str, Any]) -> None:
     vehicle.LANE_CHANGE_MIN_ACC_GAIN = float(config["hdv_lane_change_threshold"])
 
 
-def spawn_vehicles(
-    road: Road,
-    config: dict[str, Any],
-    n_avs: int,
-    n_hdvs: int,
-    np_random: np.random.Generator,
-    simulator: Simulator = COMPILED,
-) -> tuple[list[MDPVehicle], list[IDMVehicle]]:
-    """Place AVs and HDVs in distinct random slots of a grid along every lane.
+def spawn(config: dict[str, Any], n_avs: int, n_hdvs: int, np_random: np.random.Generator) -> np.ndarray:
+    """The state array of a new episode: AVs and HDVs in distinct random slots of a grid along every lane.
 
     Slots are ``spawn_spacing`` m apart from ``spawn_start`` on each lane, jittered by up to
     ``spawn_position_noise`` m, so vehicles never overlap (validation guarantees the spacing
     exceeds the 5 m vehicle length plus twice the noise). Initial speeds are uniform in
-    ``spawn_speed_range`` (m/s). AVs come first in ``road.vehicles``.
-
-    :param simulator: the vehicle classes to spawn (``simulator.av`` and ``simulator.hdv``)
-    :return: the AVs (highway-env ``MDPVehicle``) and the HDVs (``IDMVehicle`` with MOBIL)
+    ``spawn_speed_range`` (m/s). The ``n_avs`` AVs are the first rows.
     """
-    lanes = road.network.lanes_list()
     per_lane = config["spawn_slots_per_lane"]
-    slots = np_random.choice(len(lanes) * per_lane, size=n_avs + n_hdvs, replace=False)
+    slots = np_random.choice(config["lanes_count"] * per_lane, size=n_avs + n_hdvs, replace=False)
     noise = np_random.uniform(-1.0, 1.0, size=slots.size) * config["spawn_position_noise"]
     low, high = config["spawn_speed_range"]
     speeds = np_random.uniform(low, high, size=slots.size)
+    x = config["spawn_start"] + (slots % per_lane) * config["spawn_spacing"] + noise
+    return vehicle_state(config, x, slots // per_lane, speeds, n_avs)
 
-    avs: list[MDPVehicle] = []
-    hdvs: list[IDMVehicle] = []
-    for i, (slot, dx, speed) in enumerate(zip(slots, noise, speeds)):
-        lane = lanes[slot // per_lane]
-        x = config["spawn_start"] + (slot % per_lane) * config["spawn_spacing"] + dx
-        position, heading = lane.position(x, 0.0), lane.heading_at(x)
-        if i < n_avs:
-            av = simulator.av(road, position, heading, float(speed), target_speeds=config["target_speeds"])
-            avs.append(av)
-        else:
-            hdv = simulator.hdv(road, position, heading, float(speed))
-            configure_hdv(hdv, config)
-            hdvs.append(hdv)
-    road.vehicles.extend(avs)
-    road.vehicles.extend(hdvs)
-    return avs, hdvs
+
+def vehicle_state(config: dict[str, Any], x: np.ndarray, lane: np.ndarray, speed: np.ndarray, n_avs: int) -> np.ndarray:
+    """The state array of vehicles placed at ``x`` [m] on the centre of ``lane``, heading along the
+    road at ``speed`` [m/s], the first ``n_avs`` AVs, the others HDVs: the state highway-env's
+    ``MDPVehicle`` and ``IDMVehicle`` constructors give them (an AV's target speed is the ladder
+    step nearest its speed, an HDV's its speed; the HDV's lane-change timer starts at
+    ``(x + y) π mod LANE_CHANGE_DELAY``; the config's MOBIL parameters)."""
+    x, lane, speed = (np.asarray(a, dtype=np.float64).reshape(-1) for a in (x, lane, speed))
+    ladder = np.asarray(config["target_speeds"], dtype=np.float64)
+    hdv = np.arange(x.size) >= n_avs
+    state = np.zeros((x.size, kernel.COLUMNS))
+    state[:, kernel.X], state[:, kernel.Y] = x, lane * config["lane_width"]
+    state[:, kernel.SPEED] = speed
+    state[:, kernel.LANE] = state[:, kernel.TARGET_LANE] = lane
+    top = ladder.size - 1
+    av_speed_index = np.clip(np.round((speed - ladder[0]) / (ladder[top] - ladder[0]) * top), 0, top).astype(np.int64)
+    state[:, kernel.TARGET_SPEED] = np.where(hdv, speed, ladder[av_speed_index])
+    state[:, kernel.IS_HDV] = hdv
+    state[:, kernel.TIMER] = np.where(hdv, (x + state[:, kernel.Y]) * np.pi % kernel.LANE_CHANGE_DELAY, 0.0)
+    state[:, kernel.COLLIDABLE] = state[:, kernel.PRESENT] = 1.0
+    state[hdv, kernel.POLITENESS] = float(config["hdv_politeness"])
+    state[hdv, kernel.MAX_BRAKING_IMPOSED] = float(config["hdv_b_safe"])
+    state[hdv, kernel.MIN_ACC_GAIN] = float(config["hdv_lane_change_threshold"])
+    return state

@@ -9,7 +9,7 @@ reproducible without drawing random numbers). For the AV being served it predict
 - every vehicle with the road's own equations (:func:`sb3_marl.envs.kernel.drive`: highway-env's
   controllers, the HDVs' IDM and MOBIL lane changes with their timers and abort rule, the
   kinematic bicycle model and the lane update), on a copy of the road's state array (the kernel's
-  layout, :func:`sb3_marl.envs.simulator.kernel_row`): the prediction is exact for the HDVs as
+  layout): the prediction is exact for the HDVs as
   long as the AVs drive as predicted; collisions and the road end are not simulated (the room
   measures how close the vehicles come);
 - AVs already served keep their (possibly replaced) action, the others their proposed action;
@@ -41,12 +41,10 @@ from typing import Any, NamedTuple
 
 import numba
 import numpy as np
-from highway_env.vehicle.kinematics import Vehicle
 
 from sb3_marl.envs.kernel import (
     COLLIDABLE,
     HEADING,
-    LANE_VEHICLE_LENGTH,
     LENGTH,
     SPEED,
     TARGET_LANE,
@@ -58,9 +56,10 @@ from sb3_marl.envs.kernel import (
     drive,
     lane_occupancy,
     leader,
+    meta_action_targets,
     sin,
+    speed_index,
 )
-from sb3_marl.envs.simulator import capture
 
 #: Version of the supervisor's decisions; evaluations record it, and ``sb3-marl benchmark evaluate``
 #: re-evaluates trials evaluated under another (history in CHANGELOG.md; 3: the road's own equations).
@@ -111,7 +110,7 @@ def _predict(
         if frame > 0 and frame % horizon.frames_per_step == 0:
             for k in range(speed_step.size):
                 if speed_step[k] != 0:
-                    index = min(max(_speed_index(state[k, SPEED], ladder) + speed_step[k], 0), top)
+                    index = min(max(speed_index(state[k, SPEED], ladder) + speed_step[k], 0), top)
                     state[k, TARGET_SPEED] = ladder[index]
         drive(state, horizon.dt, horizon.n_lanes, horizon.lane_width, horizon.road_length, horizon.speed_limit)
         path[frame, 0], path[frame, 1] = state[:, X], state[:, Y]
@@ -153,14 +152,6 @@ def _frame_room(
             if abs(dy) - max(closing_y, 0.0) * dt < ego_y + other_y:
                 room = min(room, abs(dx) - ego_x - other_x - max(closing_x, 0.0) * dt)
     return room
-
-
-@numba.njit(cache=True)
-def _speed_index(speed: float, ladder: np.ndarray) -> int:
-    """``MDPVehicle.speed_to_index``: the index of the target speed nearest ``speed`` [m/s] on the
-    uniform ``ladder`` [m/s] (rounding half to even, as ``np.round``)."""
-    top = ladder.size - 1
-    return int(min(max(np.round((speed - ladder[0]) / (ladder[top] - ladder[0]) * top), 0), top))
 
 
 @numba.njit(cache=True)
@@ -275,49 +266,18 @@ def supervise_arrays(
     return executed, rooms
 
 
-@numba.njit(cache=True)
-def candidate_targets(state: np.ndarray, n_avs: int, horizon: Horizon) -> tuple[np.ndarray, np.ndarray]:
-    """(n_avs, 5) target lane and (n_avs, 5) target speed [m/s] of each AV (the first ``n_avs``
-    rows of ``state``) under each meta-action, as highway-env's ``MDPVehicle.act`` would set them
-    (LANE_LEFT 0, IDLE 1, LANE_RIGHT 2, FASTER 3, SLOWER 4; a lane change to a lane not reachable
-    from the AV's position and a speed change past the ladder change nothing)."""
-    ladder, top = horizon.ladder, horizon.ladder.size - 1
-    lane_width = horizon.lane_width
-    candidate_lane, candidate_speed = np.empty((n_avs, 5)), np.empty((n_avs, 5))
-    for i in range(n_avs):
-        lane = int(state[i, TARGET_LANE])
-        candidate_lane[i, :] = lane
-        for action, side in ((LANE_LEFT, -1), (LANE_RIGHT, 1)):
-            other = min(max(lane + side, 0), horizon.n_lanes - 1)  # StraightLane.is_reachable_from:
-            reachable = abs(state[i, Y] - other * lane_width) <= 2 * lane_width
-            if reachable and 0 <= state[i, X] < horizon.road_length + LANE_VEHICLE_LENGTH:
-                candidate_lane[i, action] = other
-        candidate_speed[i, :] = state[i, TARGET_SPEED]
-        index = _speed_index(state[i, SPEED], ladder)
-        candidate_speed[i, 3] = ladder[min(index + 1, top)]
-        candidate_speed[i, 4] = ladder[max(index - 1, 0)]
-    return candidate_lane, candidate_speed
-
-
 def supervise(
-    vehicles: list[Vehicle],
-    n_avs: int,
-    proposed: np.ndarray,
-    available: np.ndarray,
-    config: dict[str, Any],
-    state: np.ndarray | None = None,
+    state: np.ndarray, n_avs: int, proposed: np.ndarray, available: np.ndarray, config: dict[str, Any]
 ) -> tuple[np.ndarray, np.ndarray]:
     """Executed meta-actions (n_avs,) and each AV's predicted room [m] (see the module doc).
 
-    :param vehicles: the road's vehicles, the ``n_avs`` AVs first
+    :param state: the road's state array (:mod:`~sb3_marl.envs.kernel` layout), the ``n_avs`` AVs
+        first; not modified
     :param proposed: (n_avs,) the policy's meta-actions
     :param available: (n_avs, 5) bool action mask
     :param config: the scenario config (lanes, frequencies, ``supervisor_horizon`` [s],
         ``supervisor_min_gap`` [m], ``headway_time`` [s])
-    :param state: the vehicles' state array if already captured (the road's, this step); not modified
     """
-    if state is None:
-        state = capture(vehicles)
     horizon = Horizon(
         n_lanes=int(config["lanes_count"]),
         lane_width=float(config["lane_width"]),
@@ -328,7 +288,9 @@ def supervise(
         frames_per_step=max(config["simulation_frequency"] // config["policy_frequency"], 1),
         ladder=np.asarray(config["target_speeds"], dtype=np.float64),
     )
-    candidate_lane, candidate_speed = candidate_targets(state, n_avs, horizon)
+    candidate_lane, candidate_speed = meta_action_targets(
+        state, n_avs, horizon.n_lanes, horizon.lane_width, horizon.road_length, horizon.ladder
+    )
     return supervise_arrays(
         state,
         candidate_lane,

@@ -5,9 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from highway_env.vehicle.kinematics import Vehicle
 
-from sb3_marl.envs.simulator import cos, sin, xy
+from sb3_marl.envs import kernel
 
 
 @dataclass(frozen=True)
@@ -34,26 +33,19 @@ class TrafficSnapshot:
     n_avs: int
 
     @classmethod
-    def capture(cls, vehicles: list[Vehicle], n_avs: int, road_length: float) -> TrafficSnapshot:
-        """Read positions and velocities of ``vehicles`` (AVs first) into arrays.
+    def capture(cls, state: np.ndarray, n_avs: int, road_length: float) -> TrafficSnapshot:
+        """The snapshot of the road's state array (:mod:`~sb3_marl.envs.kernel` layout, AVs first).
 
         :param road_length: [m] vehicles whose centre is past it are not visible
         """
-        state = np.array(
-            [
-                (*xy(v.position), v.speed * cos(v.heading), v.speed * sin(v.heading), v.speed, v.lane_index[2])
-                for v in vehicles
-            ],
-            dtype=np.float64,
-        ).reshape(-1, 6)
-        x = state[:, 0]
+        x, speed, heading = state[:, kernel.X], state[:, kernel.SPEED], state[:, kernel.HEADING]
         return cls(
             x=x,
-            y=state[:, 1],
-            vx=state[:, 2],
-            vy=state[:, 3],
-            speed=state[:, 4],
-            lane=state[:, 5].astype(np.int64),
+            y=state[:, kernel.Y],
+            vx=speed * np.cos(heading),
+            vy=speed * np.sin(heading),
+            speed=speed,
+            lane=state[:, kernel.LANE].astype(np.int64),
             visible=x <= road_length,
             n_avs=n_avs,
         )

@@ -9,7 +9,6 @@ import numpy as np
 
 import sb3_marl  # noqa: F401
 from sb3_marl.envs import ENV_IDS, LaneChangeEnv
-from sb3_marl.envs.road import configure_hdv
 
 Vehicle = tuple[float, int, float]  # x [m], lane, speed [m/s]
 
@@ -21,23 +20,7 @@ def make(density: int = 1, **config: Any) -> LaneChangeEnv:
 
 def place(env: LaneChangeEnv, avs: list[Vehicle], hdvs: list[Vehicle] = ()) -> None:
     """Replace the traffic of a reset env by AVs and HDVs at given (x, lane, speed)."""
-    assert len(avs) == env.n_avs
-    road = env.road
-    lanes = road.network.lanes_list()
-    road.vehicles = []
-    env.avs = [
-        env.simulator.av(road, lanes[lane].position(x, 0), 0.0, speed, target_speeds=env.config["target_speeds"])
-        for x, lane, speed in avs
-    ]
-    hdv_objects = []
-    for x, lane, speed in hdvs:
-        hdv = env.simulator.hdv(road, lanes[lane].position(x, 0), 0.0, speed)
-        configure_hdv(hdv, env.config)
-        hdv_objects.append(hdv)
-    road.vehicles = [*env.avs, *hdv_objects]
-    env.controlled_vehicles = list(env.avs)
-    env.n_hdvs = len(hdv_objects)
-    env._exited = np.zeros(env.n_avs, dtype=bool)
+    env.place(avs, hdvs)
 
 
 def rollout(env: gym.Env, seed: int, steps: int, action_seed: int = 0) -> list[np.ndarray]:

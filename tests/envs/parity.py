@@ -1,10 +1,10 @@
 """Seeded episodes of the scenario under two simulators, side by side (parity checks of the kernel).
 
-:data:`~sb3_marl.envs.simulator.FAST` reproduces highway-env's classes bit for bit
-(tests/envs/test_simulator.py); :data:`~sb3_marl.envs.simulator.COMPILED` agrees with them within
-a rounding tolerance (see :mod:`sb3_marl.envs.kernel`). :func:`compare` runs the same seeded
-episodes, with the same actions, under two simulators and reports the largest state difference
-and every episode whose outcome differs. Used by tests/envs/test_kernel.py and
+The env's default, :data:`~sb3_marl.envs.simulator.COMPILED` (the kernel on the state array),
+agrees with :data:`~sb3_marl.envs.simulator.STOCK` (highway-env's own classes stepping frame by
+frame) within a rounding tolerance (see :mod:`sb3_marl.envs.kernel`). :func:`compare` runs the
+same seeded episodes, with the same actions, under two simulators and reports the largest state
+difference and every episode whose outcome differs. Used by tests/envs/test_kernel.py and
 benchmarks/kernel_parity.py.
 """
 
@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sb3_marl.envs import ENV_IDS, make_scenario
-from sb3_marl.envs.simulator import Simulator
+from sb3_marl.envs.kernel import ACCELERATION, CRASHED, HEADING, LANE, SPEED, STEERING, TARGET_LANE, X, Y
 
 #: Meta-action probabilities (LANE_LEFT, IDLE, LANE_RIGHT, FASTER, SLOWER). Uniform random actions
 #: end most episodes in a crash within a few steps; "cruise" is mostly IDLE, so that episodes last
@@ -23,25 +23,14 @@ from sb3_marl.envs.simulator import Simulator
 ACTION_PROBABILITIES = {"uniform": [0.2] * 5, "cruise": [0.04, 0.8, 0.04, 0.06, 0.06]}
 
 
+#: The state columns compared: position [m], heading [rad], speed [m/s], lane, target lane,
+#: crashed, steering [rad] and acceleration [m/s²] of the low-level action.
+COMPARED = [X, Y, HEADING, SPEED, LANE, TARGET_LANE, CRASHED, STEERING, ACCELERATION]
+
+
 def vehicle_states(env) -> np.ndarray:
-    """(vehicles, 9): position [m], heading [rad], speed [m/s], lane, target lane, crashed,
-    steering [rad] and acceleration [m/s²] of the low-level action, road order."""
-    return np.array(
-        [
-            [
-                *v.position,
-                v.heading,
-                v.speed,
-                v.lane_index[2],
-                v.target_lane_index[2],
-                v.crashed,
-                v.action["steering"],
-                v.action["acceleration"],
-            ]
-            for v in env.road.vehicles
-        ],
-        dtype=np.float64,
-    ).reshape(-1, 9)
+    """(vehicles, 9) the :data:`COMPARED` columns of the env's state, road order."""
+    return env.state[:, COMPARED].copy()
 
 
 @dataclass
@@ -59,7 +48,7 @@ class Episode:
         return len(self.events), bool(self.events[-1][0]), sum(sum(e[3]) for e in self.events)
 
 
-def run_episode(simulator: Simulator, density: int, seed: int, policy: str, **config) -> Episode:
+def run_episode(simulator: str, density: int, seed: int, policy: str, **config) -> Episode:
     """An episode of ``density`` from ``reset(seed=seed)`` under ``simulator``, the AVs' actions
     drawn from :data:`ACTION_PROBABILITIES` ``[policy]`` by a generator seeded with ``seed``."""
     env = make_scenario(ENV_IDS[density], config)
@@ -69,7 +58,7 @@ def run_episode(simulator: Simulator, density: int, seed: int, policy: str, **co
     episode = Episode(states=[vehicle_states(env)], observations=[obs])
     while True:
         obs, _, terminated, truncated, info = env.step(rng.choice(5, env.n_avs, p=ACTION_PROBABILITIES[policy]))
-        hdv_targets = tuple(v.target_lane_index[2] for v in env.road.vehicles[env.n_avs :])
+        hdv_targets = tuple(env.state[env.n_avs :, TARGET_LANE].astype(int).tolist())
         episode.states.append(vehicle_states(env))
         episode.observations.append(obs)
         episode.events.append(
@@ -91,7 +80,7 @@ class Comparison:
     hdv_lane_changes: int = 0
 
 
-def compare(reference: Simulator, candidate: Simulator, density: int, seeds: range, policy: str, **config) -> Comparison:
+def compare(reference: str, candidate: str, density: int, seeds: range, policy: str, **config) -> Comparison:
     """Run each seed under both simulators (scenario ``config`` overrides) and compare states,
     observations and events."""
     result = Comparison()

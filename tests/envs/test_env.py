@@ -9,7 +9,6 @@ from highway_env.envs.common.action import DiscreteMetaAction
 
 from sb3_marl.envs import ENV_IDS
 from sb3_marl.envs.lane_change_env import ACTION_INDEX
-from sb3_marl.envs.observation import observe
 
 IDLE = ACTION_INDEX["IDLE"]
 
@@ -31,12 +30,10 @@ def test_default_n_avs_is_density_maximum():
 def test_observation_values_in_a_constructed_situation():
     env = make(1, n_avs=2)
     env.reset(seed=0)
-    place(
-        env,
+    obs, _ = env.place(
         avs=[(100.0, 0, 25.0), (400.0, 1, 30.0)],
         hdvs=[(130.0, 1, 20.0), (90.0, 0, 27.0), (60.0, 1, 26.0), (20.0, 0, 25.0), (530.0, 1, 30.0)],
     )
-    obs = observe(env._snapshot(), env.config)
     np.testing.assert_allclose(
         obs[0],
         [
@@ -46,7 +43,8 @@ def test_observation_values_in_a_constructed_situation():
             [1, -40 / 150, 4 / 12, 1 / 45, 0],
             [1, -80 / 150, 0, 0, 0],  # the HDV at 20 m; AV1 (300 m away) is out of range
         ],
-        rtol=1e-6, atol=1e-7,
+        rtol=1e-6,
+        atol=1e-7,
     )
     # AV1 sees nothing within 150 m: the vehicle at 530 m is past the road end; absent rows are 0.
     np.testing.assert_allclose(obs[1, 0], [1, 400 / 520, 4 / 12, 30 / 45, 0], rtol=1e-6)

@@ -1,9 +1,9 @@
 """The compiled kernel against highway-env's classes: same episodes within a rounding tolerance.
 
-FAST equals highway-env's own classes bit for bit (test_simulator.py), so COMPILED is compared
-with FAST: the same seeded episodes and actions must give the same events (crashes, lane changes,
-HDV lane decisions, lengths) and states within TOLERANCE. benchmarks/kernel_parity.py runs the
-same comparison over hundreds of episodes per density.
+COMPILED (the default: the kernel on the state array) is compared with STOCK (highway-env's own
+classes stepping the same episodes frame by frame): the same seeded episodes and actions must give
+the same events (crashes, lane changes, HDV lane decisions, lengths) and states within TOLERANCE.
+benchmarks/kernel_parity.py runs the same comparison over hundreds of episodes per density.
 """
 
 import numpy as np
@@ -11,7 +11,7 @@ import pytest
 from helpers import make
 from parity import compare, run_episode
 
-from sb3_marl.envs.simulator import COMPILED, FAST, CompiledRoad
+from sb3_marl.envs.simulator import COMPILED, STOCK
 
 #: [m, rad, m/s, m/s²] largest state difference accepted: numpy's SIMD arcsin / arctan / tan /
 #: power differ from the C library's in the last bit; measured up to ~1e-13 over 200 episodes.
@@ -21,7 +21,7 @@ TOLERANCE = 1e-9
 @pytest.mark.parametrize("density", [1, 2, 3])
 @pytest.mark.parametrize(("policy", "config"), [("uniform", {}), ("cruise", {}), ("cruise", {"safety_supervisor": True})])
 def test_compiled_kernel_matches_highway_env(density, policy, config):
-    result = compare(FAST, COMPILED, density, range(15), policy, **config)
+    result = compare(STOCK, COMPILED, density, range(15), policy, **config)
     assert result.different_outcomes == []
     assert result.max_state_difference < TOLERANCE
     assert result.max_observation_difference < TOLERANCE
@@ -31,21 +31,10 @@ def test_compiled_kernel_matches_highway_env(density, policy, config):
         assert result.hdv_lane_changes >= 2  # MOBIL lane changes and their aborts
 
 
-def test_compiled_kernel_is_the_default_and_covers_the_scenario_road():
+def test_compiled_kernel_is_the_default():
     env = make(3)
     env.reset(seed=0)
-    assert isinstance(env.road, CompiledRoad)
-    assert env.road.compiled_geometry() == (2, 4.0, 520.0, env.config["speed_limit"])
-
-
-def test_a_road_the_kernel_cannot_simulate_falls_back_to_highway_env_frames():
-    env = make(1)
-    env.reset(seed=0)
-    env.road.network.lanes_list()[1]._start = [0.0, 5.0]  # not at y = 1 × lane width
-    env.road._geometry = False  # recheck
-    assert env.road.compiled_geometry() is None
-    for _ in range(5):
-        env.step(np.ones(env.n_avs, dtype=int))  # per-frame Road.act / Road.step
+    assert env.simulator == COMPILED and not env._uses_objects()
 
 
 def test_rendered_episodes_match_unrendered_ones():

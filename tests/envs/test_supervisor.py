@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 from helpers import make, place
 
+from sb3_marl.envs.kernel import HEADING, LANE, SPEED, TARGET_SPEED, X, Y, speed_index
 from sb3_marl.envs.lane_change_env import ACTION_INDEX
 from sb3_marl.envs.supervisor import supervise
 
@@ -20,9 +21,9 @@ def test_faster_just_behind_a_slow_hdv_is_replaced():
     env = supervised_env()
     place(env, avs=[(100.0, 0, 25.0)], hdvs=[(115.0, 0, 15.0)])
     proposed = np.array([FASTER])
-    executed, rooms = supervise(env.road.vehicles, 1, proposed, env.action_masks(), env.config)
+    executed, rooms = supervise(env.state, 1, proposed, env.action_masks(), env.config)
     assert executed[0] != FASTER and env.action_masks()[0, executed[0]]
-    unsafe_room = supervise(env.road.vehicles, 1, proposed, env.action_masks(), {**env.config, "supervisor_min_gap": -1e9})[1]
+    unsafe_room = supervise(env.state, 1, proposed, env.action_masks(), {**env.config, "supervisor_min_gap": -1e9})[1]
     assert rooms[0] > unsafe_room[0] and unsafe_room[0] < 0  # FASTER was predicted to collide
     _, _, terminated, _, info = env.step(proposed)
     assert info["proposed_action"].tolist() == [FASTER] and info["executed_action"].tolist() == executed.tolist()
@@ -84,9 +85,18 @@ def test_supervised_random_policy_rarely_crashes_in_dense_traffic():
 #: A density-3 state traced from an evaluation crash (x [m], y [m], heading [rad], speed [m/s],
 #: target lane), AVs first: AV 1 proposes a lane change into the lane of AV 0, 4 m ahead of it and
 #: 9 m/s slower (AV 0 finishing its own lane change).
-TRACED = [(242.7, 3.89, 0.017, 18.8, 1), (238.8, 0.01, -0.001, 28.2, 0), (405.4, 4.0, 0.0, 30.0, 1),
-          (278.5, 3.21, 0.07, 28.4, 1), (296.5, 0.35, -0.043, 26.6, 0), (172.5, 0.0, 0.0, 24.7, 0),
-          (334.4, 4.0, 0.0, 25.3, 1), (165.3, 4.0, 0.0, 22.3, 1), (330.1, 0.0, 0.0, 24.4, 0), (404.2, 0.0, 0.0, 29.3, 0)]
+TRACED = [
+    (242.7, 3.89, 0.017, 18.8, 1),
+    (238.8, 0.01, -0.001, 28.2, 0),
+    (405.4, 4.0, 0.0, 30.0, 1),
+    (278.5, 3.21, 0.07, 28.4, 1),
+    (296.5, 0.35, -0.043, 26.6, 0),
+    (172.5, 0.0, 0.0, 24.7, 0),
+    (334.4, 4.0, 0.0, 25.3, 1),
+    (165.3, 4.0, 0.0, 22.3, 1),
+    (330.1, 0.0, 0.0, 24.4, 0),
+    (404.2, 0.0, 0.0, 29.3, 0),
+]
 
 
 def test_conflicting_lane_changes_keep_their_lanes_together():
@@ -96,15 +106,16 @@ def test_conflicting_lane_changes_keep_their_lanes_together():
     env = make(3, n_avs=5, hdv_count_range=[5, 5], safety_supervisor=True)
     env.reset(seed=0)
     place(env, avs=[(x, lane, v) for x, _, _, v, lane in TRACED[:5]], hdvs=[(x, lane, v) for x, _, _, v, lane in TRACED[5:]])
-    for vehicle, (x, y, heading, speed, _) in zip(env.road.vehicles, TRACED):
-        vehicle.position, vehicle.heading, vehicle.speed = np.array([x, y]), heading, speed
-        vehicle.lane_index = env.road.network.get_closest_lane_index(vehicle.position, heading)
-        vehicle.lane = env.road.network.get_lane(vehicle.lane_index)
-    for av in env.avs:
-        av.speed_index = av.speed_to_index(av.speed)
-        av.target_speed = av.index_to_speed(av.speed_index)
+    state = env.state.copy()
+    ladder = np.array(env.config["target_speeds"])
+    for k, (x, y, heading, speed, _) in enumerate(TRACED):
+        state[k, [X, Y, HEADING, SPEED]] = x, y, heading, speed
+        state[k, LANE] = round(y / env.config["lane_width"])  # the closest lane
+        if k < env.n_avs:  # MDPVehicle: the ladder step nearest its speed
+            state[k, TARGET_SPEED] = ladder[speed_index(speed, ladder)]
+    env.state = state
     proposed = np.array([FASTER, ACTION_INDEX["LANE_RIGHT"], IDLE, FASTER, IDLE])
-    executed, rooms = supervise(env.road.vehicles, 5, proposed, env.action_masks(), env.config)
+    executed, rooms = supervise(env.state, 5, proposed, env.action_masks(), env.config)
     assert executed[:2].tolist() == [IDLE, IDLE] and (rooms >= env.config["supervisor_min_gap"]).all()
     for _ in range(10):
         _, _, terminated, _, _ = env.step(np.array([IDLE] * 5))
@@ -119,8 +130,8 @@ def test_repeated_slower_is_predicted_to_brake_in_time():
     place(env, avs=[(100.0, 0, 30.0)], hdvs=[(126.0, 0, 12.0)])
     mask = env.action_masks()
     mask[0, [ACTION_INDEX["LANE_LEFT"], ACTION_INDEX["LANE_RIGHT"]]] = False
-    held = supervise(env.road.vehicles, 1, np.array([SLOWER]), mask, {**env.config, "supervisor_repeat_actions": False})
-    repeated = supervise(env.road.vehicles, 1, np.array([SLOWER]), mask, env.config)
+    held = supervise(env.state, 1, np.array([SLOWER]), mask, {**env.config, "supervisor_repeat_actions": False})
+    repeated = supervise(env.state, 1, np.array([SLOWER]), mask, env.config)
     assert held[1][0] < 0 < repeated[1][0]
     for _ in range(15):
         _, _, terminated, _, _ = env.step(np.array([SLOWER]))
@@ -146,8 +157,14 @@ def test_supervised_episodes_are_reproducible():
 
 @pytest.mark.parametrize(
     "key, value",
-    [("safety_supervisor", "yes"), ("supervisor_horizon", 0.0), ("supervisor_horizon", float("nan")),
-     ("supervisor_min_gap", -1.0), ("supervisor_min_gap", float("inf")), ("supervisor_repeat_actions", 1)],
+    [
+        ("safety_supervisor", "yes"),
+        ("supervisor_horizon", 0.0),
+        ("supervisor_horizon", float("nan")),
+        ("supervisor_min_gap", -1.0),
+        ("supervisor_min_gap", float("inf")),
+        ("supervisor_repeat_actions", 1),
+    ],
 )
 def test_bad_supervisor_keys_name_the_key(key, value):
     with pytest.raises(ValueError, match=f"config\\['{key}'\\]"):
