@@ -507,3 +507,29 @@ def simulate(
                     state[k, PRESENT] = 0.0
                 else:
                     state[k, COLLIDABLE] = 0.0
+
+
+@numba.njit(cache=True)
+def policy_step(
+    state: np.ndarray,
+    actions: np.ndarray,
+    frames: int,
+    dt: float,
+    n_lanes: int,
+    lane_width: float,
+    road_length: float,
+    speed_limit: float,
+    ladder: np.ndarray,
+) -> np.ndarray:
+    """One policy step of the scenario: the first ``actions.size`` rows (the AVs) take their
+    meta-actions (:func:`meta_action_targets`), then :func:`simulate` runs ``frames`` frames with
+    the road end at ``road_length``. Returns the new state (``state`` is not modified) without the
+    vehicles that left the road."""
+    state = state.copy()
+    n_avs = actions.size
+    target_lane, target_speed = meta_action_targets(state, n_avs, n_lanes, lane_width, road_length, ladder)
+    for i in range(n_avs):
+        state[i, TARGET_LANE], state[i, TARGET_SPEED] = target_lane[i, actions[i]], target_speed[i, actions[i]]
+    simulate(state, frames, dt, n_lanes, lane_width, road_length, speed_limit, road_length)
+    kept = np.flatnonzero(state[:, PRESENT])
+    return state[kept] if kept.size < state.shape[0] else state

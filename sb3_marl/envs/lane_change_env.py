@@ -207,7 +207,7 @@ class LaneChangeEnv(AbstractEnv):
         self.done = terminated or truncated
         if self.render_mode == "human":
             self.render()
-        return obs, float(info["rewards"].mean()), terminated, truncated, info
+        return obs, float(info["rewards"].sum()) / n, terminated, truncated, info
 
     def _uses_objects(self) -> bool:
         """Whether highway-env's objects step the road frame by frame (drawn frames, or the stock reference)."""
@@ -222,13 +222,17 @@ class LaneChangeEnv(AbstractEnv):
         dt = 1.0 / config["simulation_frequency"]
         road_length = float(config["road_length"])
         if not self._uses_objects():
-            state, n = self.state.copy(), self.n_avs
-            geometry = (int(config["lanes_count"]), float(config["lane_width"]), road_length)
-            lanes, speeds = kernel.meta_action_targets(state, n, *geometry, self._ladder())
-            state[:n, kernel.TARGET_LANE] = lanes[np.arange(n), actions]
-            state[:n, kernel.TARGET_SPEED] = speeds[np.arange(n), actions]
-            kernel.simulate(state, frames, dt, *geometry, float(config["speed_limit"]), road_length)
-            self.state = state[state[:, kernel.PRESENT] > 0]
+            self.state = kernel.policy_step(
+                self.state,
+                actions,
+                frames,
+                dt,
+                int(config["lanes_count"]),
+                float(config["lane_width"]),
+                road_length,
+                float(config["speed_limit"]),
+                self._ladder(),
+            )
             self.steps += frames
             return
         road = self.road
@@ -294,7 +298,7 @@ class LaneChangeEnv(AbstractEnv):
                 f"Invalid action {action!r}: expected an int array of shape ({self.n_avs},), "
                 f"one meta-action per AV, got dtype {actions.dtype} and shape {actions.shape}."
             )
-        if ((actions < 0) | (actions >= len(ACTIONS))).any():
+        if not all(0 <= a < len(ACTIONS) for a in actions.tolist()):
             raise ValueError(f"Invalid action {actions.tolist()}: each must be in {ACTIONS}.")
         return actions
 

@@ -27,21 +27,6 @@ from sb3_marl.envs.traffic import TrafficSnapshot
 REWARD_TERMS = ("safety", "headway", "speed", "comfort", "harsh_acceleration", "lane_change")
 
 
-def headway_distances(snapshot: TrafficSnapshot, max_distance: float) -> np.ndarray:
-    """(n_avs,) gap [m] to the nearest visible vehicle ahead in the same lane, capped at ``max_distance``."""
-    return _headway_distances(snapshot.x, snapshot.lane, snapshot.visible, snapshot.n_avs, float(max_distance))
-
-
-@numba.njit(cache=True)
-def _headway_distances(x: np.ndarray, lane: np.ndarray, visible: np.ndarray, n_avs: int, max_distance: float) -> np.ndarray:
-    distance = np.full(n_avs, max_distance)
-    for i in range(n_avs):
-        for j in range(x.size):
-            if j != i and visible[j] and lane[j] == lane[i] and x[j] > x[i]:
-                distance[i] = min(distance[i], x[j] - x[i])
-    return distance
-
-
 def reward_terms(
     snapshot: TrafficSnapshot,
     crashed: np.ndarray,
@@ -57,34 +42,92 @@ def reward_terms(
     :return: ``safety``, ``headway``, ``speed``, ``comfort`` (= harsh_acceleration + lane_change),
         ``harsh_acceleration``, ``lane_change`` and the ``headway_distance`` used [m]
     """
-    speed = snapshot.speed[: snapshot.n_avs]
-    distance = headway_distances(snapshot, config["headway_max_distance"])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ratio = distance / (np.maximum(speed, 1e-9) * config["headway_time"])
-        headway = np.where(speed > 0, np.minimum(np.log(ratio), 0.0), 0.0)
     v_min, v_max = config["reward_speed_range"]
-    harsh = (np.abs(acceleration) >= config["harsh_acceleration_threshold"]).astype(np.float64)
-    lane = lane_change.astype(np.float64)
-    return {
-        "safety": -crashed.astype(np.float64),
-        "headway": headway,
-        "speed": np.clip((speed - v_min) / (v_max - v_min), 0.0, 1.0),
-        "comfort": harsh + lane,
-        "harsh_acceleration": harsh,
-        "lane_change": lane,
-        "headway_distance": distance,
-    }
+    terms = _terms(
+        snapshot.x,
+        snapshot.lane,
+        snapshot.visible,
+        snapshot.speed,
+        snapshot.n_avs,
+        np.asarray(crashed, dtype=np.bool_),
+        np.asarray(acceleration, dtype=np.float64),
+        np.asarray(lane_change, dtype=np.bool_),
+        float(config["headway_max_distance"]),
+        float(config["headway_time"]),
+        float(v_min),
+        float(v_max),
+        float(config["harsh_acceleration_threshold"]),
+    )
+    terms[1] = np.minimum(np.log(terms[1]), 0.0)  # numpy's log, as the committed results were computed
+    return dict(zip((*REWARD_TERMS, "headway_distance"), terms))
+
+
+@numba.njit(cache=True)
+def _terms(
+    x: np.ndarray,
+    lane: np.ndarray,
+    visible: np.ndarray,
+    speed: np.ndarray,
+    n_avs: int,
+    crashed: np.ndarray,
+    acceleration: np.ndarray,
+    lane_change: np.ndarray,
+    max_distance: float,
+    headway_time: float,
+    v_min: float,
+    v_max: float,
+    harsh_threshold: float,
+) -> np.ndarray:
+    """(7, n_avs): the rows of :func:`reward_terms` in :data:`REWARD_TERMS` order, then the headway
+    distance [m]; the headway row holds d / (v t_d) (1 when v <= 0), whose log the caller takes."""
+    terms = np.empty((7, n_avs))
+    for i in range(n_avs):
+        distance = max_distance  # to the nearest visible vehicle ahead in the lane, capped
+        for j in range(x.size):
+            if j != i and visible[j] and lane[j] == lane[i] and x[j] > x[i]:
+                distance = min(distance, x[j] - x[i])
+        harsh = 1.0 if abs(acceleration[i]) >= harsh_threshold else 0.0
+        changed = 1.0 if lane_change[i] else 0.0
+        terms[0, i] = -1.0 if crashed[i] else -0.0
+        terms[1, i] = distance / (max(speed[i], 1e-9) * headway_time) if speed[i] > 0 else 1.0
+        terms[2, i] = min(max((speed[i] - v_min) / (v_max - v_min), 0.0), 1.0)
+        terms[3, i] = harsh + changed
+        terms[4, i] = harsh
+        terms[5, i] = changed
+        terms[6, i] = distance
+    return terms
 
 
 def total_reward(terms: dict[str, np.ndarray], config: dict[str, Any]) -> np.ndarray:
     """(n_avs,) weighted reward ``w_s*r_s + w_d*r_d + w_v*r_v - w_c*r_c`` (comfort only if enabled)."""
-    reward = (
-        config["safety_weight"] * terms["safety"]
-        + config["headway_weight"] * terms["headway"]
-        + config["speed_weight"] * terms["speed"]
+    return _weighted(
+        terms["safety"],
+        terms["headway"],
+        terms["speed"],
+        terms["comfort"],
+        float(config["safety_weight"]),
+        float(config["headway_weight"]),
+        float(config["speed_weight"]),
+        float(config["comfort_weight"]) if config["comfort"] else 0.0,
     )
-    if config["comfort"]:
-        reward = reward - config["comfort_weight"] * terms["comfort"]
+
+
+@numba.njit(cache=True)
+def _weighted(
+    safety: np.ndarray,
+    headway: np.ndarray,
+    speed: np.ndarray,
+    comfort: np.ndarray,
+    w_s: float,
+    w_d: float,
+    w_v: float,
+    w_c: float,
+) -> np.ndarray:
+    reward = np.empty(safety.size)
+    for i in range(safety.size):
+        reward[i] = w_s * safety[i] + w_d * headway[i] + w_v * speed[i]
+        if w_c:
+            reward[i] -= w_c * comfort[i]
     return reward
 
 

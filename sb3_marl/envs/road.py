@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import numba
 import numpy as np
 from highway_env.road.lane import LineType, StraightLane
 from highway_env.road.road import Road, RoadNetwork
@@ -75,20 +76,44 @@ def vehicle_state(config: dict[str, Any], x: np.ndarray, lane: np.ndarray, speed
     ``MDPVehicle`` and ``IDMVehicle`` constructors give them (an AV's target speed is the ladder
     step nearest its speed, an HDV's its speed; the HDV's lane-change timer starts at
     ``(x + y) π mod LANE_CHANGE_DELAY``; the config's MOBIL parameters)."""
-    x, lane, speed = (np.asarray(a, dtype=np.float64).reshape(-1) for a in (x, lane, speed))
-    ladder = np.asarray(config["target_speeds"], dtype=np.float64)
-    hdv = np.arange(x.size) >= n_avs
+    return _vehicle_state(
+        np.asarray(x, dtype=np.float64).reshape(-1),
+        np.asarray(lane, dtype=np.float64).reshape(-1),
+        np.asarray(speed, dtype=np.float64).reshape(-1),
+        n_avs,
+        float(config["lane_width"]),
+        np.asarray(config["target_speeds"], dtype=np.float64),
+        float(config["hdv_politeness"]),
+        float(config["hdv_b_safe"]),
+        float(config["hdv_lane_change_threshold"]),
+    )
+
+
+@numba.njit(cache=True)
+def _vehicle_state(
+    x: np.ndarray,
+    lane: np.ndarray,
+    speed: np.ndarray,
+    n_avs: int,
+    lane_width: float,
+    ladder: np.ndarray,
+    politeness: float,
+    max_braking_imposed: float,
+    min_acc_gain: float,
+) -> np.ndarray:
     state = np.zeros((x.size, kernel.COLUMNS))
-    state[:, kernel.X], state[:, kernel.Y] = x, lane * config["lane_width"]
-    state[:, kernel.SPEED] = speed
-    state[:, kernel.LANE] = state[:, kernel.TARGET_LANE] = lane
-    top = ladder.size - 1
-    av_speed_index = np.clip(np.round((speed - ladder[0]) / (ladder[top] - ladder[0]) * top), 0, top).astype(np.int64)
-    state[:, kernel.TARGET_SPEED] = np.where(hdv, speed, ladder[av_speed_index])
-    state[:, kernel.IS_HDV] = hdv
-    state[:, kernel.TIMER] = np.where(hdv, (x + state[:, kernel.Y]) * np.pi % kernel.LANE_CHANGE_DELAY, 0.0)
-    state[:, kernel.COLLIDABLE] = state[:, kernel.PRESENT] = 1.0
-    state[hdv, kernel.POLITENESS] = float(config["hdv_politeness"])
-    state[hdv, kernel.MAX_BRAKING_IMPOSED] = float(config["hdv_b_safe"])
-    state[hdv, kernel.MIN_ACC_GAIN] = float(config["hdv_lane_change_threshold"])
+    for k in range(x.size):
+        y = lane[k] * lane_width
+        state[k, kernel.X], state[k, kernel.Y], state[k, kernel.SPEED] = x[k], y, speed[k]
+        state[k, kernel.LANE] = state[k, kernel.TARGET_LANE] = lane[k]
+        state[k, kernel.COLLIDABLE] = state[k, kernel.PRESENT] = 1.0
+        if k < n_avs:
+            state[k, kernel.TARGET_SPEED] = ladder[kernel.speed_index(speed[k], ladder)]
+        else:
+            state[k, kernel.TARGET_SPEED] = speed[k]
+            state[k, kernel.IS_HDV] = 1.0
+            state[k, kernel.TIMER] = (x[k] + y) * np.pi % kernel.LANE_CHANGE_DELAY
+            state[k, kernel.POLITENESS] = politeness
+            state[k, kernel.MAX_BRAKING_IMPOSED] = max_braking_imposed
+            state[k, kernel.MIN_ACC_GAIN] = min_acc_gain
     return state
