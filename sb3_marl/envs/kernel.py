@@ -8,10 +8,12 @@ moves (the kinematic bicycle model of ``Vehicle.step``, with the lane update of
 separating-axis test with the displacement of the next frame, ``impact`` and ``crashed`` as in
 ``RoadObject.handle_collisions``). Same operations in the same order as highway-env on the
 scenario's road (straight lanes along +x from x = 0, lane k centred at y = k × lane width, one
-road segment); :class:`~sb3_marl.envs.simulator.CompiledRoad` copies the vehicle objects' state in
-and out, and the parity tests hold it to highway-env's classes. Vehicle dimensions, controller
-gains and IDM parameters are highway-env's class values (as the scenario uses them); only MOBIL's
-politeness, safe braking and threshold are read per HDV (the scenario config sets them).
+road segment). The env keeps its road as this array (:func:`policy_step` steps it; the spawn is
+:func:`sb3_marl.envs.road.spawn`), :mod:`sb3_marl.envs.simulator` builds highway-env objects from it
+where they are needed, and the parity tests hold it to highway-env's own classes. Vehicle
+dimensions, controller gains and IDM parameters are highway-env's class values (as the scenario
+uses them); only MOBIL's politeness, safe braking and threshold are read per HDV (the scenario
+config sets them, :func:`sb3_marl.envs.road.vehicle_state`).
 
 Exactness: sin, cos and sqrt round as numpy's; numpy's float64 arcsin, arctan, tan and power use
 SIMD routines on CPUs that have them (AVX-512 here), which differ from the C library's (used by

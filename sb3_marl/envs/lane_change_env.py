@@ -32,7 +32,7 @@ class LaneChangeEnv(AbstractEnv):
     """One-way highway where ``n_avs`` AVs share the road with IDM/MOBIL human drivers.
 
     - ``reset`` spawns ``n_avs`` AVs and a number of HDVs sampled from the density's range in
-      random grid slots (see :func:`~sb3_marl.envs.road.spawn_vehicles`) and returns
+      random grid slots (see :func:`~sb3_marl.envs.road.spawn`) and returns
       observations of shape ``(n_avs, obs_vehicles_count, 5)``.
     - ``step(actions)`` takes an int array ``(n_avs,)`` of meta-actions
       (0 LANE_LEFT, 1 IDLE, 2 LANE_RIGHT, 3 FASTER, 4 SLOWER), simulates
