@@ -1,6 +1,6 @@
 """highway-env's road dynamics for the lane-change scenario, compiled (numba) on a state array.
 
-One call of :func:`simulate` runs the frames of a policy step for the whole road: every vehicle
+One call of :func:`policy_step` runs the frames of a policy step for the whole road: every vehicle
 acts (AVs: highway-env's ``ControlledVehicle`` steering and speed control towards the targets their
 meta-actions set; HDVs: ``IDMVehicle``'s MOBIL lane-change policy, steering and IDM), every vehicle
 moves (the kinematic bicycle model of ``Vehicle.step``, with the lane update of
@@ -470,45 +470,9 @@ def meta_action_targets(
 def drive(state: np.ndarray, dt: float, n_lanes: int, lane_width: float, road_length: float, speed_limit: float) -> None:
     """One frame of the road's driving (``Road.act``, then ``Vehicle.step`` of every vehicle) on
     ``state`` in place, without the collision test and the road end: the safety supervisor's
-    prediction, with the same equations as :func:`simulate`."""
+    prediction, with the same equations as :func:`policy_step`."""
     _act(state, n_lanes, lane_width, road_length, speed_limit)
     _move(state, dt, n_lanes, lane_width, road_length)
-
-
-@numba.njit(cache=True)
-def simulate(
-    state: np.ndarray,
-    frames: int,
-    dt: float,
-    n_lanes: int,
-    lane_width: float,
-    road_length: float,
-    speed_limit: float,
-    exit_x: float,
-) -> None:
-    """Run ``frames`` frames of ``dt`` s (``Road.act``, ``Road.step``) on ``state`` in place.
-
-    :param state: (n, :data:`COLUMNS`) one row per vehicle, ``road.vehicles`` order
-    :param n_lanes: lanes along +x, lane k centred at y = k × ``lane_width`` [m]
-    :param road_length: [m] length of the lanes
-    :param speed_limit: [m/s] the lanes' speed limit (caps IDM's desired speed)
-    :param exit_x: [m] after each frame, vehicles past it leave: HDVs are removed from the road
-        (``PRESENT`` 0), AVs stop colliding (``COLLIDABLE`` 0), as the scenario does
-    """
-    n = state.shape[0]
-    for _ in range(frames):
-        drive(state, dt, n_lanes, lane_width, road_length, speed_limit)
-        for i in range(n):
-            if state[i, PRESENT]:
-                for j in range(i + 1, n):
-                    if state[j, PRESENT]:
-                        _handle_collision(state, i, j, dt)
-        for k in range(n):
-            if state[k, PRESENT] and state[k, X] > exit_x:
-                if state[k, IS_HDV]:
-                    state[k, PRESENT] = 0.0
-                else:
-                    state[k, COLLIDABLE] = 0.0
 
 
 @numba.njit(cache=True)
@@ -523,15 +487,34 @@ def policy_step(
     speed_limit: float,
     ladder: np.ndarray,
 ) -> np.ndarray:
-    """One policy step of the scenario: the first ``actions.size`` rows (the AVs) take their
-    meta-actions (:func:`meta_action_targets`), then :func:`simulate` runs ``frames`` frames with
-    the road end at ``road_length``. Returns the new state (``state`` is not modified) without the
-    vehicles that left the road."""
+    """One policy step of the scenario on a copy of ``state``: the first ``actions.size`` rows (the
+    AVs) take their meta-actions (:func:`meta_action_targets`), then ``frames`` frames of ``dt`` s
+    run (``Road.act``, ``Road.step``); after each, vehicles past the road end leave: HDVs are
+    removed, AVs stop colliding. Returns the new state without the removed vehicles.
+
+    :param state: (n, :data:`COLUMNS`) one row per vehicle, the AVs first
+    :param n_lanes: lanes along +x, lane k centred at y = k × ``lane_width`` [m]
+    :param road_length: [m] length of the lanes
+    :param speed_limit: [m/s] the lanes' speed limit (caps IDM's desired speed)
+    :param ladder: [m/s] the AVs' target speeds
+    """
     state = state.copy()
-    n_avs = actions.size
+    n, n_avs = state.shape[0], actions.size
     target_lane, target_speed = meta_action_targets(state, n_avs, n_lanes, lane_width, road_length, ladder)
     for i in range(n_avs):
         state[i, TARGET_LANE], state[i, TARGET_SPEED] = target_lane[i, actions[i]], target_speed[i, actions[i]]
-    simulate(state, frames, dt, n_lanes, lane_width, road_length, speed_limit, road_length)
+    for _ in range(frames):
+        drive(state, dt, n_lanes, lane_width, road_length, speed_limit)
+        for i in range(n):
+            if state[i, PRESENT]:
+                for j in range(i + 1, n):
+                    if state[j, PRESENT]:
+                        _handle_collision(state, i, j, dt)
+        for k in range(n):
+            if state[k, PRESENT] and state[k, X] > road_length:
+                if state[k, IS_HDV]:
+                    state[k, PRESENT] = 0.0
+                else:
+                    state[k, COLLIDABLE] = 0.0
     kept = np.flatnonzero(state[:, PRESENT])
-    return state[kept] if kept.size < state.shape[0] else state
+    return state[kept] if kept.size < n else state
