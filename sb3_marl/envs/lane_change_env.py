@@ -128,7 +128,7 @@ class LaneChangeEnv(AbstractEnv):
         self.n_hdvs = int(self.np_random.integers(lo, hi + 1))
         self.state = spawn(self.config, self.n_avs, self.n_hdvs, self.np_random)
         self._road = None
-        obs, info = self._observe(np.zeros(self.n_avs), np.zeros(self.n_avs, dtype=bool), np.full(self.n_avs, -1))
+        obs, info = self._observe_start()
         if self.render_mode == "human":
             self.render()
         return obs, info
@@ -144,7 +144,7 @@ class LaneChangeEnv(AbstractEnv):
         x, lane, speed = np.array([*avs, *hdvs], dtype=np.float64).reshape(-1, 3).T
         self.n_hdvs = len(hdvs)
         self.state = vehicle_state(self.config, x, lane, speed, self.n_avs)
-        return self._observe(np.zeros(self.n_avs), np.zeros(self.n_avs, dtype=bool), np.full(self.n_avs, -1))
+        return self._observe_start()
 
     @property
     def state(self) -> np.ndarray:
@@ -220,22 +220,13 @@ class LaneChangeEnv(AbstractEnv):
         config = self.config
         frames = config["simulation_frequency"] // config["policy_frequency"]
         dt = 1.0 / config["simulation_frequency"]
-        road_length = float(config["road_length"])
         if not self._uses_objects():
             self.state = kernel.policy_step(
-                self.state,
-                actions,
-                frames,
-                dt,
-                int(config["lanes_count"]),
-                float(config["lane_width"]),
-                road_length,
-                float(config["speed_limit"]),
-                self._ladder(),
+                self.state, actions, frames, dt, *self._geometry(), float(config["speed_limit"]), self._ladder()
             )
             self.steps += frames
             return
-        road = self.road
+        road, road_length = self.road, float(config["road_length"])
         for frame in range(frames):
             if frame == 0:
                 for av, a in zip(self.avs, actions):
@@ -251,6 +242,11 @@ class LaneChangeEnv(AbstractEnv):
         self.enable_auto_render = False
         self.state = capture(road.vehicles)
         self._road_current = True  # the objects stepped are the state
+
+    def _geometry(self) -> tuple[int, float, float]:
+        """(lanes, lane width [m], road length [m]) of the config, as the kernel takes them."""
+        config = self.config
+        return int(config["lanes_count"]), float(config["lane_width"]), float(config["road_length"])
 
     def _ladder(self) -> np.ndarray:
         """[m/s] the AVs' target speeds (FASTER / SLOWER move along it)."""
@@ -279,15 +275,7 @@ class LaneChangeEnv(AbstractEnv):
         a lane change only towards an existing lane reachable from the AV's position; FASTER /
         SLOWER unless the AV already tracks the highest / lowest target speed.
         """
-        config = self.config
-        return kernel.available_actions(
-            self.state,
-            self.n_avs,
-            int(config["lanes_count"]),
-            float(config["lane_width"]),
-            float(config["road_length"]),
-            self._ladder(),
-        )
+        return kernel.available_actions(self.state, self.n_avs, *self._geometry(), self._ladder())
 
     def _check_actions(self, action: Any) -> np.ndarray:
         actions = np.asarray(action)
@@ -301,6 +289,11 @@ class LaneChangeEnv(AbstractEnv):
         if not all(0 <= a < len(ACTIONS) for a in actions.tolist()):
             raise ValueError(f"Invalid action {actions.tolist()}: each must be in {ACTIONS}.")
         return actions
+
+    def _observe_start(self) -> tuple[np.ndarray, dict[str, Any]]:
+        """:meth:`_observe` of a new situation: no acceleration or lane change, no action yet (-1)."""
+        n = self.n_avs
+        return self._observe(np.zeros(n), np.zeros(n, dtype=bool), np.full(n, -1))
 
     def _observe(
         self, acceleration: np.ndarray, lane_change: np.ndarray, proposed: np.ndarray, executed: np.ndarray | None = None

@@ -1,4 +1,4 @@
-"""Builders of hand-made traffic situations on the real scenario env."""
+"""The real scenario env with config overrides, and seeded rollouts of it (hand-made traffic: ``env.place``)."""
 
 from __future__ import annotations
 
@@ -10,17 +10,10 @@ import numpy as np
 import sb3_marl  # noqa: F401
 from sb3_marl.envs import ENV_IDS, LaneChangeEnv
 
-Vehicle = tuple[float, int, float]  # x [m], lane, speed [m/s]
-
 
 def make(density: int = 1, **config: Any) -> LaneChangeEnv:
     """The registered env of ``density`` with ``config`` overrides, unwrapped."""
     return gym.make(ENV_IDS[density], config=config).unwrapped
-
-
-def place(env: LaneChangeEnv, avs: list[Vehicle], hdvs: list[Vehicle] = ()) -> None:
-    """Replace the traffic of a reset env by AVs and HDVs at given (x, lane, speed)."""
-    env.place(avs, hdvs)
 
 
 def rollout(env: gym.Env, seed: int, steps: int, action_seed: int = 0) -> list[np.ndarray]:

@@ -4,7 +4,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
-from helpers import make, place, rollout
+from helpers import make, rollout
 from highway_env.envs.common.action import DiscreteMetaAction
 
 from sb3_marl.envs import ENV_IDS
@@ -102,7 +102,7 @@ def test_time_limit_truncates_after_100_steps():
 def test_vehicles_past_the_road_end_leave_the_scenario():
     env = make(1, n_avs=2)
     env.reset(seed=0)
-    place(env, avs=[(517.0, 0, 30.0), (480.0, 0, 25.0)], hdvs=[(518.0, 1, 30.0)])
+    env.place(avs=[(517.0, 0, 30.0), (480.0, 0, 25.0)], hdvs=[(518.0, 1, 30.0)])
     obs, _, terminated, truncated, info = env.step(np.array([IDLE, IDLE]))
     assert not terminated and not truncated
     np.testing.assert_array_equal(info["exited"], [True, False])

@@ -4,7 +4,7 @@ import math
 
 import numpy as np
 import pytest
-from helpers import make, place
+from helpers import make
 
 from sb3_marl.envs import default_config
 from sb3_marl.envs.lane_change_env import ACTION_INDEX
@@ -92,7 +92,7 @@ class TestInSimulation:
     def test_headway_and_speed_after_a_step(self):
         env = make(1, n_avs=1)
         env.reset(seed=0)
-        place(env, avs=[(100.0, 0, 25.0)], hdvs=[(125.0, 0, 25.0), (110.0, 1, 25.0)])
+        env.place(avs=[(100.0, 0, 25.0)], hdvs=[(125.0, 0, 25.0), (110.0, 1, 25.0)])
         _, _, terminated, _, info = env.step(np.array([ACTION_INDEX["IDLE"]]))
         assert not terminated
         av, leader = env.road.vehicles[0], env.road.vehicles[1]
@@ -106,7 +106,7 @@ class TestInSimulation:
     def test_lane_change_and_harsh_braking_are_penalised(self):
         env = make(1, n_avs=2)
         env.reset(seed=0)
-        place(env, avs=[(100.0, 0, 25.0), (300.0, 0, 25.0)])
+        env.place(avs=[(100.0, 0, 25.0), (300.0, 0, 25.0)])
         _, _, _, _, info = env.step(np.array([ACTION_INDEX["LANE_RIGHT"], ACTION_INDEX["SLOWER"]]))
         np.testing.assert_array_equal(info["lane_change"], [True, False])
         accel = info["acceleration"]
@@ -119,7 +119,7 @@ class TestInSimulation:
     def test_crash_ends_episode_for_all_avs(self):
         env = make(1, n_avs=2)
         env.reset(seed=0)
-        place(env, avs=[(100.0, 0, 30.0), (300.0, 1, 25.0)], hdvs=[(106.0, 0, 5.0)])
+        env.place(avs=[(100.0, 0, 30.0), (300.0, 1, 25.0)], hdvs=[(106.0, 0, 5.0)])
         _, reward, terminated, truncated, info = env.step(np.array([ACTION_INDEX["IDLE"]] * 2))
         assert terminated and not truncated
         np.testing.assert_array_equal(info["crashed"], [True, False])

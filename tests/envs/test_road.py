@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from helpers import make, place
+from helpers import make
 from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.controller import MDPVehicle
 
@@ -69,7 +69,7 @@ def test_politeness_changes_mobil_decisions():
     for politeness in (0.0, 1.0):
         env = make(1, n_avs=1, hdv_politeness=politeness)
         env.reset(seed=0)
-        place(env, avs=[(45.0, 1, 30.0)], hdvs=[(100.0, 0, 25.0), (160.0, 0, 22.0)])
+        env.place(avs=[(45.0, 1, 30.0)], hdvs=[(100.0, 0, 25.0), (160.0, 0, 22.0)])
         hdv = env.road.vehicles[1]
         decisions[politeness] = hdv.mobil(("start", "end", 1))
     assert decisions == {0.0: True, 1.0: False}

@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from helpers import make, place
+from helpers import make
 
 from sb3_marl.envs.kernel import HEADING, LANE, SPEED, TARGET_SPEED, X, Y, speed_index
 from sb3_marl.envs.lane_change_env import ACTION_INDEX
@@ -19,7 +19,7 @@ def supervised_env(**config):
 
 def test_faster_just_behind_a_slow_hdv_is_replaced():
     env = supervised_env()
-    place(env, avs=[(100.0, 0, 25.0)], hdvs=[(115.0, 0, 15.0)])
+    env.place(avs=[(100.0, 0, 25.0)], hdvs=[(115.0, 0, 15.0)])
     proposed = np.array([FASTER])
     executed, rooms = supervise(env.state, 1, proposed, env.action_masks(), env.config)
     assert executed[0] != FASTER and env.action_masks()[0, executed[0]]
@@ -32,7 +32,7 @@ def test_faster_just_behind_a_slow_hdv_is_replaced():
 
 def test_the_same_situation_without_supervisor_crashes():
     env = supervised_env(safety_supervisor=False)
-    place(env, avs=[(100.0, 0, 25.0)], hdvs=[(115.0, 0, 15.0)])
+    env.place(avs=[(100.0, 0, 25.0)], hdvs=[(115.0, 0, 15.0)])
     crashed = False
     for _ in range(10):
         _, _, crashed, _, info = env.step(np.array([FASTER]))
@@ -45,7 +45,7 @@ def test_the_same_situation_without_supervisor_crashes():
 @pytest.mark.parametrize("action", ["FASTER", "IDLE", "SLOWER", "LANE_LEFT"])
 def test_safe_actions_are_left_alone(action):
     env = supervised_env()
-    place(env, avs=[(100.0, 1, 25.0)], hdvs=[(40.0, 0, 25.0)])  # the HDV far behind, other lane
+    env.place(avs=[(100.0, 1, 25.0)], hdvs=[(40.0, 0, 25.0)])  # the HDV far behind, other lane
     assert env.action_masks()[0, ACTION_INDEX[action]]
     _, _, _, _, info = env.step(np.array([ACTION_INDEX[action]]))
     assert info["executed_action"].tolist() == [ACTION_INDEX[action]] and not info["intervened"].any()
@@ -105,7 +105,7 @@ def test_conflicting_lane_changes_keep_their_lanes_together():
     evaluation); the joint fallback keeps both in their lanes, and the road agrees."""
     env = make(3, n_avs=5, hdv_count_range=[5, 5], safety_supervisor=True)
     env.reset(seed=0)
-    place(env, avs=[(x, lane, v) for x, _, _, v, lane in TRACED[:5]], hdvs=[(x, lane, v) for x, _, _, v, lane in TRACED[5:]])
+    env.place(avs=[(x, lane, v) for x, _, _, v, lane in TRACED[:5]], hdvs=[(x, lane, v) for x, _, _, v, lane in TRACED[5:]])
     state = env.state.copy()
     ladder = np.array(env.config["target_speeds"])
     for k, (x, y, heading, speed, _) in enumerate(TRACED):
@@ -127,7 +127,7 @@ def test_repeated_slower_is_predicted_to_brake_in_time():
     SLOWER only lowers the target speed to 25 m/s and is predicted to collide; repeated at every
     policy step (the default), it brakes in time, and so it does on the road."""
     env = supervised_env()
-    place(env, avs=[(100.0, 0, 30.0)], hdvs=[(126.0, 0, 12.0)])
+    env.place(avs=[(100.0, 0, 30.0)], hdvs=[(126.0, 0, 12.0)])
     mask = env.action_masks()
     mask[0, [ACTION_INDEX["LANE_LEFT"], ACTION_INDEX["LANE_RIGHT"]]] = False
     held = supervise(env.state, 1, np.array([SLOWER]), mask, {**env.config, "supervisor_repeat_actions": False})

@@ -2,7 +2,6 @@
 
 import os
 import signal
-import sys
 import time
 
 import gymnasium as gym
@@ -13,9 +12,6 @@ from stable_baselines3 import A2C, DQN, PPO
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
-
-sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "envs"))
-from helpers import place
 
 from sb3_marl.envs import ENV_IDS
 from sb3_marl.envs.lane_change_env import ACTION_INDEX
@@ -74,7 +70,7 @@ def test_slots_follow_the_copies_across_resets_of_different_lengths():
 def _placed_three_avs(reward_mode: str) -> ParameterSharingVecEnv:
     vec = ParameterSharingVecEnv(ENV_IDS[1], n_copies=1, reward_mode=reward_mode, config={"n_avs": 3}, seed=0)
     vec.reset()
-    place(copy_env(vec, 0), avs=[(100.0, 0, 25.0), (150.0, 0, 27.0), (200.0, 0, 30.0)], hdvs=[(115.0, 0, 25.0)])
+    copy_env(vec, 0).place(avs=[(100.0, 0, 25.0), (150.0, 0, 27.0), (200.0, 0, 30.0)], hdvs=[(115.0, 0, 25.0)])
     return vec
 
 
@@ -113,8 +109,8 @@ def test_time_limit_is_a_truncation_with_terminal_observation():
 def test_crash_is_a_termination_for_all_slots_of_the_copy():
     vec = ParameterSharingVecEnv(ENV_IDS[1], n_copies=2, config={"n_avs": 2}, seed=0)
     vec.reset()
-    place(copy_env(vec, 0), avs=[(100.0, 0, 30.0), (300.0, 1, 25.0)], hdvs=[(106.0, 0, 5.0)])
-    place(copy_env(vec, 1), avs=[(100.0, 0, 25.0), (300.0, 1, 25.0)])
+    copy_env(vec, 0).place(avs=[(100.0, 0, 30.0), (300.0, 1, 25.0)], hdvs=[(106.0, 0, 5.0)])
+    copy_env(vec, 1).place(avs=[(100.0, 0, 25.0), (300.0, 1, 25.0)])
     _, rewards, dones, infos = vec.step(np.full(4, IDLE))
     assert dones.tolist() == [True, True, False, False]
     assert [info["TimeLimit.truncated"] for info in infos[:2]] == [False, False]
