@@ -30,6 +30,7 @@ PER_AGENT_INFO = (
     "proposed_action",
     "executed_action",
     "intervened",
+    "rule_action",
 )
 
 

@@ -32,7 +32,9 @@ from wrappers.copies import CopyRunner, LocalCopies, WorkerCopies
 
 VEC_BACKENDS = ("dummy", "subproc")
 #: Copy methods whose result has one row per AV; ``env_method`` hands each slot its own row.
-PER_AGENT_METHODS = ("action_masks",)
+PER_AGENT_METHODS = ("action_masks", "rule_actions")
+#: Per-AV methods answered from the current observations' slot infos: method -> info key.
+CACHED_METHODS = {"action_masks": "action_mask", "rule_actions": "rule_action"}
 EnvFactory = Callable[[int], gym.Env]
 
 
@@ -178,8 +180,9 @@ class ParameterSharingVecEnv(VecEnv):
         super().__init__(int(starts[-1]), single_obs_space, single_action_space)
 
         self._obs = np.zeros((self.num_envs, *single_obs_space.shape), dtype=single_obs_space.dtype)
-        #: action masks of the current observations, from the copies' infos (None: not reported)
-        self._masks: np.ndarray | None = None
+        #: action masks and rule actions of the current observations, from the copies' infos
+        #: (a method's entry is missing where the infos do not report it)
+        self._current: dict[str, np.ndarray] = {}
         self._episode_returns = np.zeros(self.num_envs)
         self._episode_lengths = np.zeros(self.num_envs, dtype=np.int64)
         self._t_start = time.time()
@@ -223,8 +226,7 @@ class ParameterSharingVecEnv(VecEnv):
 
     def _submit(self, calls: dict[int, tuple[str, tuple]]) -> list[tuple[int, list[int]]]:
         """Send ``{copy: (method, args)}`` to the groups; returns what :meth:`_collect` needs."""
-        if getattr(self, "closed", False):
-            raise RuntimeError("This ParameterSharingVecEnv is closed: create a new one.")
+        self._check_open()
         pending = []
         for group, copies in enumerate(self.group_copies):
             mine = [k for k in copies if k in calls]
@@ -232,6 +234,10 @@ class ParameterSharingVecEnv(VecEnv):
                 self._guard(group, self.groups[group].submit, [(self.placement[k][1], *calls[k]) for k in mine])
                 pending.append((group, mine))
         return pending
+
+    def _check_open(self) -> None:
+        if getattr(self, "closed", False):
+            raise RuntimeError("This ParameterSharingVecEnv is closed: create a new one.")
 
     def _collect(self, pending: list[tuple[int, list[int]]]) -> dict[int, Any]:
         results: dict[int, Any] = {}
@@ -265,7 +271,7 @@ class ParameterSharingVecEnv(VecEnv):
         for k, (obs, slot_infos) in self._run(calls).items():
             self._obs[self.slices[k]] = obs
             self.reset_infos[self.slices[k]] = slot_infos
-        self._update_masks(self.reset_infos)
+        self._update_current(self.reset_infos)
         self._episode_returns[:] = 0.0
         self._episode_lengths[:] = 0
         self._reset_seeds()
@@ -312,15 +318,16 @@ class ParameterSharingVecEnv(VecEnv):
                 self._episode_returns[sl] = 0.0
                 self._episode_lengths[sl] = 0
                 self.reset_infos[sl] = current_infos[sl] = reset_infos
-        self._update_masks(current_infos)
+        self._update_current(current_infos)
         return self._obs.copy(), rewards, dones, infos
 
-    def _update_masks(self, slot_infos: list[dict[str, Any]]) -> None:
-        """Keep the action masks of the current observations, from their slot infos."""
-        if all("action_mask" in info for info in slot_infos):
-            self._masks = np.array([info["action_mask"] for info in slot_infos], dtype=bool)
-        else:
-            self._masks = None
+    def _update_current(self, slot_infos: list[dict[str, Any]]) -> None:
+        """Keep the action masks and rule actions of the current observations, from their slot infos."""
+        self._current = {
+            method: np.array([info[key] for info in slot_infos])
+            for method, key in CACHED_METHODS.items()
+            if all(key in info for info in slot_infos)
+        }
 
     # ---- VecEnv plumbing --------------------------------------------------------------------
 
@@ -342,19 +349,21 @@ class ParameterSharingVecEnv(VecEnv):
         self._per_copy(indices, "set_attr", attr_name, value)
 
     def has_attr(self, attr_name: str) -> bool:
-        if attr_name == "action_masks":
-            return True  # the scenario's masks, through :meth:`action_masks`
+        if attr_name in CACHED_METHODS:
+            return True  # the scenario's, through :meth:`action_masks` / :meth:`rule_actions`
         return super().has_attr(attr_name)
 
     def env_method(
         self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs: Any
     ) -> list[Any]:
-        """Call a method of each slot's copy once per copy; per-AV results (``action_masks``) are split by slot.
+        """Call a method of each slot's copy once per copy; per-AV results (``action_masks``,
+        ``rule_actions``) are split by slot.
 
-        ``action_masks`` is answered from the masks the copies reported with the current
-        observations (no call to the copies: maskable learners ask for it on every step)."""
-        if method_name == "action_masks" and not method_args and not method_kwargs and self._masks is not None:
-            return list(self._masks[list(self._get_indices(indices))])
+        ``action_masks`` and ``rule_actions`` are answered from what the copies reported with the
+        current observations (no call to the copies: learners ask for them on every step)."""
+        self._check_open()
+        if method_name in self._current and not method_args and not method_kwargs:
+            return list(self._current[method_name][list(self._get_indices(indices))])
         results = self._per_copy(indices, "env_method", method_name, method_args, method_kwargs)
         if method_name in PER_AGENT_METHODS:
             return [results[self.slot_copy[i]][self.slot_agent[i]] for i in self._get_indices(indices)]
@@ -363,6 +372,10 @@ class ParameterSharingVecEnv(VecEnv):
     def action_masks(self) -> np.ndarray:
         """(num_envs, 5) bool: available meta-actions of every slot (sb3-contrib's MaskablePPO API)."""
         return np.stack(self.env_method("action_masks"))
+
+    def rule_actions(self) -> np.ndarray:
+        """(num_envs,) int: the rule driver's meta-action for every slot's current observation."""
+        return np.array(self.env_method("rule_actions"), dtype=np.int64)
 
     def env_is_wrapped(self, wrapper_class: type[gym.Wrapper], indices: VecEnvIndices = None) -> list[bool]:
         values = self._per_copy(indices, "env_is_wrapped", wrapper_class)

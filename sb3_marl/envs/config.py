@@ -86,6 +86,9 @@ def default_config() -> dict[str, Any]:
         "supervisor_horizon": 1.4,  # [s] prediction horizon (7 policy steps at 5 Hz)
         "supervisor_min_gap": 2.0,  # [m] smallest predicted bumper-to-bumper gap accepted
         "supervisor_repeat_actions": True,  # AVs repeat their action at each step of the horizon
+        # Rule driver (IDM/MOBIL as meta-actions, info["rule_action"]): FASTER / SLOWER when IDM's
+        # acceleration is above / below +- this threshold
+        "rule_acceleration_threshold": 1.0,  # [m/s²]
         **RENDER_DEFAULTS,
     }
 
@@ -183,6 +186,7 @@ _SCHEMA: dict[str, tuple[Check, str]] = {
     "headway_max_distance": _POSITIVE,
     "reward_speed_range": _pair(0),
     "harsh_acceleration_threshold": _POSITIVE,
+    "rule_acceleration_threshold": _POSITIVE,
     "safety_supervisor": _boolean(),
     "supervisor_horizon": _number(0, 60, strict_lo=True),
     "supervisor_min_gap": _number(0, 100),

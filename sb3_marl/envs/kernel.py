@@ -160,7 +160,7 @@ def _desired_gap(state: np.ndarray, ego: int, front: int) -> float:
 
 
 @numba.njit(cache=True)
-def _idm(state: np.ndarray, ego: int, front: int, speed_limit: float) -> float:
+def idm(state: np.ndarray, ego: int, front: int, speed_limit: float) -> float:
     """``IDMVehicle.acceleration`` [m/s²] of ``ego`` behind ``front`` (-1: free road; ego -1: 0)."""
     if ego < 0:
         return 0.0
@@ -188,18 +188,18 @@ def _steering(state: np.ndarray, k: int, lane: int, lane_width: float) -> float:
 
 
 @numba.njit(cache=True)
-def _mobil(state: np.ndarray, on_lane: np.ndarray, k: int, lane: int, speed_limit: float) -> bool:
+def mobil(state: np.ndarray, on_lane: np.ndarray, k: int, lane: int, speed_limit: float) -> bool:
     """``IDMVehicle.mobil``: should HDV k move to ``lane``? (no planned route)."""
     new_preceding, new_following = _neighbours(state, on_lane, k, lane)
-    new_following_a = _idm(state, new_following, new_preceding, speed_limit)
-    new_following_pred_a = _idm(state, new_following, k, speed_limit)
+    new_following_a = idm(state, new_following, new_preceding, speed_limit)
+    new_following_pred_a = idm(state, new_following, k, speed_limit)
     if new_following_pred_a < -state[k, MAX_BRAKING_IMPOSED]:
         return False
     old_preceding, old_following = _neighbours(state, on_lane, k, int(state[k, LANE]))
-    self_pred_a = _idm(state, k, new_preceding, speed_limit)
-    self_a = _idm(state, k, old_preceding, speed_limit)
-    old_following_a = _idm(state, old_following, k, speed_limit)
-    old_following_pred_a = _idm(state, old_following, old_preceding, speed_limit)
+    self_pred_a = idm(state, k, new_preceding, speed_limit)
+    self_a = idm(state, k, old_preceding, speed_limit)
+    old_following_a = idm(state, old_following, k, speed_limit)
+    old_following_pred_a = idm(state, old_following, old_preceding, speed_limit)
     jerk = (
         self_pred_a
         - self_a
@@ -236,7 +236,7 @@ def _change_lane_policy(
             continue
         if abs(state[k, SPEED]) < 1:
             continue
-        if _mobil(state, on_lane, k, side, speed_limit):
+        if mobil(state, on_lane, k, side, speed_limit):
             state[k, TARGET_LANE] = side
 
 
@@ -279,9 +279,9 @@ def _act(state: np.ndarray, n_lanes: int, lane_width: float, road_length: float,
         _change_lane_policy(state, on_lane, k, n_lanes, lane_width, road_length, speed_limit)
         lane, target = int(state[k, LANE]), int(state[k, TARGET_LANE])
         steering = _steering(state, k, target, lane_width)
-        acceleration = _idm(state, k, _neighbours(state, on_lane, k, lane)[0], speed_limit)
+        acceleration = idm(state, k, _neighbours(state, on_lane, k, lane)[0], speed_limit)
         if lane != target:
-            acceleration = min(acceleration, _idm(state, k, _neighbours(state, on_lane, k, target)[0], speed_limit))
+            acceleration = min(acceleration, idm(state, k, _neighbours(state, on_lane, k, target)[0], speed_limit))
         state[k, STEERING] = steering
         state[k, ACCELERATION] = clip(acceleration, -ACC_MAX, ACC_MAX)
 
@@ -518,3 +518,57 @@ def policy_step(
                     state[k, COLLIDABLE] = 0.0
     kept = np.flatnonzero(state[:, PRESENT])
     return state[kept] if kept.size < n else state
+
+
+@numba.njit(cache=True)
+def rule_actions(
+    state: np.ndarray,
+    n_avs: int,
+    n_lanes: int,
+    lane_width: float,
+    road_length: float,
+    speed_limit: float,
+    ladder: np.ndarray,
+    politeness: float,
+    max_braking_imposed: float,
+    min_acc_gain: float,
+    acceleration_threshold: float,
+) -> np.ndarray:
+    """(n_avs,) int: the meta-action a human driver (IDM + MOBIL, as the scenario's HDVs) would pick
+    in each AV's place (the first ``n_avs`` rows), with the road's own :func:`idm` and :func:`mobil`.
+
+    AV i is read as an HDV aiming at ``speed_limit`` [m/s] with the given MOBIL parameters
+    (politeness, safe braking [m/s²], acceleration gain threshold [m/s²]); the other vehicles stay
+    as they are. If it is not changing lanes and drives at 1 m/s or more, the first side lane
+    (left, then right) that is available (:func:`available_actions`) and that MOBIL accepts gives
+    LANE_LEFT / LANE_RIGHT; otherwise its IDM acceleration behind its leader gives FASTER above
+    ``acceleration_threshold`` [m/s²], SLOWER below its negative (each only where available),
+    else IDLE. Meta-action indices as highway-env's (LANE_LEFT 0, IDLE 1, LANE_RIGHT 2, FASTER 3,
+    SLOWER 4)."""
+    mask = available_actions(state, n_avs, n_lanes, lane_width, road_length, ladder)
+    on_lane = lane_occupancy(state, n_lanes, lane_width, road_length)
+    actions = np.ones(n_avs, dtype=np.int64)
+    driver = state.copy()
+    for i in range(n_avs):
+        saved = driver[i].copy()
+        driver[i, TARGET_SPEED] = speed_limit
+        driver[i, POLITENESS], driver[i, MAX_BRAKING_IMPOSED], driver[i, MIN_ACC_GAIN] = (
+            politeness,
+            max_braking_imposed,
+            min_acc_gain,
+        )
+        lane = int(driver[i, LANE])
+        changing = False
+        if lane == int(driver[i, TARGET_LANE]) and abs(driver[i, SPEED]) >= 1:
+            for action, side in ((0, lane - 1), (2, lane + 1)):
+                if 0 <= side < n_lanes and mask[i, action] and mobil(driver, on_lane, i, side, speed_limit):
+                    actions[i], changing = action, True
+                    break
+        if not changing:
+            acceleration = idm(driver, i, leader(driver, on_lane, i), speed_limit)
+            if acceleration > acceleration_threshold and mask[i, 3]:
+                actions[i] = 3
+            elif acceleration < -acceleration_threshold and mask[i, 4]:
+                actions[i] = 4
+        driver[i] = saved
+    return actions

@@ -277,6 +277,24 @@ class LaneChangeEnv(AbstractEnv):
         """
         return kernel.available_actions(self.state, self.n_avs, *self._geometry(), self._ladder())
 
+    def rule_actions(self) -> np.ndarray:
+        """(n_avs,) int: the meta-action the scenario's human driver (IDM + MOBIL, the config's MOBIL
+        parameters, aiming at ``speed_limit``) would pick in each AV's place now
+        (:func:`~sb3_marl.envs.kernel.rule_actions`; the ``idm-mobil`` reference policy and the
+        learners' rule prior)."""
+        config = self.config
+        return kernel.rule_actions(
+            self.state,
+            self.n_avs,
+            *self._geometry(),
+            float(config["speed_limit"]),
+            self._ladder(),
+            float(config["hdv_politeness"]),
+            float(config["hdv_b_safe"]),
+            float(config["hdv_lane_change_threshold"]),
+            float(config["rule_acceleration_threshold"]),
+        )
+
     def _check_actions(self, action: Any) -> np.ndarray:
         actions = np.asarray(action)
         if actions.shape == () and self.n_avs == 1:
@@ -306,6 +324,7 @@ class LaneChangeEnv(AbstractEnv):
         ``lane_change``, ``exited`` (past the road end), ``action_mask`` ((n_avs, 5) bool, for
         the next step), ``proposed_action`` (the policy's), ``executed_action`` (after the safety
         supervisor; both -1 after a reset), ``intervened`` (the supervisor replaced the action),
+        ``rule_action`` (the rule driver's meta-action in the new state, :meth:`rule_actions`),
         and the scalars ``n_avs``, ``n_hdvs``, ``step``.
         """
         state, n = self.state, self.n_avs
@@ -329,6 +348,7 @@ class LaneChangeEnv(AbstractEnv):
             "proposed_action": proposed,
             "executed_action": executed,
             "intervened": proposed != executed,
+            "rule_action": self.rule_actions(),
             "n_avs": n,
             "n_hdvs": self.n_hdvs,
             "step": self.steps_done,

@@ -102,3 +102,43 @@ def compare(reference: str, candidate: str, density: int, seeds: range, policy: 
         for s, t in zip(a.observations, b.observations):
             result.max_observation_difference = max(result.max_observation_difference, float(np.abs(s - t).max()))
     return result
+
+
+def stock_rule_actions(env, acceleration_threshold: float = 1.0) -> np.ndarray:
+    """The rule driver with highway-env's own objects (the parity reference of
+    :func:`sb3_marl.envs.kernel.rule_actions`): for each AV, an ``IDMVehicle`` with the AV's state
+    and the config's MOBIL parameters, aiming at ``speed_limit``, takes the AV's place on the road;
+    a lane change MOBIL accepts becomes LANE_LEFT / LANE_RIGHT, else the IDM acceleration gives
+    FASTER / SLOWER beyond +- ``acceleration_threshold`` [m/s²], else IDLE."""
+    from highway_env.vehicle.behavior import IDMVehicle
+
+    from sb3_marl.envs.lane_change_env import ACTION_INDEX
+    from sb3_marl.envs.road import configure_hdv
+
+    road, masks, actions = env.road, env.action_masks(), []
+    for av, mask in zip(env.avs, masks):
+        driver = IDMVehicle.create_from(av)
+        configure_hdv(driver, env.config)
+        driver.target_speed = env.config["speed_limit"]
+        slot = road.vehicles.index(av)
+        road.vehicles[slot] = driver  # neighbour searches see the driver, not the AV
+        action = None
+        try:
+            if av.lane_index == av.target_lane_index and abs(av.speed) >= 1:
+                for side in road.network.side_lanes(av.lane_index):
+                    candidate = ACTION_INDEX["LANE_LEFT" if side[2] < av.lane_index[2] else "LANE_RIGHT"]
+                    if mask[candidate] and driver.mobil(side):
+                        action = candidate
+                        break
+            front, _ = road.neighbour_vehicles(driver, driver.lane_index)
+            acceleration = driver.acceleration(driver, front)
+        finally:
+            road.vehicles[slot] = av
+        if action is None:
+            action = ACTION_INDEX["IDLE"]
+            if acceleration > acceleration_threshold and mask[ACTION_INDEX["FASTER"]]:
+                action = ACTION_INDEX["FASTER"]
+            elif acceleration < -acceleration_threshold and mask[ACTION_INDEX["SLOWER"]]:
+                action = ACTION_INDEX["SLOWER"]
+        actions.append(action)
+    return np.array(actions)

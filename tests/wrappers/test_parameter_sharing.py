@@ -324,3 +324,18 @@ def test_intervention_penalty_lowers_the_training_reward_of_overruled_slots_only
     assert overruled > 0  # random actions at density 3: the supervisor steps in
     with pytest.raises(ValueError, match="Invalid intervention_penalty=-1"):
         VecRewardScale(plain, intervention_penalty=-1)
+
+
+def test_rule_actions_per_slot_follow_the_current_observations():
+    """Each slot's rule action is its copy's rule driver on the observation the VecEnv returned
+    (the new episode's after an automatic reset); after close() the cached values are refused."""
+    venv = ParameterSharingVecEnv(ENV_IDS[2], seed=3)
+    venv.reset()
+    for _ in range(40):
+        expected = np.concatenate([venv.copy_env(k).rule_actions() for k in range(venv.n_copies)])
+        np.testing.assert_array_equal(venv.rule_actions(), expected)
+        _, _, _, infos = venv.step(np.full(venv.num_envs, ACTION_INDEX["FASTER"]))
+        assert all("rule_action" in info for info in infos)
+    venv.close()
+    with pytest.raises(RuntimeError, match="closed"):
+        venv.action_masks()
