@@ -23,6 +23,11 @@ an entry may set the scenario and the wrapper:
 and ``safety_loss_coef`` (``ma2c``, ``mappo``, ``madqn``): weight of the loss that teaches the
 policy the safety supervisor's replacements (default 0, see :mod:`sb3_marl.algos.masking`);
 
+and the rule prior (``ma2c``, ``mappo``, ``maacktr``; :mod:`sb3_marl.algos.rule_prior`): ``prior``
+(``idm-mobil`` or null), ``prior_warm_start`` (AV-steps of the DAgger warm start),
+``prior_coef`` / ``prior_coef_final`` / ``prior_decay_steps`` (the regularisation's weight, falling
+linearly over that many AV-steps after the warm start) and ``prior_smoothing``;
+
 and the maskable learners (``ma2c``, ``mappo``, ``maacktr``, ``madqn``) take ``action_masking``
 (true in every zoo config, the authors' choice; false for the unmasked ablation).
 """
@@ -239,6 +244,11 @@ def validate_hyperparams(algo: str, hyperparams: dict[str, Any], env_id: str | N
         check_value(key, value)
     # keys whose check lives beside the code that uses them (one check each)
     from sb3_marl.algos.masking import check_safety_loss_coef
+    from sb3_marl.algos.rule_prior import RulePrior
+
+    prior = {key: value for key, value in hyperparams.items() if key in RulePrior().as_kwargs()}
+    if prior:
+        RulePrior.from_kwargs(prior)
 
     for key, check in (
         ("intervention_penalty", lambda value: check_penalty(value, "intervention_penalty")),

@@ -29,6 +29,8 @@ from contextlib import contextmanager, nullcontext
 from functools import partial
 from typing import Any, ClassVar, TypeVar
 
+import numpy as np
+
 import torch as th
 import torch.nn.functional as F
 from gymnasium import spaces
@@ -343,7 +345,13 @@ class ACKTR(OnPolicyAlgorithm):
         self.policy.set_training_mode(True)
         optimizer: KFAC = self.policy.optimizer  # type: ignore[assignment]
         self._update_learning_rate(optimizer)
-        rollout = next(self.rollout_buffer.get(batch_size=None))
+        buffer = self.rollout_buffer
+        indices = np.random.permutation(buffer.buffer_size * buffer.n_envs)  # as the buffer's get() draws it
+        if not buffer.generator_ready:
+            state = np.random.get_state()
+            next(buffer.get(batch_size=None))  # flattens the arrays slot-major on first use
+            np.random.set_state(state)
+        rollout = buffer._get_samples(indices)
         actions = rollout.actions
         if isinstance(self.action_space, spaces.Discrete):
             actions = actions.long().flatten()
@@ -367,6 +375,7 @@ class ACKTR(OnPolicyAlgorithm):
         value_loss = F.mse_loss(rollout.returns, values)
         entropy_loss = -th.mean(-log_prob) if entropy is None else -th.mean(entropy)
         loss = policy_loss + self.ent_coef * entropy_loss + self.vf_coef * value_loss
+        loss = loss + self.auxiliary_loss(rollout, indices)
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
@@ -381,6 +390,11 @@ class ACKTR(OnPolicyAlgorithm):
         self.logger.record("train/kl_step_scale", optimizer.last_step_scale)
         if hasattr(self.policy, "log_std"):
             self.logger.record("train/std", th.exp(self.policy.log_std).mean().item())
+
+    def auxiliary_loss(self, rollout: Any, indices: np.ndarray) -> th.Tensor | float:
+        """A term added to the update's loss on ``rollout`` (the buffer's samples at ``indices``):
+        none here; subclasses add theirs in the same K-FAC step."""
+        return 0.0
 
     def learn(
         self: SelfACKTR,

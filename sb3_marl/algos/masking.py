@@ -23,6 +23,8 @@ from __future__ import annotations
 
 import inspect
 import math
+from collections import defaultdict
+from collections.abc import Iterator
 from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
@@ -38,8 +40,10 @@ from stable_baselines3.common.buffers import ReplayBuffer, RolloutBuffer
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
+from stable_baselines3.common.utils import explained_variance
 
 from sb3_marl.algos.acktr import ACKTR
+from sb3_marl.algos.rule_prior import RuleLabels, RulePrior, dagger, masked_logits, prior_loss
 from sb3_marl.loading import SafeLoading
 from sb3_marl.policies import CentralisedCriticPolicy
 
@@ -137,11 +141,6 @@ class SupervisorTeacher:
         together.init_callback(self)  # type: ignore[arg-type]
         return together
 
-    def train(self) -> None:
-        super().train()  # type: ignore[misc]
-        if self.safety_loss_coef > 0 and self._recorder is not None:
-            self.safety_step(self._recorder.executed)
-
     def safety_loss(self, observations: th.Tensor, action_masks: np.ndarray | None, executed: th.Tensor) -> th.Tensor:
         """``-log π(executed | s)`` averaged over the given (intervened) samples."""
         distribution = self.policy.get_distribution(observations, action_masks=action_masks)  # type: ignore[attr-defined]
@@ -188,10 +187,79 @@ def _select(observations: Any, rows: np.ndarray) -> Any:
     return observations[rows]
 
 
-class ActionMaskingMixin(SupervisorTeacher, MaskingLearner):
+class RulePriorLearner:
+    """The rule prior of an on-policy actor-critic (``prior``, ``prior_warm_start``, ``prior_coef``,
+    ``prior_coef_final``, ``prior_decay_steps``, ``prior_smoothing``; :mod:`sb3_marl.algos.rule_prior`):
+    the DAgger warm start when learning starts, the rule driver's labels of each rollout, and the
+    prior's term of the loss. The values are saved with the model (plain attributes)."""
+
+    prior: str | None = None
+    prior_warm_start: int = 0
+    prior_coef: float = 1.0
+    prior_coef_final: float = 0.0
+    prior_decay_steps: int = 1
+    prior_smoothing: float = 0.0
+    _rule_labels: np.ndarray | None = None
+
+    def __init__(
+        self,
+        *args: Any,
+        prior: str | None = None,
+        prior_warm_start: int = 0,
+        prior_coef: float = 1.0,
+        prior_coef_final: float = 0.0,
+        prior_decay_steps: int = 1,
+        prior_smoothing: float = 0.0,
+        **kwargs: Any,
+    ) -> None:
+        settings = RulePrior(prior, prior_warm_start, prior_coef, prior_coef_final, prior_decay_steps, prior_smoothing)
+        self.__dict__.update(settings.as_kwargs())
+        super().__init__(*args, **kwargs)
+
+    @property
+    def rule_prior(self) -> RulePrior:
+        return RulePrior.from_kwargs({key: getattr(self, key) for key in RulePrior().as_kwargs()})
+
+    def _excluded_save_params(self) -> list[str]:
+        return [*super()._excluded_save_params(), "_rule_labels"]  # type: ignore[misc]
+
+    def _setup_learn(self, *args: Any, **kwargs: Any) -> Any:
+        """SB3's set-up, then the DAgger warm start where the budget's first ``prior_warm_start``
+        AV-steps are still ahead."""
+        result = super()._setup_learn(*args, **kwargs)  # type: ignore[misc]
+        prior = self.rule_prior
+        if prior.active and self.num_timesteps < prior.warm_start:  # type: ignore[attr-defined]
+            dagger(self, prior.warm_start - self.num_timesteps, prior)  # type: ignore[attr-defined]
+        return result
+
+    def labelled(self, env: Any, n_rollout_steps: int) -> Any:
+        """``env`` recording the rule driver's labels of the rollout (when the prior's weight is on)."""
+        if self.rule_prior.weight(self.num_timesteps) <= 0:  # type: ignore[attr-defined]
+            self._rule_labels = None
+            return env
+        labelled = RuleLabels(env, n_rollout_steps)
+        self._rule_labels = labelled.labels
+        return labelled
+
+    def prior_term(self, observations: Any, action_masks: Any, indices: np.ndarray, logs: dict[str, list]) -> Any:
+        """``w · prior_loss`` of the rollout's samples at ``indices`` (of the flattened, slot-major
+        buffer), 0 without labels; logs the loss, its KL and the weight."""
+        weight = self.rule_prior.weight(self.num_timesteps)  # type: ignore[attr-defined]
+        if self._rule_labels is None or weight <= 0:
+            return 0.0
+        policy: Any = self.policy  # type: ignore[attr-defined]
+        labels = th.as_tensor(self._rule_labels.swapaxes(0, 1).reshape(-1)[indices], device=policy.device)
+        loss, kl = prior_loss(masked_logits(policy, observations, action_masks), labels, self.prior_smoothing, action_masks)
+        logs["prior_loss"].append(loss.item())
+        logs["prior_kl"].append(kl.item())
+        logs["prior_coef"].append(weight)
+        return weight * loss
+
+
+class ActionMaskingMixin(RulePriorLearner, SupervisorTeacher, MaskingLearner):
     """``action_masking`` switch of a maskable on-policy learner: sb3-contrib's masked rollouts
-    and ``predict(..., action_masks=...)``, with masks only when ``action_masking`` is True; and
-    the supervisor as a teacher (:class:`SupervisorTeacher`)."""
+    and ``predict(..., action_masks=...)``, with masks only when ``action_masking`` is True; the
+    supervisor as a teacher (:class:`SupervisorTeacher`) and the rule prior (:class:`RulePriorLearner`)."""
 
     action_masking: bool = True
 
@@ -199,11 +267,11 @@ class ActionMaskingMixin(SupervisorTeacher, MaskingLearner):
         self, env: Any, callback: Any, rollout_buffer: Any, n_rollout_steps: int, use_masking: bool = True
     ) -> bool:
         """sb3-contrib's masked rollout collection (``MaskablePPO.collect_rollouts``), recording the
-        supervisor's interventions for the teacher's loss."""
+        supervisor's interventions for the teacher's loss and the rule driver's labels for the prior's."""
         callback = self.with_recorder(callback, n_rollout_steps, env.num_envs)
         return MaskablePPO.collect_rollouts(
             self,  # type: ignore[arg-type]
-            env,
+            self.labelled(env, n_rollout_steps),
             callback,
             rollout_buffer,
             n_rollout_steps,
@@ -224,18 +292,110 @@ class ActionMaskingMixin(SupervisorTeacher, MaskingLearner):
         return self.policy.predict(observation, state, episode_start, deterministic, action_masks=masks)  # type: ignore[attr-defined]
 
 
-def _with_action_masking(cls: type, base: type, teacher: bool = True) -> None:
+def _with_action_masking(cls: type, base: type, teacher: bool = True, prior: bool = True) -> None:
     """Give ``cls`` the constructor signature of ``base`` plus ``action_masking`` (and, with
-    ``teacher``, ``safety_loss_coef``), so that the zoo configs' validation (which reads
-    constructor signatures) sees every argument."""
+    ``teacher``, ``safety_loss_coef``; with ``prior``, the rule prior's keys), so that the zoo
+    configs' validation (which reads constructor signatures) sees every argument."""
     signature = inspect.signature(base)
     extra = [inspect.Parameter("action_masking", inspect.Parameter.KEYWORD_ONLY, default=True, annotation=bool)]
     if teacher:
         extra.append(inspect.Parameter("safety_loss_coef", inspect.Parameter.KEYWORD_ONLY, default=0.0, annotation=float))
+    if prior:
+        extra += [
+            inspect.Parameter(key, inspect.Parameter.KEYWORD_ONLY, default=value)
+            for key, value in RulePrior().as_kwargs().items()
+        ]
     cls.__signature__ = signature.replace(parameters=[*signature.parameters.values(), *extra])  # type: ignore[attr-defined]
 
 
-class MaskedPPO(ActionMaskingMixin, MaskablePPO):  # type: ignore[misc]
+class MaskableActorCritic(ActionMaskingMixin, MaskablePPO):  # type: ignore[misc]
+    """sb3-contrib's ``MaskablePPO`` with the ``action_masking`` switch (see the module doc), whose
+    update adds the rule prior's term to each minibatch's loss (same loss, same optimiser step),
+    then takes the supervisor teacher's step; minibatches are one per AV slot with
+    ``per_agent_updates`` (:class:`MaskableA2C`)."""
+
+    per_agent_updates: bool = False
+
+    def _minibatches(self) -> Iterator[np.ndarray]:
+        """Indices of the flattened (slot-major) rollout buffer, one array per minibatch, drawn from
+        numpy's global generator in the same order as sb3-contrib's ``get`` (so seeded runs repeat
+        those of the buffers' own generators)."""
+        buffer = self.rollout_buffer
+        steps, n_envs = buffer.buffer_size, buffer.n_envs
+        flatten = (MaskableDictRolloutBuffer if isinstance(buffer, MaskableDictRolloutBuffer) else MaskableRolloutBuffer).get
+        if self.per_agent_updates:
+            if not buffer.generator_ready:
+                next(flatten(buffer, None))  # sb3-contrib flattens the arrays slot-major on first use
+            for slot in np.random.permutation(n_envs):
+                yield np.arange(slot * steps, (slot + 1) * steps)
+            return
+        order = np.random.permutation(steps * n_envs)
+        if not buffer.generator_ready:
+            state = np.random.get_state()
+            next(flatten(buffer, None))
+            np.random.set_state(state)  # the flattening's own permutation is not one of ours
+        size = self.batch_size or steps * n_envs
+        for start in range(0, steps * n_envs, size):
+            yield order[start : start + size]
+
+    def train(self) -> None:
+        """``MaskablePPO.train`` (clipped surrogate, optionally clipped value loss, entropy bonus,
+        early stop at ``target_kl``) plus ``w · prior_loss`` (:meth:`prior_term`)."""
+        self.policy.set_training_mode(True)
+        self._update_learning_rate(self.policy.optimizer)
+        clip_range = self.clip_range(self._current_progress_remaining)  # type: ignore[operator]
+        clip_range_vf = None if self.clip_range_vf is None else self.clip_range_vf(self._current_progress_remaining)  # type: ignore[operator]
+        logs: dict[str, list] = defaultdict(list)
+        for epoch in range(self.n_epochs):
+            approx_kl_divs = []
+            for indices in self._minibatches():
+                data = self.rollout_buffer._get_samples(indices)
+                values, log_prob, entropy = self.policy.evaluate_actions(
+                    data.observations, data.actions.long().flatten(), action_masks=data.action_masks
+                )
+                values = values.flatten()
+                advantages = data.advantages
+                if self.normalize_advantage:
+                    advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
+                ratio = th.exp(log_prob - data.old_log_prob)
+                policy_loss = -th.min(advantages * ratio, advantages * th.clamp(ratio, 1 - clip_range, 1 + clip_range)).mean()
+                if clip_range_vf is not None:
+                    values = data.old_values + th.clamp(values - data.old_values, -clip_range_vf, clip_range_vf)
+                value_loss = F.mse_loss(data.returns, values)
+                entropy_loss = -th.mean(-log_prob) if entropy is None else -th.mean(entropy)
+                loss = policy_loss + self.ent_coef * entropy_loss + self.vf_coef * value_loss
+                loss = loss + self.prior_term(data.observations, data.action_masks, indices, logs)
+                logs["policy_gradient_loss"].append(policy_loss.item())
+                logs["value_loss"].append(value_loss.item())
+                logs["entropy_loss"].append(entropy_loss.item())
+                logs["clip_fraction"].append(th.mean((th.abs(ratio - 1) > clip_range).float()).item())
+                with th.no_grad():
+                    log_ratio = log_prob - data.old_log_prob
+                    approx_kl_divs.append(th.mean((th.exp(log_ratio) - 1) - log_ratio).item())
+                if self.target_kl is not None and approx_kl_divs[-1] > 1.5 * self.target_kl:
+                    break
+                self.policy.optimizer.zero_grad()
+                loss.backward()
+                th.nn.utils.clip_grad_norm_(self.policy.parameters(), self.max_grad_norm)
+                self.policy.optimizer.step()
+            self._n_updates += 1
+            logs["approx_kl"] += approx_kl_divs
+            if self.target_kl is not None and approx_kl_divs and approx_kl_divs[-1] > 1.5 * self.target_kl:
+                break
+        for key, values in logs.items():
+            self.logger.record(f"train/{key}", float(np.mean(values)))
+        buffer = self.rollout_buffer
+        self.logger.record("train/loss", loss.item())
+        self.logger.record("train/explained_variance", explained_variance(buffer.values.flatten(), buffer.returns.flatten()))
+        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+        self.logger.record("train/clip_range", clip_range)
+        if clip_range_vf is not None:
+            self.logger.record("train/clip_range_vf", clip_range_vf)
+        if self.safety_loss_coef > 0 and self._recorder is not None:
+            self.safety_step(self._recorder.executed)
+
+
+class MaskedPPO(MaskableActorCritic):
     """sb3-contrib's ``MaskablePPO`` with the ``action_masking`` switch (see the module doc)."""
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = ACTOR_CRITIC_POLICIES
@@ -243,7 +403,15 @@ class MaskedPPO(ActionMaskingMixin, MaskablePPO):  # type: ignore[misc]
 
 class MaskableACKTR(ActionMaskingMixin, ACKTR):  # type: ignore[misc]
     """Our :class:`~sb3_marl.algos.acktr.ACKTR` on sb3-contrib's maskable policy, rollout buffer and
-    masked rollouts (see the module doc); ACKTR's update evaluates the actions under their masks."""
+    masked rollouts (see the module doc); ACKTR's update evaluates the actions under their masks,
+    and its loss takes the rule prior's term (:meth:`auxiliary_loss`)."""
+
+    def auxiliary_loss(self, rollout: Any, indices: np.ndarray) -> Any:
+        logs: dict[str, list] = defaultdict(list)
+        term = self.prior_term(rollout.observations, rollout.action_masks, indices, logs)
+        for key, values in logs.items():
+            self.logger.record(f"train/{key}", float(np.mean(values)))
+        return term
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = ACTOR_CRITIC_POLICIES
 
@@ -451,7 +619,7 @@ def _random_available(masks: np.ndarray) -> np.ndarray:
 
 _with_action_masking(MaskedPPO, MaskablePPO)
 _with_action_masking(MaskableACKTR, ACKTR, teacher=False)  # K-FAC steps only on its own loss
-_with_action_masking(MaskableDQN, DQN)
+_with_action_masking(MaskableDQN, DQN, prior=False)
 
 
 def per_agent_batches(buffer: Any, parent_get: Any) -> Any:
@@ -478,13 +646,16 @@ class PerAgentDictRolloutBuffer(MaskableDictRolloutBuffer):
         return per_agent_batches(self, super().get)
 
 
-class MaskableA2C(ActionMaskingMixin, MaskablePPO):  # type: ignore[misc]
+class MaskableA2C(MaskableActorCritic):
     """A2C (SB3's arguments and defaults) with invalid-action masking (see the module doc).
 
     :param action_masking: sample only available meta-actions (the authors' MA2C) or all of them
     :param rms_prop_eps: RMSprop epsilon (with ``use_rms_prop``; RMSprop alpha 0.99 as SB3's A2C)
     :param use_rms_prop: RMSprop (A2C's original optimiser) rather than Adam
     :param safety_loss_coef: weight of the safety supervisor's teaching loss (:class:`SupervisorTeacher`; 0: off)
+    :param prior: ``idm-mobil``: start from the rule driver and regularise toward it
+        (:mod:`sb3_marl.algos.rule_prior`, with ``prior_warm_start``, ``prior_coef``,
+        ``prior_coef_final``, ``prior_decay_steps``, ``prior_smoothing``); None: off
     :param per_agent_updates: one optimiser step per AV slot on that slot's ``n_steps`` transitions
         (the authors' cadence: as many steps per rollout as slots; each later step's loss is the
         unclipped importance-weighted policy gradient, its ratio stays close to 1) instead of
@@ -510,6 +681,12 @@ class MaskableA2C(ActionMaskingMixin, MaskablePPO):  # type: ignore[misc]
         action_masking: bool = True,
         safety_loss_coef: float = 0.0,
         per_agent_updates: bool = False,
+        prior: str | None = None,
+        prior_warm_start: int = 0,
+        prior_coef: float = 1.0,
+        prior_coef_final: float = 0.0,
+        prior_decay_steps: int = 1,
+        prior_smoothing: float = 0.0,
         rollout_buffer_class: type[RolloutBuffer] | None = None,
         rollout_buffer_kwargs: dict[str, Any] | None = None,
         stats_window_size: int = 100,
@@ -550,6 +727,12 @@ class MaskableA2C(ActionMaskingMixin, MaskablePPO):  # type: ignore[misc]
             _init_setup_model=_init_setup_model,
             action_masking=action_masking,
             safety_loss_coef=safety_loss_coef,
+            prior=prior,
+            prior_warm_start=prior_warm_start,
+            prior_coef=prior_coef,
+            prior_coef_final=prior_coef_final,
+            prior_decay_steps=prior_decay_steps,
+            prior_smoothing=prior_smoothing,
         )
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = ACTOR_CRITIC_POLICIES

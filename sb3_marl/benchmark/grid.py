@@ -36,6 +36,16 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "safety-training": {"architecture": "separate", "supervisor_dropout": 0.5},
     # centralised training, decentralised execution: the critic reads the copy's global state
     "centralised-critic": {"architecture": "separate", "critic": "centralised"},
+    # the rule driver as the starting point (sb3_marl/algos/rule_prior.py): a DAgger warm start of
+    # 300k AV-steps (counted in the budget), then the RL loss plus a prior term whose weight falls
+    # from 1 to 0.1 over the next 1M AV-steps
+    "rule-prior": {
+        "prior": "idm-mobil",
+        "prior_warm_start": 300_000,
+        "prior_coef": 1.0,
+        "prior_coef_final": 0.1,
+        "prior_decay_steps": 1_000_000,
+    },
 }
 
 #: Experiment -> its curves: label -> (algorithm, variant). In the order of the paper's sections.
@@ -60,6 +70,8 @@ EXPERIMENTS: dict[str, dict[str, tuple[str, str]]] = {
         "behind the supervisor (default)": ("ma2c", "default"),
         "safety training": ("ma2c", "safety-training"),
     },
+    # beyond the paper: learners started from, and regularised toward, the IDM/MOBIL rule driver
+    "rule-prior": {"MA2C": ("ma2c", "rule-prior"), "MAPPO": ("mappo", "rule-prior")},
     # beyond the paper: CTDE, a critic that sees every AV of the copy (same networks otherwise)
     "ctde": {
         "local critic (separate networks)": ("ma2c", "separate-networks"),
@@ -70,7 +82,7 @@ EXPERIMENTS: dict[str, dict[str, tuple[str, str]]] = {
 #: Grid name -> the experiments it runs.
 #: The "paper" grid: the paper's five experiments and our intervention-penalty one (81 trials with 3 seeds).
 GRIDS: dict[str, tuple[str, ...]] = {
-    "paper": tuple(e for e in EXPERIMENTS if e not in ("safety", "ctde")),
+    "paper": tuple(e for e in EXPERIMENTS if e not in ("safety", "ctde", "rule-prior")),
     **{name: (name,) for name in EXPERIMENTS},
 }
 
