@@ -38,6 +38,7 @@ from sb3_marl.callbacks import (
     atomic_save,
 )
 from sb3_marl.envs import copy_av_counts
+from sb3_marl.files import REPLAY_BUFFER_FILE, load_replay_buffer
 from sb3_marl.hyperparams import (
     SCENARIO_KEYS,
     config_file,
@@ -81,10 +82,9 @@ class MARLExperimentManager(ExperimentManager):
     :param callback_after_eval: called after each evaluation, as SB3's ``EvalCallback(callback_after_eval=...)``
     :param evaluate_at_end: evaluate the final model too (if the last evaluation was not at the last step)
     :param trust_remote_code: continue training (``-i``) from a zip that needs unpickling, and load
-        the ``replay_buffer.pkl`` beside it (a pickle); off: the zip is read as data
-        (:mod:`sb3_marl.loading`) and a replay buffer beside it is not loaded
-    :param own_checkpoint: ``-i`` is a checkpoint this machine wrote (the benchmark's resume): its
-        replay buffer is loaded
+        a ``replay_buffer.pkl`` beside it (a pickle); off: the zip is read as data
+        (:mod:`sb3_marl.loading`) and only a ``replay_buffer.npz`` beside it (arrays, the
+        benchmark's checkpoints) is loaded
     """
 
     def __init__(
@@ -103,7 +103,6 @@ class MARLExperimentManager(ExperimentManager):
         callback_after_eval: BaseCallback | None = None,
         evaluate_at_end: bool = False,
         trust_remote_code: bool = False,
-        own_checkpoint: bool = False,
         **kwargs: Any,
     ) -> None:
         # rl_zoo3 builds and loads models through its ALGOS table: our learners join it under their
@@ -122,7 +121,6 @@ class MARLExperimentManager(ExperimentManager):
         self.callback_after_eval = callback_after_eval
         self.evaluate_at_end = evaluate_at_end
         self.trust_remote_code = trust_remote_code
-        self.own_checkpoint = own_checkpoint
         self.scenario: dict[str, Any] = {}
         self.interrupted = False
         self.best_config_path: str | None = None  # written by hyperparameters_optimization
@@ -155,7 +153,8 @@ class MARLExperimentManager(ExperimentManager):
 
     def _load_pretrained_agent(self, hyperparams: dict[str, Any], env: VecEnv) -> BaseAlgorithm:
         """rl_zoo3's continue-training load (``-i``), through the safe loader; the replay buffer
-        beside the zip (a pickle) only from an own checkpoint or with ``trust_remote_code``."""
+        beside the zip: ``replay_buffer.npz`` as data, ``replay_buffer.pkl`` (a pickle) only with
+        ``trust_remote_code``."""
         print("Loading pretrained agent")
         hyperparams = {key: value for key, value in hyperparams.items() if key not in ("policy", "policy_kwargs")}
         model = ALGOS[self.algo].load(
@@ -168,9 +167,12 @@ class MARLExperimentManager(ExperimentManager):
             trust_remote_code=self.trust_remote_code,
             **hyperparams,
         )
-        replay_buffer = os.path.join(os.path.dirname(self.trained_agent), "replay_buffer.pkl")
-        if os.path.exists(replay_buffer) and hasattr(model, "load_replay_buffer"):
-            if self.trust_remote_code or self.own_checkpoint:
+        folder = os.path.dirname(self.trained_agent)
+        arrays, replay_buffer = os.path.join(folder, REPLAY_BUFFER_FILE), os.path.join(folder, "replay_buffer.pkl")
+        if os.path.exists(arrays) and getattr(model, "replay_buffer", None) is not None:
+            load_replay_buffer(model.replay_buffer, arrays)
+        elif os.path.exists(replay_buffer) and hasattr(model, "load_replay_buffer"):
+            if self.trust_remote_code:
                 model.load_replay_buffer(replay_buffer)
             else:
                 print(

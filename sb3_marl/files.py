@@ -38,3 +38,40 @@ def read_evaluations(path: str | Path) -> dict[str, Any]:
             return {key: log[key] for key in log.files}
     except Exception as error:  # zipfile.BadZipFile, OSError, ValueError, EOFError alike
         raise ValueError(f"{path} is not a readable evaluations.npz ({type(error).__name__}: {error}).") from None
+
+
+#: The replay buffer of a checkpoint, as arrays (never a pickle).
+REPLAY_BUFFER_FILE = "replay_buffer.npz"
+
+
+def save_replay_buffer(buffer: Any, path: str | Path) -> None:
+    """An SB3 replay buffer's arrays (every ndarray attribute) and its ``pos`` / ``full`` as an
+    npz, written atomically: data that :func:`load_replay_buffer` reads back without unpickling."""
+    arrays = {key: value for key, value in vars(buffer).items() if isinstance(value, np.ndarray)}
+    with replaced_atomically(path) as temporary, open(temporary, "wb") as file:
+        np.savez(file, pos=np.int64(buffer.pos), full=np.bool_(buffer.full), **arrays)
+
+
+def load_replay_buffer(buffer: Any, path: str | Path) -> None:
+    """Fill ``buffer`` (a freshly built SB3 replay buffer of the same sizes) from
+    :func:`save_replay_buffer`'s npz, as data: a ValueError naming the file and the array when an
+    array is missing, unknown or of another shape or dtype (nothing is changed then), or when the
+    file is unreadable or holds pickled objects."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {key: data[key] for key in data.files}
+    except Exception as error:
+        raise ValueError(f"{path} is not a readable replay buffer ({type(error).__name__}: {error}).") from None
+    expected = {key: value for key, value in vars(buffer).items() if isinstance(value, np.ndarray)}
+    for key in sorted({*expected, *arrays} - {"pos", "full"}):
+        have, want = arrays.get(key), expected.get(key)
+        if have is None or want is None or have.shape != want.shape or have.dtype != want.dtype:
+            found = "missing" if have is None else f"{have.dtype} {have.shape}"
+            wanted = "no such array" if want is None else f"{want.dtype} {want.shape}"
+            raise ValueError(f"{path}: array {key!r} is {found}, the model's replay buffer expects {wanted}.")
+    pos, full = arrays.get("pos"), arrays.get("full")
+    if pos is None or full is None or pos.shape != () or full.shape != () or not 0 <= int(pos) < buffer.buffer_size:
+        raise ValueError(f"{path}: 'pos' and 'full' must be scalars with 0 <= pos < {buffer.buffer_size}.")
+    for key in expected:
+        setattr(buffer, key, arrays[key])
+    buffer.pos, buffer.full = int(pos), bool(full)

@@ -6,7 +6,8 @@ and TensorBoard logs are in ``tensorboard/``, so ``sb3-marl evaluate/plot -f <tr
 on it. Beside them:
 
 - ``checkpoint/`` (replaced atomically after every evaluation): ``model.zip``, the replay buffer of
-  off-policy learners, ``evaluations.npz`` and ``state.json``; the same files are reported to Ray
+  off-policy learners (``replay_buffer.npz``: arrays, read back as data, so a grid folder from
+  someone else resumes without running anything of theirs), ``evaluations.npz`` and ``state.json``; the same files are reported to Ray
   Tune as the trial's checkpoint, from which Ray restarts a trial whose worker died;
 - ``trial.json``: the trial and its settings, with one entry per attempt (start, host, pid);
 - ``result.json`` (written last): the last periodic evaluation and the paper's final evaluation
@@ -30,7 +31,7 @@ from typing import Any
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_marl.benchmark.grid import TrialSpec
-from sb3_marl.files import replaced_atomically
+from sb3_marl.files import REPLAY_BUFFER_FILE, replaced_atomically, save_replay_buffer
 
 RUN_ID = 1
 CHECKPOINT = "checkpoint"
@@ -93,8 +94,8 @@ def write_checkpoint(model: Any, folder: Path, evaluations: Path) -> Path:
     shutil.rmtree(staging, ignore_errors=True)
     staging.mkdir(parents=True)
     model.save(staging / "model.zip")
-    if hasattr(model, "save_replay_buffer"):
-        model.save_replay_buffer(staging / "replay_buffer.pkl")
+    if getattr(model, "replay_buffer", None) is not None:
+        save_replay_buffer(model.replay_buffer, staging / REPLAY_BUFFER_FILE)
     shutil.copy2(evaluations, staging / "evaluations.npz")
     (staging / "state.json").write_text(json.dumps({"num_timesteps": int(model.num_timesteps)}))
     previous = folder / PREVIOUS_CHECKPOINT
@@ -194,7 +195,6 @@ def run_trial(config: dict[str, Any]) -> None:
         log_interval=-1,
         verbose=0,
         device="cpu",
-        own_checkpoint=True,
     )
     model, _ = manager.setup_experiment()  # type: ignore[misc]
     evaluation = next(c for c in manager.callbacks if isinstance(c, ScenarioEvalCallback))

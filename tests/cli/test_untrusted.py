@@ -276,3 +276,35 @@ def test_stepping_after_the_end_raises():
         venv.close()
         with pytest.raises(RuntimeError, match="closed"):
             venv.step(np.ones(venv.num_envs, dtype=np.int64))
+
+
+def test_a_foreign_checkpoint_resumes_its_replay_buffer_as_data_never_its_pickle(tmp_path, capsys):
+    """A checkpoint folder from someone else (the benchmark's layout: model.zip with
+    replay_buffer.npz beside it, and a poisoned replay_buffer.pkl) continues training with the
+    arrays read as data; the pickle is never opened. Without the npz, the pickle is refused with a
+    message; an npz whose arrays do not fit the model's buffer is named."""
+    import pickle
+
+    from sb3_marl.files import REPLAY_BUFFER_FILE, load_replay_buffer, save_replay_buffer
+
+    argv = ["train", "--algo", "madqn", "-n", "400", "--eval-freq", "1000", "--eval-episodes", "1"]
+    assert main([*argv, "-f", str(tmp_path / "own"), "-params", "learning_starts:100", "buffer_size:2000"]) == 0
+    run = tmp_path / "own" / "madqn" / f"{ENV_NAME}_1"
+    model = get_algo("madqn").load(run / f"{ENV_NAME}.zip")
+    checkpoint = tmp_path / "foreign"
+    checkpoint.mkdir()
+    marker = tmp_path / "marker"
+    (checkpoint / "replay_buffer.pkl").write_bytes(pickle.dumps(Payload(marker)))
+    (checkpoint / "model.zip").write_bytes((run / f"{ENV_NAME}.zip").read_bytes())
+    buffer = get_algo("madqn")("MlpPolicy", "CartPole-v1", buffer_size=50, learning_starts=0).replay_buffer
+    buffer.observations[:] = 1.5
+    buffer.pos, buffer.full = 7, True
+    save_replay_buffer(buffer, checkpoint / REPLAY_BUFFER_FILE)
+    again = get_algo("madqn")("MlpPolicy", "CartPole-v1", buffer_size=50, learning_starts=0).replay_buffer
+    load_replay_buffer(again, checkpoint / REPLAY_BUFFER_FILE)
+    assert (again.observations == 1.5).all() and (again.pos, again.full) == (7, True)
+    with pytest.raises(ValueError, match=r"array 'actions' is int64 \(50, 1, 1\).*expects"):  # the madqn run's buffer has other sizes
+        load_replay_buffer(model.replay_buffer, checkpoint / REPLAY_BUFFER_FILE)
+    (checkpoint / REPLAY_BUFFER_FILE).unlink()
+    assert main([*argv, "-f", str(tmp_path / "continued"), "-i", str(checkpoint / "model.zip")]) == 0
+    assert "Not loading" in capsys.readouterr().out and not marker.exists()
