@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import signal
 import sys
 import time
@@ -614,11 +615,12 @@ def push_to_hub(args: argparse.Namespace) -> int:
 
     repo_id = f"{args.organization}/{args.repo_name or f'{args.algo}-{EnvironmentName(args.env)}'}"
     _check_repo_id("-orga/--organization and --repo-name", repo_id)
-    if args.dry_run and os.path.exists(args.dry_run) and (not os.path.isdir(args.dry_run) or os.listdir(args.dry_run)):
+    dry_run = args.dry_run
+    if dry_run and (os.path.islink(dry_run) or (os.path.exists(dry_run) and (not os.path.isdir(dry_run) or os.listdir(dry_run)))):
         raise UsageError(f"--dry-run: {args.dry_run!r} exists and is not an empty folder: give a new or empty folder.")
     run = _find_run(args)
     _load_model(run, args)  # a clear error for an unreadable model, before building anything
-    folder = Path(args.dry_run) if args.dry_run else run.log_path / "hub"
+    folder = Path(args.dry_run) if args.dry_run else fresh_folder(run.log_path / "hub")
     build_model_folder(run, folder, repo_id, args.eval_episodes, args.seed + EVAL_SEED_OFFSET, not args.no_video)
     print(f"built the model folder {folder} for {repo_id}")
     if args.dry_run:
@@ -629,6 +631,18 @@ def push_to_hub(args: argparse.Namespace) -> int:
         raise CommandFailed(str(error)) from None
     print(f"uploaded to {url}")
     return 0
+
+
+def fresh_folder(folder: Path) -> Path:
+    """``folder`` emptied and created anew: whatever was there (an earlier build, files or links
+    put there, a link to another folder) is removed without following links, so the upload holds
+    only the files built for it."""
+    if folder.is_symlink() or folder.is_file():
+        folder.unlink()
+    elif folder.exists():
+        shutil.rmtree(folder)
+    folder.mkdir(parents=True)
+    return folder
 
 
 def _check_repo_id(flag: str, repo_id: str) -> None:

@@ -2,6 +2,7 @@
 huggingface_hub, upload and download through huggingface_hub's client with only HTTP replaced."""
 
 import json
+import shutil
 import sys
 from pathlib import Path
 
@@ -118,3 +119,27 @@ def test_network_errors_are_reported_clearly(logs, tmp_path, hub, capsys):
 def test_load_from_hub_of_a_missing_repo(tmp_path, hub, capsys):
     assert main(["load-from-hub", "--repo-id", "me/nothing", "-f", str(tmp_path)]) == 1
     assert "Download of me/nothing failed" in capsys.readouterr().err
+
+
+def test_the_upload_holds_only_the_files_built_for_it(logs, tmp_path, hub):
+    """Leftovers in <run>/hub (a .env, a link to a file outside the run) and <run>/hub itself a
+    link to an outside folder: the upload holds the built files only, and nothing is written
+    outside the run."""
+    run_hub = logs / "ma2c" / f"{ENV_NAME}_1" / "hub"
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    (outside / "secret.txt").write_text("token")
+    run_hub.mkdir(exist_ok=True)
+    (run_hub / ".env").write_text("HF_TOKEN=secret")
+    (run_hub / "linked.txt").symlink_to(outside / "secret.txt")
+    argv = ["push-to-hub", "-f", str(logs), "-orga", "me", "--eval-episodes", "1", "--no-video"]
+    assert main([*argv, "--repo-name", "clean"]) == 0
+    assert set(hub.repos["me/clean"]) == FILES - {"replay.mp4"}
+    shutil.rmtree(run_hub)
+    run_hub.symlink_to(outside, target_is_directory=True)
+    assert main([*argv, "--repo-name", "clean2"]) == 0
+    assert set(hub.repos["me/clean2"]) == FILES - {"replay.mp4"}
+    assert sorted(p.name for p in outside.iterdir()) == ["secret.txt"] and not run_hub.is_symlink()
+    (tmp_path / "link").symlink_to(tmp_path / "empty", target_is_directory=True)
+    (tmp_path / "empty").mkdir()
+    assert main(["push-to-hub", "-f", str(logs), "-orga", "me", "--dry-run", str(tmp_path / "link")]) == 2
