@@ -114,6 +114,7 @@ class MARLExperimentManager(ExperimentManager):
         self.cli_overrides = {
             key: value for key, value in (("n_copies", n_copies), ("reward_mode", reward_mode)) if value is not None
         }
+        self.explicit_run_id = run_id is not None
         if run_id is not None:
             self.save_path = os.path.join(self.log_path, f"{self.env_name}_{run_id}")
             self.params_path = os.path.join(self.save_path, str(self.env_name))
@@ -182,8 +183,20 @@ class MARLExperimentManager(ExperimentManager):
         return model
 
     def create_log_folder(self) -> None:
-        if not self.optimize_hyperparameters:  # a search writes its report, not a run folder
-            super().create_log_folder()
+        """The run folder, created exclusively: when another run took this id since it was chosen
+        (two ``train`` started together), the next free id (a given ``run_id`` is continued)."""
+        if self.optimize_hyperparameters:  # a search writes its report, not a run folder
+            return
+        if not self.explicit_run_id:
+            os.makedirs(self.log_path, exist_ok=True)
+            while True:
+                try:
+                    os.mkdir(self.save_path)
+                    break
+                except FileExistsError:
+                    self.save_path = os.path.join(self.log_path, f"{self.env_name}_{run_id(self.save_path) + 1}")
+            self.params_path = os.path.join(self.save_path, str(self.env_name))
+        super().create_log_folder()
 
     def create_envs(self, n_envs: int, eval_env: bool = False, no_log: bool = False) -> VecEnv:
         monitor_dir = None if eval_env or no_log or self.optimize_hyperparameters else self.save_path

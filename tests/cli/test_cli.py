@@ -261,3 +261,17 @@ def test_baselines_table(tmp_path, capsys):
     rows = json.loads(out.with_suffix(".json").read_text())
     assert [(r["policy"], r["n_avs"]) for r in rows] == [(p, n) for p in ("random", "cruise", "idm-mobil") for n in (1, 2, 3)]
     assert "| idm-mobil | 3 |" in out.read_text()
+
+
+def test_two_trainings_started_together_get_their_own_run_folders(tmp_path):
+    """Two `train` processes started at once into one log folder: each creates its own run folder
+    (ids 1 and 2), saves its own model and writes its own TensorBoard folder."""
+    command = [str(Path(sys.executable).parent / "sb3-marl"), "train", "-n", "200", "--eval-freq", "200",
+               "--eval-episodes", "1", "-f", str(tmp_path), "-params", "n_steps:20"]
+    processes = [subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) for _ in range(2)]
+    outputs = [p.communicate(timeout=300)[0] for p in processes]
+    assert [p.returncode for p in processes] == [0, 0], outputs
+    saved = sorted(line.split(" to ")[-1] for out in outputs for line in out.splitlines() if line.startswith("Saved the model"))
+    assert len(set(saved)) == 2 and all(Path(path).is_file() for path in saved)
+    assert sorted(p.name for p in (tmp_path / "ma2c").iterdir()) == [f"{ENV_NAME}_1", f"{ENV_NAME}_2"]
+    assert sorted(p.name for p in (tmp_path / "tensorboard" / ENV_NAME).iterdir()) == ["MA2C_1", "MA2C_2"]
