@@ -616,7 +616,8 @@ def push_to_hub(args: argparse.Namespace) -> int:
     repo_id = f"{args.organization}/{args.repo_name or f'{args.algo}-{EnvironmentName(args.env)}'}"
     _check_repo_id("-orga/--organization and --repo-name", repo_id)
     dry_run = args.dry_run
-    if dry_run and (os.path.islink(dry_run) or (os.path.exists(dry_run) and (not os.path.isdir(dry_run) or os.listdir(dry_run)))):
+    occupied = os.path.exists(dry_run or "") and (not os.path.isdir(dry_run) or bool(os.listdir(dry_run)))
+    if dry_run and (os.path.islink(dry_run) or occupied):
         raise UsageError(f"--dry-run: {args.dry_run!r} exists and is not an empty folder: give a new or empty folder.")
     run = _find_run(args)
     _load_model(run, args)  # a clear error for an unreadable model, before building anything

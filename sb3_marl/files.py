@@ -47,9 +47,10 @@ REPLAY_BUFFER_FILE = "replay_buffer.npz"
 def save_replay_buffer(buffer: Any, path: str | Path) -> None:
     """An SB3 replay buffer's arrays (every ndarray attribute) and its ``pos`` / ``full`` as an
     npz, written atomically: data that :func:`load_replay_buffer` reads back without unpickling."""
-    arrays = {key: value for key, value in vars(buffer).items() if isinstance(value, np.ndarray)}
+    arrays: dict[str, Any] = {key: value for key, value in vars(buffer).items() if isinstance(value, np.ndarray)}
+    arrays.update(pos=np.array(buffer.pos, dtype=np.int64), full=np.array(buffer.full, dtype=bool))
     with replaced_atomically(path) as temporary, open(temporary, "wb") as file:
-        np.savez(file, pos=np.int64(buffer.pos), full=np.bool_(buffer.full), **arrays)
+        np.savez(file, **arrays)
 
 
 def load_replay_buffer(buffer: Any, path: str | Path) -> None:

@@ -30,7 +30,6 @@ from functools import partial
 from typing import Any, ClassVar, TypeVar
 
 import numpy as np
-
 import torch as th
 import torch.nn.functional as F
 from gymnasium import spaces

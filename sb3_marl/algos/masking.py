@@ -346,7 +346,7 @@ class MaskableActorCritic(ActionMaskingMixin, MaskablePPO):  # type: ignore[misc
         clip_range = self.clip_range(self._current_progress_remaining)  # type: ignore[operator]
         clip_range_vf = None if self.clip_range_vf is None else self.clip_range_vf(self._current_progress_remaining)  # type: ignore[operator]
         logs: dict[str, list] = defaultdict(list)
-        for epoch in range(self.n_epochs):
+        for _ in range(self.n_epochs):
             approx_kl_divs = []
             for indices in self._minibatches():
                 data = self.rollout_buffer._get_samples(indices)
@@ -382,8 +382,8 @@ class MaskableActorCritic(ActionMaskingMixin, MaskablePPO):  # type: ignore[misc
             logs["approx_kl"] += approx_kl_divs
             if self.target_kl is not None and approx_kl_divs and approx_kl_divs[-1] > 1.5 * self.target_kl:
                 break
-        for key, values in logs.items():
-            self.logger.record(f"train/{key}", float(np.mean(values)))
+        for key, entries in logs.items():
+            self.logger.record(f"train/{key}", float(np.mean(entries)))
         buffer = self.rollout_buffer
         self.logger.record("train/loss", loss.item())
         self.logger.record("train/explained_variance", explained_variance(buffer.values.flatten(), buffer.returns.flatten()))

@@ -74,9 +74,9 @@ class RulePrior:
         for key, value, low in (("prior_warm_start", self.warm_start, 0), ("prior_decay_steps", self.decay_steps, 1)):
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
                 raise ValueError(f"Invalid {key}={value!r}: expected an integer >= {low} (AV-steps).")
-        for key, value in (("prior_coef", self.coef), ("prior_coef_final", self.coef_final)):
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < math.inf:
-                raise ValueError(f"Invalid {key}={value!r}: expected a finite number >= 0.")
+        for key, coef in (("prior_coef", self.coef), ("prior_coef_final", self.coef_final)):
+            if isinstance(coef, bool) or not isinstance(coef, (int, float)) or not 0 <= coef < math.inf:
+                raise ValueError(f"Invalid {key}={coef!r}: expected a finite number >= 0.")
         if isinstance(self.smoothing, bool) or not isinstance(self.smoothing, (int, float)) or not 0 <= self.smoothing < 1:
             raise ValueError(f"Invalid prior_smoothing={self.smoothing!r}: expected a number in [0, 1).")
 
@@ -104,7 +104,9 @@ def smoothed_targets(labels: th.Tensor, smoothing: float, available: th.Tensor) 
     return spread.scatter_add(1, labels.long()[:, None], own)
 
 
-def prior_loss(logits: th.Tensor, labels: th.Tensor, smoothing: float, masks: th.Tensor | None = None) -> tuple[th.Tensor, th.Tensor]:
+def prior_loss(
+    logits: th.Tensor, labels: th.Tensor, smoothing: float, masks: th.Tensor | None = None
+) -> tuple[th.Tensor, th.Tensor]:
     """(mean cross-entropy, mean KL(π_rule ‖ π) without gradient) of the policy's ``logits``
     (batch, actions) to the rule actions ``labels`` smoothed by ``smoothing`` over the available
     actions (``masks``, bool; None: all)."""
@@ -192,7 +194,8 @@ def dagger(model: Any, timesteps: int, prior: RulePrior) -> None:
         flat_obs = _stack(observations)
         labels = mixed.labels.reshape(-1)
         agreement = _agreement(policy, flat_obs, np.concatenate(masks), labels)
-        for key, value in (("obs", flat_obs), ("masks", np.concatenate(masks)), ("labels", labels), ("returns", discounted.reshape(-1))):
+        round_data = {"obs": flat_obs, "masks": np.concatenate(masks), "labels": labels, "returns": discounted.reshape(-1)}
+        for key, value in round_data.items():
             gathered[key].append(value)
         losses = _fit(model, optimizer, {key: _concat(values) for key, values in gathered.items()}, prior.smoothing, rng)
         for key, value in (
@@ -247,7 +250,9 @@ def _agreement(policy: Any, obs: Any, masks: np.ndarray, labels: np.ndarray) -> 
     return float((logits.argmax(dim=1).cpu().numpy() == labels).mean())
 
 
-def _fit(model: Any, optimizer: th.optim.Optimizer, data: dict[str, Any], smoothing: float, rng: np.random.Generator) -> tuple[float, float]:
+def _fit(
+    model: Any, optimizer: th.optim.Optimizer, data: dict[str, Any], smoothing: float, rng: np.random.Generator
+) -> tuple[float, float]:
     """Passes of minibatch Adam over ``data``: the actor to the labels, the critic to the returns
     (weighted by the learner's ``vf_coef``); returns the last pass's mean prior and value losses."""
     policy = model.policy

@@ -7,8 +7,9 @@ on it. Beside them:
 
 - ``checkpoint/`` (replaced atomically after every evaluation): ``model.zip``, the replay buffer of
   off-policy learners (``replay_buffer.npz``: arrays, read back as data, so a grid folder from
-  someone else resumes without running anything of theirs), ``evaluations.npz`` and ``state.json``; the same files are reported to Ray
-  Tune as the trial's checkpoint, from which Ray restarts a trial whose worker died;
+  someone else resumes without running anything of theirs), ``evaluations.npz`` and ``state.json``;
+  the same files are reported to Ray Tune as the trial's checkpoint, from which Ray restarts a
+  trial whose worker died;
 - ``trial.json``: the trial and its settings, with one entry per attempt (start, host, pid);
 - ``result.json`` (written last): the last periodic evaluation and the paper's final evaluation
   of the trained model (``paper_evaluation``, :data:`FINAL_EVAL_EPISODES` seeded episodes).

@@ -271,7 +271,8 @@ def test_two_trainings_started_together_get_their_own_run_folders(tmp_path):
     processes = [subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) for _ in range(2)]
     outputs = [p.communicate(timeout=300)[0] for p in processes]
     assert [p.returncode for p in processes] == [0, 0], outputs
-    saved = sorted(line.split(" to ")[-1] for out in outputs for line in out.splitlines() if line.startswith("Saved the model"))
+    lines = [line for out in outputs for line in out.splitlines()]
+    saved = sorted(line.split(" to ")[-1] for line in lines if line.startswith("Saved the model"))
     assert len(set(saved)) == 2 and all(Path(path).is_file() for path in saved)
     assert sorted(p.name for p in (tmp_path / "ma2c").iterdir()) == [f"{ENV_NAME}_1", f"{ENV_NAME}_2"]
     assert sorted(p.name for p in (tmp_path / "tensorboard" / ENV_NAME).iterdir()) == ["MA2C_1", "MA2C_2"]

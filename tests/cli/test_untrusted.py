@@ -303,7 +303,8 @@ def test_a_foreign_checkpoint_resumes_its_replay_buffer_as_data_never_its_pickle
     again = get_algo("madqn")("MlpPolicy", "CartPole-v1", buffer_size=50, learning_starts=0).replay_buffer
     load_replay_buffer(again, checkpoint / REPLAY_BUFFER_FILE)
     assert (again.observations == 1.5).all() and (again.pos, again.full) == (7, True)
-    with pytest.raises(ValueError, match=r"array 'actions' is int64 \(50, 1, 1\).*expects"):  # the madqn run's buffer has other sizes
+    # the madqn run's buffer has other sizes
+    with pytest.raises(ValueError, match=r"array 'actions' is int64 \(50, 1, 1\).*expects"):
         load_replay_buffer(model.replay_buffer, checkpoint / REPLAY_BUFFER_FILE)
     (checkpoint / REPLAY_BUFFER_FILE).unlink()
     assert main([*argv, "-f", str(tmp_path / "continued"), "-i", str(checkpoint / "model.zip")]) == 0

@@ -13,8 +13,9 @@ from tests.envs.parity import ACTION_PROBABILITIES, stock_rule_actions
 @pytest.mark.parametrize("politeness", [0.0, 1.0])
 def test_rule_driver_matches_highway_env_objects(density, politeness):
     """Every step of seeded episodes (mostly IDLE, some lane and speed changes, so that AVs meet
-    slower leaders and free lanes; the supervisor on, so that dense episodes last): the compiled rule actions equal the object-based decision, and
-    the step's info reports them for the state it returns."""
+    slower leaders and free lanes; the supervisor on, so that dense episodes last): the compiled
+    rule actions equal the object-based decision, and the step's info reports them for the state
+    it returns."""
     env = make_scenario(ENV_IDS[density], {"hdv_politeness": politeness, "safety_supervisor": True})
     rng = np.random.default_rng(density)
     checked, kinds = 0, set()
