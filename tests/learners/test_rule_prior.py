@@ -1,0 +1,105 @@
+"""The rule prior: its loss and schedule, the DAgger warm start, a short run of each learner with
+it, save/load of its settings, and bad input (real envs, real learners)."""
+
+import pytest
+import torch as th
+from stable_baselines3.common.logger import KVWriter, Logger
+
+from sb3_marl.algos import get_algo
+from sb3_marl.algos.rule_prior import RulePrior, prior_loss
+from sb3_marl.cli import main
+from sb3_marl.training import make_model, make_venv
+
+ENV = "sb3_marl/LaneChange-density1-v0"
+PRIOR = {"prior": "idm-mobil", "prior_coef": 1.0, "prior_coef_final": 0.1, "prior_decay_steps": 1000}
+
+
+class Dumps(KVWriter):
+    """Keeps every logger dump (SB3's logger output interface)."""
+
+    def __init__(self) -> None:
+        self.dumps: list[dict] = []
+
+    def write(self, key_values, key_excluded, step=0) -> None:
+        self.dumps.append(dict(key_values))
+
+    def values(self, key: str) -> list:
+        return [dump[key] for dump in self.dumps if key in dump]
+
+
+def test_the_prior_loss_raises_the_rule_action_and_vanishes_at_zero_weight():
+    """One gradient step on w · prior_loss raises the probability of the rule action (and only of
+    available actions); at w = 0 the gradient is zero."""
+    logits = th.zeros(4, 5, requires_grad=True)
+    labels = th.tensor([4, 1, 3, 0])
+    masks = th.tensor([[1, 1, 1, 1, 1], [0, 1, 1, 1, 1], [1, 1, 0, 1, 1], [1, 1, 1, 1, 0]], dtype=th.bool)
+    for weight in (1.0, 0.0):
+        logits.grad = None
+        loss, kl = prior_loss(logits, labels, 0.1, masks)
+        (weight * loss).backward()
+        assert logits.grad is not None
+        if weight == 0.0:
+            assert th.count_nonzero(logits.grad) == 0
+            continue
+        assert kl.item() > 0
+        stepped = logits.detach() - 1.0 * logits.grad
+        before = th.softmax(logits.detach().masked_fill(~masks, -1e8), 1)[th.arange(4), labels]
+        after = th.softmax(stepped.masked_fill(~masks, -1e8), 1)[th.arange(4), labels]
+        assert (after > before).all()
+
+
+def test_the_weight_falls_linearly_after_the_warm_start():
+    prior = RulePrior("idm-mobil", warm_start=100, coef=1.0, coef_final=0.2, decay_steps=400)
+    assert [prior.weight(t) for t in (0, 100, 300, 500, 10_000)] == pytest.approx([1.0, 1.0, 0.6, 0.2, 0.2])
+    assert RulePrior().weight(0) == 0.0
+
+
+def test_a_short_dagger_warm_start_raises_agreement_with_the_rule_driver():
+    """A tiny DAgger warm start: the policy's most likely action agrees with the rule driver far
+    more often after it than before (random init), on the states of the last round."""
+    hyperparams = {"architecture": "shared", "env_config": {"safety_supervisor": True}, "n_steps": 20}
+    venv = make_venv(ENV, hyperparams, seed=0)
+    model = make_model("ma2c", venv, {**hyperparams, **PRIOR, "prior_warm_start": 9600}, seed=0)
+    dumps = Dumps()
+    model.set_logger(Logger(None, [dumps]))
+    model.learn(9600 + 120)
+    agreements = dumps.values("dagger/agreement")
+    assert model.num_timesteps >= 9600 and len(agreements) == 8
+    assert agreements[0] < 0.2 and agreements[-1] > 0.6
+
+
+@pytest.mark.parametrize("algo", ["ma2c", "mappo", "maacktr"])
+def test_each_actor_critic_trains_with_the_prior_and_keeps_it_when_saved(algo, tmp_path):
+    """A short run with the recipe on (warm start, then the regularised loss, logged), and the
+    prior's settings back after save / load."""
+    settings = {**PRIOR, "prior_warm_start": 1200, "n_steps": 20, "env_config": {"safety_supervisor": True}}
+    if algo == "mappo":
+        settings.update(batch_size=60, n_epochs=2)
+    venv = make_venv(ENV, settings, seed=1)
+    model = make_model(algo, venv, settings, seed=1)
+    dumps = Dumps()
+    model.set_logger(Logger(None, [dumps]))
+    model.learn(1200 + 240, log_interval=1)
+    assert len(dumps.values("dagger/agreement")) == 8
+    assert all(0.1 < coef <= 1.0 for coef in dumps.values("train/prior_coef")) and dumps.values("train/prior_kl")
+    model.save(tmp_path / "model.zip")
+    loaded = get_algo(algo).load(tmp_path / "model.zip")
+    assert loaded.rule_prior == model.rule_prior == RulePrior("idm-mobil", 1200, 1.0, 0.1, 1000, 0.0)
+
+
+@pytest.mark.parametrize(
+    ("algo", "params", "message"),
+    [
+        ("ma2c", "prior:'rules'", "Invalid prior='rules': expected one of ['idm-mobil']"),
+        ("ma2c", "prior_warm_start:-1", "Invalid prior_warm_start=-1: expected an integer >= 0"),
+        ("ma2c", "prior_warm_start:1.5", "Invalid prior_warm_start=1.5: expected an integer >= 0"),
+        ("mappo", "prior_coef:'high'", "Invalid prior_coef='high': expected a finite number >= 0"),
+        ("ma2c", "prior_decay_steps:0", "Invalid prior_decay_steps=0: expected an integer >= 1"),
+        ("maacktr", "prior_smoothing:1.0", "Invalid prior_smoothing=1.0: expected a number in [0, 1)"),
+        ("madqn", "prior:'idm-mobil'", "Unknown hyperparameter(s) ['prior'] for 'madqn'"),
+    ],
+)
+def test_bad_prior_settings_exit_2_before_any_folder(algo, params, message, tmp_path, capsys):
+    assert main(["train", "--algo", algo, "-f", str(tmp_path / "logs"), "-n", "100", "-params", params]) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "logs").exists()
