@@ -40,6 +40,9 @@ PRIORS = ("idm-mobil",)
 DAGGER_ITERATIONS = 8
 #: Passes over the gathered states after each DAgger round, minibatch size and Adam's step size.
 DAGGER_EPOCHS, DAGGER_BATCH, DAGGER_LR = 4, 256, 1e-3
+#: After each round, the policy alone (sampled actions, no safety supervisor) drives this many
+#: episodes, seeds from :data:`DAGGER_EVAL_SEED` on (apart from training and evaluation seeds).
+DAGGER_EVAL_EPISODES, DAGGER_EVAL_SEED = 12, 20_000
 
 
 @dataclass(frozen=True)
@@ -158,9 +161,15 @@ def dagger(model: Any, timesteps: int, prior: RulePrior) -> None:
     AV-steps (see the module doc); advances ``model.num_timesteps`` and logs each round under
     ``dagger/``: ``beta``, ``agreement`` (share of visited states where the policy's most likely
     action is the rule action, before the round's fit), ``collision_rate`` (share of the round's
-    finished episodes that ended in a crash), ``episode_return`` (mean slot return of those, in the
-    reward mode), ``prior_loss`` and ``value_loss`` (after the fit)."""
+    finished episodes that ended in a crash, the scenario's supervisor as configured),
+    ``episode_return`` (mean slot return of those, in the reward mode), ``prior_loss`` and
+    ``value_loss`` (after the fit), and the policy alone after the fit (sampled actions, no
+    supervisor, :data:`DAGGER_EVAL_EPISODES` episodes): ``alone/collision_rate`` and
+    ``alone/episode_return`` (the paper's return)."""
+    from sb3_marl.evaluation import evaluate_on_density, model_policy, with_supervisor
+
     env, policy = model.env, model.policy
+    env_id, config = env.get_attr("spec", [0])[0].id, env.get_attr("config", [0])[0]
     n_envs = env.num_envs
     steps = max(timesteps // (DAGGER_ITERATIONS * n_envs), 1)
     rng = np.random.default_rng(model.seed)
@@ -198,6 +207,8 @@ def dagger(model: Any, timesteps: int, prior: RulePrior) -> None:
         for key, value in round_data.items():
             gathered[key].append(value)
         losses = _fit(model, optimizer, {key: _concat(values) for key, values in gathered.items()}, prior.smoothing, rng)
+        seed = DAGGER_EVAL_SEED + iteration * DAGGER_EVAL_EPISODES
+        alone = evaluate_on_density(model_policy(model), env_id, DAGGER_EVAL_EPISODES, seed, with_supervisor(config, "off"))
         for key, value in (
             ("beta", beta),
             ("agreement", agreement),
@@ -205,6 +216,8 @@ def dagger(model: Any, timesteps: int, prior: RulePrior) -> None:
             ("episode_return", float(np.mean(returns)) if returns else float("nan")),
             ("prior_loss", losses[0]),
             ("value_loss", losses[1]),
+            ("alone/collision_rate", alone["collision_rate"]),
+            ("alone/episode_return", alone["return_mean"]),
         ):
             model.logger.record(f"dagger/{key}", value)
         model.logger.dump(step=model.num_timesteps)

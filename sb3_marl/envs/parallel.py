@@ -44,7 +44,17 @@ from sb3_marl.envs.lane_change_env import ACTIONS, LaneChangeEnv
 from sb3_marl.envs.reward import REWARD_MODES, apply_reward_mode
 
 #: Per-AV step info copied into each agent's ``infos`` entry.
-AGENT_INFO = ("speed", "headway", "crashed", "exited", "lane_change", "proposed_action", "executed_action", "intervened")
+AGENT_INFO = (
+    "speed",
+    "headway",
+    "crashed",
+    "exited",
+    "lane_change",
+    "proposed_action",
+    "executed_action",
+    "intervened",
+    "rule_action",
+)
 
 
 class LaneChangeParallelEnv(ParallelEnv):

@@ -47,6 +47,8 @@ def test_step_gives_the_scenario_per_agent_with_masks_and_reward_modes():
         for i, agent in enumerate(pz_local.agents):
             np.testing.assert_array_equal(obs[agent], raw_obs[i])
             np.testing.assert_array_equal(infos[agent]["action_mask"], raw.action_masks()[i].astype(np.int8))
+            if steps:
+                assert infos[agent]["rule_action"] == raw.rule_actions()[i]
         np.testing.assert_array_equal(pz_local.state(), raw_obs.reshape(-1))
         actions = {agent: int(rng.choice(np.flatnonzero(infos[agent]["action_mask"]))) for agent in pz_local.agents}
         obs, rewards, terminations, truncations, infos = pz_local.step(actions)

@@ -80,7 +80,7 @@ def test_each_actor_critic_trains_with_the_prior_and_keeps_it_when_saved(algo, t
     dumps = Dumps()
     model.set_logger(Logger(None, [dumps]))
     model.learn(1200 + 240, log_interval=1)
-    assert len(dumps.values("dagger/agreement")) == 8
+    assert len(dumps.values("dagger/agreement")) == 8 == len(dumps.values("dagger/alone/collision_rate"))
     assert all(0.1 < coef <= 1.0 for coef in dumps.values("train/prior_coef")) and dumps.values("train/prior_kl")
     model.save(tmp_path / "model.zip")
     loaded = get_algo(algo).load(tmp_path / "model.zip")
