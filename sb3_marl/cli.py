@@ -37,6 +37,7 @@ from sb3_marl.benchmark.grid import (
     PAPER_SEEDS,
 )
 from sb3_marl.envs import DENSITIES, ENV_IDS, make_scenario
+from sb3_marl.files import write_text
 
 DEFAULT_ENV = ENV_IDS[1]
 EXIT_INTERRUPTED = {signal.SIGINT: 130, signal.SIGTERM: 143}
@@ -131,6 +132,18 @@ def _check_folder(flag: str, path: str | None) -> None:
         existing = existing.parent
     if not os.access(existing, os.W_OK | os.X_OK):
         raise UsageError(f"{flag}: {path!r} cannot be written: {str(existing)!r} is not writable.")
+
+
+def _check_file(flag: str, path: str | Path | None) -> None:
+    """A file the command will write (atomically, through a temporary file beside it): not a folder
+    or a device, and its folder writable (checked before the work)."""
+    if not path:
+        return
+    if os.path.isdir(path):
+        raise UsageError(f"{flag}: {str(path)!r} is a folder, expected a file name.")
+    if os.path.exists(path) and not os.path.isfile(path):
+        raise UsageError(f"{flag}: {str(path)!r} is not a regular file (a device or a pipe): give a file name.")
+    _check_folder(flag, os.path.dirname(os.path.abspath(path)))
 
 
 #: Seeds numpy and the scenario accept: 0 <= seed < 2**32 (episode seeds add 10,000 for evaluation).
@@ -548,6 +561,7 @@ def evaluate(args: argparse.Namespace) -> int:
     from sb3_marl.evaluation import evaluate_protocols, markdown_table, protocol_rows
     from sb3_marl.experiment import EVAL_SEED_OFFSET
 
+    _check_file("-o/--output", args.output)
     run = _find_run(args)
     model = _load_model(run, args)
     seed = args.seed + EVAL_SEED_OFFSET
@@ -572,9 +586,8 @@ def evaluate(args: argparse.Namespace) -> int:
     print(heading + "\n")
     print(table)
     output = Path(args.output) if args.output else run.log_path / "evaluation.json"
-    output.parent.mkdir(parents=True, exist_ok=True)
-    output.write_text(json.dumps(result, indent=2))
-    output.with_suffix(".md").write_text(heading + "\n\n" + table + "\n")
+    write_text(output, json.dumps(result, indent=2))
+    write_text(output.with_suffix(".md"), heading + "\n\n" + table + "\n")
     print(f"\nwrote {output} and {output.with_suffix('.md')} ({time.perf_counter() - start:.1f} s)")
     return 0
 
@@ -587,7 +600,7 @@ def record_video_command(args: argparse.Namespace) -> int:
     run = _find_run(args)
     model = _load_model(run, args)
     output = Path(args.output) if args.output else run.log_path / "videos" / f"{run.model_path.stem}.mp4"
-    _check_folder("-o/--output", str(output.parent))
+    _check_file("-o/--output", output)
     try:
         info = record_video(
             model_policy(model, args.deterministic),
@@ -703,15 +716,15 @@ def summary(args: argparse.Namespace) -> int:
     if table.count("\n") < 2:
         raise UsageError(f"No evaluated run under {args.folder}/ (run `sb3-marl evaluate` on a run first).")
     output = Path(args.output) if args.output else Path(args.folder) / "summary.md"
-    output.parent.mkdir(parents=True, exist_ok=True)
-    output.write_text(table + "\n")
+    _check_file("-o/--output", output)
+    write_text(output, table + "\n")
     print(table)
     print(f"\nwrote {output}")
     return 0
 
 
 def baselines(args: argparse.Namespace) -> int:
-
+    _check_file("--out", args.out)
     from sb3_marl.baselines import BASELINES
     from sb3_marl.evaluation import markdown_table, run_episodes, summarize
 
@@ -729,9 +742,8 @@ def baselines(args: argparse.Namespace) -> int:
         f"seeds {args.seed}..{args.seed + args.episodes - 1}\n\n" + markdown_table(rows)
     )
     print(table)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(table + "\n")
-    args.out.with_suffix(".json").write_text(json.dumps(results, indent=2))
+    write_text(args.out, table + "\n")
+    write_text(args.out.with_suffix(".json"), json.dumps(results, indent=2))
     print(f"\nwrote {args.out} and {args.out.with_suffix('.json')} in {time.perf_counter() - start:.1f} s")
     return 0
 
@@ -871,6 +883,17 @@ def main(argv: list[str] | None = None) -> int:
     except (UsageError, CommandFailed) as error:
         print(f"sb3-marl {args.command}: error: {error}", file=sys.stderr)
         return 2 if isinstance(error, UsageError) else 1
+    except (KeyboardInterrupt, SystemError) as error:  # numba reports Ctrl-C in compiled code as a SystemError
+        from sb3_marl.experiment import interrupted_by_user
+
+        if not interrupted_by_user(error):
+            raise
+        print(
+            f"sb3-marl {args.command}: interrupted; files it had written are complete (each is written whole), "
+            "nothing else was written.",
+            file=sys.stderr,
+        )
+        return EXIT_INTERRUPTED[signal.SIGINT]
     except BrokenPipeError:  # `sb3-marl ... | head` closed the pipe: stop quietly, as other tools do
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no error when Python flushes at exit
         return 1

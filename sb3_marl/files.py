@@ -30,6 +30,20 @@ def replaced_atomically(path: str | Path) -> Iterator[Path]:
         raise
 
 
+def write_text(path: str | Path, text: str) -> Path:
+    """Write ``text`` to ``path`` atomically (:func:`replaced_atomically`); returns the path."""
+    with replaced_atomically(path) as temporary:
+        temporary.write_text(text, encoding="utf-8")
+    return Path(path)
+
+
+def save_figure(figure: Any, path: str | Path, dpi: int = 100) -> Path:
+    """``figure.savefig`` to ``path`` atomically (the format from the suffix); returns the path."""
+    with replaced_atomically(path) as temporary:
+        figure.savefig(temporary, dpi=dpi)
+    return Path(path)
+
+
 def read_evaluations(path: str | Path) -> dict[str, Any]:
     """The arrays of an ``evaluations.npz``; a ValueError naming the file if it is unreadable
     (truncated, not an npz, pickled objects: never unpickled)."""

@@ -29,6 +29,7 @@ from rl_zoo3.utils import EnvironmentName, get_latest_run_id
 
 from sb3_marl.algos import get_algo
 from sb3_marl.evaluation import model_policy
+from sb3_marl.files import write_text
 from sb3_marl.runs import Run
 from sb3_marl.video import record_video
 
@@ -80,14 +81,14 @@ def build_model_folder(
     folder.mkdir(parents=True, exist_ok=True)
     model = run.load_model("cpu")
     shutil.copyfile(run.model_path, folder / model_file_name(run.algo, run.env_id))
-    (folder / "config.yml").write_text(yaml.safe_dump(_plain(run.hyperparams), sort_keys=True))
-    (folder / "config.json").write_text(json.dumps(_plain(run.hyperparams), indent=2, sort_keys=True))
+    write_text(folder / "config.yml", yaml.safe_dump(_plain(run.hyperparams), sort_keys=True))
+    write_text(folder / "config.json", json.dumps(_plain(run.hyperparams), indent=2, sort_keys=True))
 
     results = run.evaluate(model, n_eval_episodes, seed)
-    (folder / "results.json").write_text(json.dumps(results, indent=2))
+    write_text(folder / "results.json", json.dumps(results, indent=2))
     if video:
         record_video(model_policy(model), run.env_id, folder / "replay.mp4", 1, seed, run.env_config)
-    model_card(results, repo_id).save(folder / "README.md")
+    write_text(folder / "README.md", str(model_card(results, repo_id)))
     return folder
 
 

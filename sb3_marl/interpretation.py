@@ -29,6 +29,7 @@ from sb3_marl.evaluation import (
     evaluation_records,
     run_episodes,
 )
+from sb3_marl.files import save_figure
 from sb3_marl.plotting import with_default_style
 
 #: The three moments of the figure: before, at the start and after the lane change.
@@ -121,8 +122,7 @@ def plot_cooperative_lane_change(
     )
     fig.tight_layout()
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path)
     return path
 
 

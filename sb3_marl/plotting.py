@@ -19,7 +19,7 @@ from matplotlib.figure import Figure  # no pyplot: no global backend, works head
 from stable_baselines3.common.monitor import LoadMonitorResultsError, load_results
 from stable_baselines3.common.results_plotter import X_TIMESTEPS, ts2xy, window_func
 
-from sb3_marl.files import read_evaluations
+from sb3_marl.files import read_evaluations, save_figure
 
 #: file name -> (y label, what is plotted)
 FIGURES = {
@@ -70,7 +70,7 @@ def plot_runs(runs: dict[str, Path], out_dir: str | Path, window: int = 100) -> 
             ax.grid(alpha=0.3)
             ax.legend(fontsize=8)
             fig.tight_layout()
-            fig.savefig(out_dir / name, dpi=100)
+            save_figure(fig, out_dir / name)
             written.append(out_dir / name)
     return written
 

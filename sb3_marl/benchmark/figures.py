@@ -16,6 +16,7 @@ from sb3_marl.benchmark.grid import EXPERIMENTS
 from sb3_marl.benchmark.statistics import TrialLog, select_trials
 from sb3_marl.benchmark.tables import PAPER_ACCELERATION_STD, PAPER_FINDINGS, PAPER_RETURNS
 from sb3_marl.envs import DENSITIES
+from sb3_marl.files import save_figure, write_text
 from sb3_marl.plotting import with_default_style
 
 
@@ -50,7 +51,7 @@ def plot_learning_curves(trials: list[TrialLog], out_dir: str | Path) -> list[Pa
         fig.suptitle(PAPER_FINDINGS[experiment][0])
         fig.tight_layout()
         path = out_dir / f"learning_curves_{experiment}.png"
-        fig.savefig(path, dpi=100)
+        save_figure(fig, path)
         written.append(path)
     return written
 
@@ -128,7 +129,7 @@ def plot_final_returns(
     fig.suptitle("Final evaluation (30 seeded episodes per trial, all seeds): IQM with 95 % bootstrap CI")
     fig.tight_layout()
     path = Path(out_dir) / "final_returns.png"
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path)
     return path
 
 
@@ -198,7 +199,7 @@ def plot_comfort(trials: list[TrialLog], log_folder: str | Path, out_dir: str | 
     ax.legend(fontsize=8)
     fig.tight_layout()
     path = Path(out_dir) / "comfort.png"
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path)
     return path
 
 
@@ -246,5 +247,5 @@ def plot_interpretation(trials: list[TrialLog], log_folder: str | Path, out_dir:
             )
         )
     path = out_dir / "cooperative_lane_change.json"
-    path.write_text(json.dumps(summary, indent=2) + "\n")
+    write_text(path, json.dumps(summary, indent=2) + "\n")
     return [path, *written]

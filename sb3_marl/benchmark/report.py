@@ -34,6 +34,7 @@ from sb3_marl.benchmark.figures import plot_comfort, plot_final_returns, plot_in
 from sb3_marl.benchmark.runner import SETTINGS_FILE
 from sb3_marl.benchmark.statistics import curve_summaries, load_trials, reference_summaries
 from sb3_marl.benchmark.tables import paper_table
+from sb3_marl.files import write_text
 
 #: Names (glob patterns) of the files a report writes into its output folder.
 REPORT_OUTPUTS = ("paper_table.md", "learning_curves_*.png", "final_returns.png", "comfort.png", "cooperative_lane_change.*")
@@ -61,7 +62,7 @@ def write_report(log_folder: str | Path, out_dir: str | Path = "results", seed: 
     table = out_dir / "paper_table.md"
     references = reference_summaries(trials, log_folder, seed)
     summaries = curve_summaries(trials)
-    table.write_text(paper_table(trials, settings, references, summaries))
+    write_text(table, paper_table(trials, settings, references, summaries))
     written = [table, *plot_learning_curves(trials, out_dir)]
     for figure in (plot_final_returns(summaries, out_dir, references), plot_comfort(trials, log_folder, out_dir, seed)):
         if figure is not None:

@@ -29,6 +29,7 @@ from sb3_marl.benchmark.grid import (
 )
 from sb3_marl.benchmark.trial import CHECKPOINT, RESULT, checkpoint_timesteps, final_evaluation, run_trial, trial_folder
 from sb3_marl.envs import DENSITIES
+from sb3_marl.files import write_text
 
 SETTINGS_FILE = "benchmark.json"
 
@@ -125,7 +126,7 @@ def run_benchmark(
         ) from None
 
     log_folder.mkdir(parents=True, exist_ok=True)
-    (log_folder / SETTINGS_FILE).write_text(json.dumps(settings, indent=2) + "\n")
+    write_text(log_folder / SETTINGS_FILE, json.dumps(settings, indent=2) + "\n")
     started_ray = not ray.is_initialized()
     if started_ray:
         ray.init(

@@ -32,7 +32,7 @@ from typing import Any
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_marl.benchmark.grid import TrialSpec
-from sb3_marl.files import REPLAY_BUFFER_FILE, replaced_atomically, save_replay_buffer
+from sb3_marl.files import REPLAY_BUFFER_FILE, save_replay_buffer, write_text
 
 RUN_ID = 1
 CHECKPOINT = "checkpoint"
@@ -62,8 +62,7 @@ def final_evaluation(result: dict[str, Any]) -> dict[str, Any]:
 
 
 def write_json(path: Path, data: dict[str, Any]) -> None:
-    with replaced_atomically(path) as temporary:
-        Path(temporary).write_text(json.dumps(data, indent=2) + "\n")
+    write_text(path, json.dumps(data, indent=2) + "\n")
 
 
 class CheckpointAndReport(BaseCallback):

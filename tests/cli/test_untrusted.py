@@ -11,6 +11,7 @@ import resource
 import signal
 import subprocess
 import sys
+import time
 import zipfile
 from pathlib import Path
 
@@ -55,8 +56,10 @@ def poisoned_copy(run: Path, tmp_path: Path, entry: str = "policy_class") -> tup
     with zipfile.ZipFile(model) as archive:
         files = {name: archive.read(name) for name in archive.namelist()}
     data = json.loads(files["data"])
-    data[entry] = {":type:": "<class 'abc.ABCMeta'>",
-                   ":serialized:": base64.b64encode(cloudpickle.dumps(Payload(marker))).decode()}
+    data[entry] = {
+        ":type:": "<class 'abc.ABCMeta'>",
+        ":serialized:": base64.b64encode(cloudpickle.dumps(Payload(marker))).decode(),
+    }
     files["data"] = json.dumps(data).encode()
     with zipfile.ZipFile(model, "w") as archive:
         for name, content in files.items():
@@ -68,9 +71,11 @@ def poisoned_copy(run: Path, tmp_path: Path, entry: str = "policy_class") -> tup
 def test_a_poisoned_model_zip_is_refused_by_every_command(run, tmp_path, capsys, entry):
     logs, marker = poisoned_copy(run, tmp_path, entry)
     model = logs / "ma2c" / f"{ENV_NAME}_1" / f"{ENV_NAME}.zip"
-    for argv in (["evaluate", "-f", str(logs), "--eval-episodes", "1"],
-                 ["record-video", "-f", str(logs), "-o", str(tmp_path / "v.mp4")],
-                 ["train", "-f", str(tmp_path / "resumed"), "-i", str(model), *TINY]):
+    for argv in (
+        ["evaluate", "-f", str(logs), "--eval-episodes", "1"],
+        ["record-video", "-f", str(logs), "-o", str(tmp_path / "v.mp4")],
+        ["train", "-f", str(tmp_path / "resumed"), "-i", str(model), *TINY],
+    ):
         assert main(argv) == 2, argv
         err = capsys.readouterr().err
         assert f"'{entry}'" in err and "trust_remote_code" in err, err
@@ -88,6 +93,7 @@ def test_a_poisoned_model_zip_is_refused_by_every_command(run, tmp_path, capsys,
 
 def test_clean_models_load_without_unpickling_anything(run, monkeypatch):
     """Every committed learner's zip loads with cloudpickle disabled."""
+
     def refuse(*args, **kwargs):
         raise AssertionError("cloudpickle.loads called")
 
@@ -122,8 +128,17 @@ def test_rl_zoo_run_yaml_still_reads(run):
     assert config["env_config"] == {"safety_supervisor": True} and config["n_steps"] == 20
 
 
-@pytest.mark.parametrize("text", ["__import__('os').system('touch MARKER')", "open('MARKER', 'w')",
-                                  "dict(a=__import__('os'))", "[x for x in ()]", "1 + 1", "nn.Module.__subclasses__()"])
+@pytest.mark.parametrize(
+    "text",
+    [
+        "__import__('os').system('touch MARKER')",
+        "open('MARKER', 'w')",
+        "dict(a=__import__('os'))",
+        "[x for x in ()]",
+        "1 + 1",
+        "nn.Module.__subclasses__()",
+    ],
+)
 def test_hyperparameter_strings_are_never_evaluated(text, tmp_path, capsys):
     text = text.replace("MARKER", str(tmp_path / "marker"))
     with pytest.raises(ValueError, match="Invalid value for policy_kwargs"):
@@ -132,7 +147,7 @@ def test_hyperparameter_strings_are_never_evaluated(text, tmp_path, capsys):
         main(["train", "-f", str(tmp_path / "logs"), "-params", f"policy_kwargs:{text}"])
     assert exit_info.value.code == 2 and "policy_kwargs" in capsys.readouterr().err
     conf = tmp_path / "conf.yml"
-    conf.write_text(f"{ENV}:\n  policy: MlpPolicy\n  policy_kwargs: \"{text}\"\n")
+    conf.write_text(f'{ENV}:\n  policy: MlpPolicy\n  policy_kwargs: "{text}"\n')
     assert main(["train", "-f", str(tmp_path / "logs"), "-c", str(conf), "-n", "100"]) == 2
     assert "policy_kwargs" in capsys.readouterr().err
     assert not (tmp_path / "marker").exists() and not (tmp_path / "logs").exists()
@@ -142,7 +157,9 @@ def test_literals_parse():
     from torch import nn
 
     assert parse_literal("dict(net_arch=[64, 64], activation_fn=nn.Tanh)", "k") == {
-        "net_arch": [64, 64], "activation_fn": nn.Tanh}
+        "net_arch": [64, 64],
+        "activation_fn": nn.Tanh,
+    }
     assert parse_literal("{'comfort': False, 'hdv_politeness': -1.5}", "k") == {"comfort": False, "hdv_politeness": -1.5}
     assert parse_literal("lin_5e-4", "k") == "lin_5e-4" and parse_literal("global", "k") == "global"
     assert parse_literal("local", "k") == "local" and parse_literal("3e-4", "k") == 3e-4
@@ -192,9 +209,26 @@ def _no_large_files() -> None:
 
 
 def test_a_write_the_os_refuses_gives_one_message(tmp_path):
-    completed = subprocess.run([SB3_MARL, "train", "-f", str(tmp_path / "logs"), "-n", "600", "--eval-freq", "-1",
-                                "-params", "n_steps:20", "--verbose", "0"], capture_output=True, text=True,
-                               preexec_fn=_no_large_files, timeout=300)
+    completed = subprocess.run(
+        [
+            SB3_MARL,
+            "train",
+            "-f",
+            str(tmp_path / "logs"),
+            "-n",
+            "600",
+            "--eval-freq",
+            "-1",
+            "-params",
+            "n_steps:20",
+            "--verbose",
+            "0",
+        ],
+        capture_output=True,
+        text=True,
+        preexec_fn=_no_large_files,
+        timeout=300,
+    )
     assert completed.returncode == 1, completed.stderr
     assert "Traceback" not in completed.stderr
     assert "could not write" in completed.stderr and "free some space" in completed.stderr, completed.stderr
@@ -209,8 +243,7 @@ def test_one_unreadable_trial_is_named_and_the_rest_listed(tmp_path, capsys):
         subprocess.run(["cp", "-r", str(grid / "trials" / trial), str(copy / "trials" / trial)], check=True)
     broken = copy / "trials" / "ma2c_density1_default_seed1" / "result.json"
     broken.write_text(broken.read_text()[:100])
-    assert main(["benchmark", "status", "--grid", "reward", "--seeds", "2", "--densities", "1",
-                 "-f", str(copy)]) == 1
+    assert main(["benchmark", "status", "--grid", "reward", "--seeds", "2", "--densities", "1", "-f", str(copy)]) == 1
     captured = capsys.readouterr()
     assert re.search(r"ma2c_density1_default_seed0 +finished", captured.out) and str(broken) in captured.err
     assert re.search(r"ma2c_density1_default_seed1 +unreadable", captured.out)
@@ -231,8 +264,15 @@ def test_a_broken_ffmpeg_is_one_message(run, tmp_path, capsys, monkeypatch):
     assert "with ffmpeg" in capsys.readouterr().err and not (tmp_path / "v.mp4").exists()
 
 
-@pytest.mark.parametrize("results", ["not json", json.dumps({"env_id": ENV}), json.dumps({"algo": "a/b", "env_id": ENV}),
-                                     json.dumps({"algo": "ma2c", "env_id": "../../x"})])
+@pytest.mark.parametrize(
+    "results",
+    [
+        "not json",
+        json.dumps({"env_id": ENV}),
+        json.dumps({"algo": "a/b", "env_id": ENV}),
+        json.dumps({"algo": "ma2c", "env_id": "../../x"}),
+    ],
+)
 def test_a_hub_repo_with_bad_results_is_one_message(results, tmp_path):
     from sb3_marl.hub import HubError, _place_run
 
@@ -244,8 +284,10 @@ def test_a_hub_repo_with_bad_results_is_one_message(results, tmp_path):
     assert not (tmp_path / "logs").exists()
 
 
-@pytest.mark.parametrize(("action", "match"), [(3.9, "Invalid action 3.9"), ("2", "Invalid action '2'"),
-                                               (None, "Invalid action None"), (7, "Invalid action 7")])
+@pytest.mark.parametrize(
+    ("action", "match"),
+    [(3.9, "Invalid action 3.9"), ("2", "Invalid action '2'"), (None, "Invalid action None"), (7, "Invalid action 7")],
+)
 def test_pettingzoo_step_rejects_bad_actions(action, match):
     from sb3_marl.envs.parallel import parallel_env
 
@@ -309,3 +351,32 @@ def test_a_foreign_checkpoint_resumes_its_replay_buffer_as_data_never_its_pickle
     (checkpoint / REPLAY_BUFFER_FILE).unlink()
     assert main([*argv, "-f", str(tmp_path / "continued"), "-i", str(checkpoint / "model.zip")]) == 0
     assert "Not loading" in capsys.readouterr().out and not marker.exists()
+
+
+@pytest.mark.parametrize("output", ["/dev/full", "{tmp}", "{tmp}/missing/and/more/eval.json"])
+def test_unusable_evaluate_outputs_are_refused_before_the_evaluation(run, tmp_path, capsys, output):
+    """-o naming a device or a folder: exit 2 naming the flag, before any episode runs; a missing
+    folder is created and the file written whole."""
+    output = output.format(tmp=tmp_path)
+    code = main(["evaluate", "-f", str(run), "--eval-episodes", "1", "-o", output])
+    if output.endswith(".json"):
+        assert code == 0 and json.loads(Path(output).read_text())["episodes"] == 1
+        return
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "-o/--output" in err and ("not a regular file" in err or "is a folder" in err)
+
+
+@pytest.mark.parametrize("command", [["evaluate", "--eval-episodes", "3000"], ["baselines", "--episodes", "3000"]])
+def test_ctrl_c_is_one_line_and_exit_130(run, tmp_path, command):
+    """Ctrl-C during a long evaluation: exit 130 with one line on stderr, no traceback, no file."""
+    extra = (
+        ["-f", str(run), "-o", str(tmp_path / "out.json")] if command[0] == "evaluate" else ["--out", str(tmp_path / "b.md")]
+    )
+    process = subprocess.Popen([SB3_MARL, *command, *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(8)
+    process.send_signal(signal.SIGINT)
+    _, err = process.communicate(timeout=60)
+    assert process.returncode == 130, err
+    assert "interrupted" in err and "Traceback" not in err
+    assert list(tmp_path.iterdir()) == []
