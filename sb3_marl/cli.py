@@ -66,11 +66,16 @@ class StoreHyperparams(argparse.Action):
         setattr(namespace, self.dest, parsed)
 
 
-def _positive(kind: type = int) -> Any:
+#: Upper bounds of the sizes that allocate: scenario copies (each an env), episodes, seeds, trials.
+MAX_COPIES, MAX_EPISODES, MAX_COUNT = 256, 100_000, 10_000
+
+
+def _positive(kind: type = int, maximum: float | None = None) -> Any:
     def parse(text: str) -> Any:
         value = kind(text)
-        if value < 1:
-            raise argparse.ArgumentTypeError(f"expected a value >= 1, got {text}")
+        if value < 1 or (maximum is not None and value > maximum):
+            bound = "" if maximum is None else f" and <= {maximum:,}"
+            raise argparse.ArgumentTypeError(f"expected a value >= 1{bound}, got {text}")
         return value
 
     return parse
@@ -206,7 +211,9 @@ def build_parser() -> argparse.ArgumentParser:
         "-tb", "--tensorboard-log", default=None, help="TensorBoard folder (default: <log-folder>/tensorboard; '' disables)"
     )
     train.add_argument("--eval-freq", type=int, default=10_000, help="evaluate every N AV-steps; -1 disables")
-    train.add_argument("--eval-episodes", type=_positive(), default=5, help="episodes per evaluation (default: 5)")
+    train.add_argument(
+        "--eval-episodes", type=_positive(maximum=MAX_EPISODES), default=5, help="episodes per evaluation (default: 5)"
+    )
     train.add_argument("--save-freq", type=int, default=-1, help="checkpoint every N AV-steps; -1 disables")
     train.add_argument("-c", "--conf-file", default=None, help="YAML instead of zoo_configs/<algo>.yml")
     train.add_argument(
@@ -222,7 +229,9 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument(
         "--vec-env", default="dummy", choices=["dummy", "subproc"], help="scenario copies in process or in workers"
     )
-    train.add_argument("--n-envs", type=_positive(), default=None, help="scenario copies (default: the config's)")
+    train.add_argument(
+        "--n-envs", type=_positive(maximum=MAX_COPIES), default=None, help="scenario copies (default: the config's)"
+    )
     train.add_argument(
         "--reward-mode", choices=["local", "global", "individual"], default=None, help="overrides the config's reward_mode"
     )
@@ -241,8 +250,10 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="search hyperparameters instead of training one model",
     )
-    search.add_argument("--n-trials", type=_positive(), default=500, help="trials to run (default: 500)")
-    search.add_argument("--n-jobs", type=_positive(), default=1, help="trials in parallel (threads; default: 1)")
+    search.add_argument("--n-trials", type=_positive(maximum=MAX_COUNT), default=500, help="trials to run (default: 500)")
+    search.add_argument(
+        "--n-jobs", type=_positive(maximum=MAX_COPIES), default=1, help="trials in parallel (threads; default: 1)"
+    )
     search.add_argument("--sampler", default="tpe", choices=["tpe", "random"], help="Optuna sampler (default: tpe)")
     search.add_argument(
         "--pruner", default="median", choices=["median", "halving", "none"], help="Optuna pruner (default: median)"
@@ -270,7 +281,9 @@ def build_parser() -> argparse.ArgumentParser:
             help="evaluate a trained model on seeded episodes" if name == "evaluate" else "alias of evaluate (rl-zoo's name)",
         )
         _add_run_selection(evaluate)
-        evaluate.add_argument("--eval-episodes", type=_positive(), default=30, help="episodes (default: 30)")
+        evaluate.add_argument(
+            "--eval-episodes", type=_positive(maximum=MAX_EPISODES), default=30, help="episodes (default: 30)"
+        )
         evaluate.add_argument("-o", "--output", default=None, help="JSON file (default: <run>/evaluation.json)")
         evaluate.add_argument(
             "--with-baselines",
@@ -292,7 +305,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     video = commands.add_parser("record-video", help="mp4 of evaluation episodes, rendered headless")
     _add_run_selection(video)
-    video.add_argument("--n-episodes", type=_positive(), default=1, help="episodes in the video (default: 1)")
+    video.add_argument("--n-episodes", type=_positive(maximum=MAX_COUNT), default=1, help="episodes in the video (default: 1)")
     video.add_argument("-o", "--output", default=None, help="mp4 file (default: <run>/videos/<model>.mp4)")
 
     push = commands.add_parser("push-to-hub", help="build a model folder with a model card and upload it (rl-zoo's flags)")
@@ -300,7 +313,9 @@ def build_parser() -> argparse.ArgumentParser:
     push.add_argument("--repo-name", default=None, help="default: <algo>-<env name>")
     push.add_argument("-orga", "--organization", required=True, help="Hub user or organisation")
     push.add_argument("-m", "--commit-message", default="Upload sb3-marl model")
-    push.add_argument("--eval-episodes", type=_positive(), default=10, help="episodes of the card's evaluation")
+    push.add_argument(
+        "--eval-episodes", type=_positive(maximum=MAX_EPISODES), default=10, help="episodes of the card's evaluation"
+    )
     push.add_argument("--no-video", action="store_true", help="leave replay.mp4 out")
     push.add_argument("--private", action="store_true")
     push.add_argument("--dry-run", metavar="PATH", default=None, help="only build the folder at PATH")
@@ -315,7 +330,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     baselines = commands.add_parser("baselines", help="metrics of the reference policies (random, cruise, IDM/MOBIL)")
     baselines.add_argument("--density", type=int, choices=sorted(DENSITIES), default=1)
-    baselines.add_argument("--episodes", type=_positive(), default=20, help="episodes per policy and AV count")
+    baselines.add_argument(
+        "--episodes", type=_positive(maximum=MAX_EPISODES), default=20, help="episodes per policy and AV count"
+    )
     baselines.add_argument("--seed", type=int, default=0)
     baselines.add_argument("--out", type=Path, default=Path("logs/scenario_baselines.md"))
 
@@ -340,7 +357,9 @@ def build_parser() -> argparse.ArgumentParser:
     benchmark.add_argument(
         "--budget", type=_budget, default=1.0, help="fraction of the paper's 1M env steps per trial (default: 1)"
     )
-    benchmark.add_argument("--seeds", type=_positive(), default=PAPER_SEEDS, help="seeds per trial setting (default: 2)")
+    benchmark.add_argument(
+        "--seeds", type=_positive(maximum=MAX_COUNT), default=PAPER_SEEDS, help="seeds per trial setting (default: 2)"
+    )
     benchmark.add_argument("--densities", type=int, nargs="+", choices=sorted(DENSITIES), default=sorted(DENSITIES))
     benchmark.add_argument(
         "--eval-every",
@@ -357,7 +376,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     benchmark.add_argument("--address", default=None, help="attach to this Ray cluster (default: a local Ray)")
     benchmark.add_argument(
-        "--max-concurrent", type=_positive(), default=None, help="trials at once (default: one per free CPU)"
+        "--max-concurrent", type=_positive(maximum=MAX_COPIES), default=None, help="trials at once (default: one per free CPU)"
     )
     benchmark.add_argument("--max-failures", type=int, default=2, help="restarts of a failed trial (default: 2)")
     benchmark.add_argument("-o", "--output", default="results", help="report: output folder (default: results)")

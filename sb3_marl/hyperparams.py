@@ -149,7 +149,7 @@ VALUE_RANGES: dict[str, tuple[str, float | None, float | None, tuple]] = {
     "target_update_interval": ("int", 1, None, ()),
     "stats_update_freq": ("int", 1, None, ()),
     "inverse_update_freq": ("int", 1, None, ()),
-    "n_copies": ("int", 1, None, (None,)),
+    "n_copies": ("int", 1, 256, (None,)),
     "learning_rate": ("float", 0, None, ()),
     "gamma": ("float", 0, 1, ()),
     "gae_lambda": ("float", 0, 1, ()),

@@ -380,3 +380,23 @@ def test_ctrl_c_is_one_line_and_exit_130(run, tmp_path, command):
     assert process.returncode == 130, err
     assert "interrupted" in err and "Traceback" not in err
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(
+    ("argv", "flag"),
+    [
+        (["train", "--n-envs", "1000000000"], "--n-envs"),
+        (["train", "--eval-episodes", "1000000000"], "--eval-episodes"),
+        (["baselines", "--episodes", "1000000000"], "--episodes"),
+        (["train", "-params", "n_copies:100000"], "n_copies"),
+    ],
+)
+def test_sizes_that_allocate_are_bounded_before_any_folder(argv, flag, tmp_path, capsys):
+    try:
+        code = main([*argv, "-f" if argv[0] == "train" else "--out", str(tmp_path / "out")])
+    except SystemExit as error:  # argparse's own exit for a flag's type
+        code = error.code
+    assert code == 2
+    err = capsys.readouterr().err
+    assert flag in err and ("<= 256" in err or "<= 100,000" in err)
+    assert not (tmp_path / "out").exists()
