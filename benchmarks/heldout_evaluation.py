@@ -2,16 +2,18 @@
 
 The learned-policy targets are measured on episode seeds never used in training (resets from the
 training seed) or in evaluation during training and the paper's final evaluation (10000..10029):
-300 episodes with seeds 100000..100299 by default, actions sampled (the authors' protocol), masks,
-with the safety supervisor and without it, and IDM/MOBIL on the same episodes.
+300 episodes with seeds 100000..100299 by default, actions sampled (the authors' protocol) and with
+``--greedy`` also argmax, masks, with the safety supervisor and without it, and IDM/MOBIL on the
+same episodes.
 
-    python benchmarks/heldout_evaluation.py -f results/paper-grid --variants default safety-training \
-        --densities 1 2 3 --seeds 3 -o results/safety
+    python benchmarks/heldout_evaluation.py -f results/paper-grid --algo ma2c mappo --variants rule-prior \
+        --densities 1 2 3 --seeds 3 --greedy -o results/rule-prior
 
 writes ``<output>/heldout.json`` (every trial's and IDM/MOBIL's summaries with each episode's return;
-finished entries are kept and skipped on a rerun) and ``<output>/heldout.md`` (per variant and density:
-mean ± std over seeds of the return, its IQM with a 95 % stratified-bootstrap CI over seeds where every
-entry kept its episode returns, collision rate, lane changes and yields per episode, under each protocol).
+finished entries are kept and skipped on a rerun) and ``<output>/heldout.md`` (per algorithm, variant,
+action protocol and density: mean ± std over seeds of the return, its IQM with a 95 % stratified-bootstrap
+CI over seeds, the pooled collision count with its 95 % Clopper–Pearson upper bound, agreement with the
+rule driver, lane changes and yields per episode, under each supervisor protocol).
 """
 
 from __future__ import annotations
@@ -27,13 +29,11 @@ from tqdm import tqdm
 
 from sb3_marl.baselines import IDMMobilPolicy
 from sb3_marl.benchmark.grid import TrialSpec
-from sb3_marl.benchmark.statistics import iqm_with_ci
+from sb3_marl.benchmark.statistics import clopper_pearson_upper, iqm_with_ci
 from sb3_marl.envs import ENV_IDS
 from sb3_marl.envs.supervisor import VERSION as SUPERVISOR_VERSION
 from sb3_marl.evaluation import evaluate_protocols, model_policy
 from sb3_marl.runs import find_run
-
-METRICS = ("return_mean", "collision_rate", "lane_changes_per_episode", "yields_per_episode")
 
 
 def slim(result: dict) -> dict:
@@ -49,74 +49,91 @@ def evaluate_all(args: argparse.Namespace) -> dict:
     if results.get("protocol", {}).get("supervisor_version") != SUPERVISOR_VERSION:
         results = {}  # evaluated under another safety supervisor: start afresh
     results["protocol"] = {"episodes": args.episodes, "seeds": [args.seed, args.seed + args.episodes - 1],
-                           "actions": "sampled (the authors' protocol), action masks",
+                           "actions": "sampled (the authors' protocol)" + (" and greedy (argmax)" if args.greedy else "")
+                           + ", action masks",
                            "supervisor": "on (top level) and off (supervisor_off)",
                            "supervisor_version": SUPERVISOR_VERSION}
     jobs = [(f"idm-mobil_density{d}", None, d) for d in args.densities]
-    jobs += [(TrialSpec(args.algo, d, v, s).trial_id, TrialSpec(args.algo, d, v, s), d)
-             for v in args.variants for d in args.densities for s in range(args.seeds)]
+    jobs += [(TrialSpec(algo, d, v, s).trial_id, TrialSpec(algo, d, v, s), d)
+             for algo in args.algo for v in args.variants for d in args.densities for s in range(args.seeds)]
     for name, spec, density in tqdm(jobs, desc="held-out evaluations", unit="policy"):
         if name in results.get("entries", {}):
             continue
         start = time.perf_counter()
         if spec is None:
-            policy, config = IDMMobilPolicy(), {"safety_supervisor": True}
+            policies, config = {"sampled": IDMMobilPolicy()}, {"safety_supervisor": True}
         else:
             folder = Path(args.log_folder) / "trials" / spec.trial_id
             if not (folder / "result.json").is_file():
                 print(f"skipped {name}: not finished")
                 continue
             run = find_run(folder, spec.algo, spec.env_id)
-            policy, config = model_policy(run.load_model("cpu")), run.env_config
-        result = evaluate_protocols(policy, ENV_IDS[density], args.episodes, args.seed, config)
-        entry = {**slim(result), "supervisor_off": slim(result["supervisor_off"]),
-                 "wall_time_s": round(time.perf_counter() - start, 1)}
+            model = run.load_model("cpu")
+            policies, config = {"sampled": model_policy(model)}, run.env_config
+            if args.greedy:
+                policies["greedy"] = model_policy(model, deterministic=True)
+        entry: dict = {}
+        for actions, policy in policies.items():
+            result = evaluate_protocols(policy, ENV_IDS[density], args.episodes, args.seed, config)
+            evaluated = {**slim(result), "supervisor_off": slim(result["supervisor_off"])}
+            entry.update(evaluated if actions == "sampled" else {actions: evaluated})
+        entry["wall_time_s"] = round(time.perf_counter() - start, 1)
         results.setdefault("entries", {})[name] = entry
         path.write_text(json.dumps(results, indent=2) + "\n")
     return results
 
 
-def table(results: dict, variants: list[str], densities: list[int], seeds: int, algo: str) -> str:
-    entries = results["entries"]
-    lines = [f"Held-out evaluation: {results['protocol']['episodes']} episodes, seeds "
-             f"{results['protocol']['seeds'][0]}..{results['protocol']['seeds'][1]}, actions sampled, masks; "
-             "learners: mean ± std over training seeds; IQM over every (seed, episode) return, its CI by stratified "
-             "bootstrap over seeds (IDM/MOBIL, one policy: over episodes).", "",
-             "| policy | density | seeds | supervisor on: return | IQM [95 % CI] | collision | supervisor off: return "
-             "| IQM [95 % CI] | collision | lane changes / ep. (off) | yields / ep. (off) |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+def table(results: dict, variants: list[str], densities: list[int], seeds: int, algos: list[str]) -> str:
+    """Per density: IDM/MOBIL and each (algorithm, variant) under each action protocol, with the
+    supervisor and without: return over training seeds, its IQM, the pooled collision rate with
+    its 95 % Clopper–Pearson upper bound, agreement with the rule driver, lane changes, yields."""
+    entries, episodes = results["entries"], results["protocol"]["episodes"]
+    lines = [f"Held-out evaluation: {episodes} episodes, seeds {results['protocol']['seeds'][0]}.."
+             f"{results['protocol']['seeds'][1]}, {results['protocol']['actions']}, safety supervisor "
+             f"v{results['protocol']['supervisor_version']} on and off; learners: mean ± std over training seeds; "
+             "IQM over every (seed, episode) return, its CI by stratified bootstrap over seeds (IDM/MOBIL, one "
+             "policy: over episodes); collisions pooled over seeds with the 95 % Clopper–Pearson upper bound; "
+             "agreement: share of AV-steps whose proposed action is the rule driver's (IDM/MOBIL).", "",
+             "| policy | actions | density | seeds | supervisor | return | IQM [95 % CI] | collisions | "
+             "collision rate (95 % upper) | agreement | lane changes / ep. | yields / ep. |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for density in densities:
-        rows = [("IDM/MOBIL", [entries.get(f"idm-mobil_density{density}")])]
-        rows += [(f"{algo} {variant}", [entries.get(TrialSpec(algo, density, variant, s).trial_id) for s in range(seeds)])
-                 for variant in variants]
-        for label, found in rows:
+        rows = [("IDM/MOBIL", "rules", [entries.get(f"idm-mobil_density{density}")])]
+        for algo in algos:
+            for variant in variants:
+                found = [entries.get(TrialSpec(algo, density, variant, s).trial_id) for s in range(seeds)]
+                rows.append((f"{algo} {variant}", "sampled", found))
+                rows.append((f"{algo} {variant}", "greedy", [e.get("greedy") if e else None for e in found]))
+        for label, actions, found in rows:
             found = [e for e in found if e]
             if not found:
                 continue
-
-            def cell(metric: str, off: bool = False, spread: bool = True, found: list = found) -> str:
-                values = np.array([(e["supervisor_off"] if off else e)[metric] for e in found])
-                return f"{values.mean():.2f} ± {values.std():.2f}" if spread else f"{values.mean():.3f}"
-
-            def iqm(off: bool = False, found: list = found) -> str:
-                returns = [(e["supervisor_off"] if off else e).get("returns") for e in found]
-                if not all(returns):
-                    return "—"
-                # seeds resampled within each episode; one policy alone (IDM/MOBIL): episodes resampled
-                value, low, high = iqm_with_ci(np.array(returns) if len(returns) > 1 else np.array(returns[0])[:, None])
-                return f"{value:.2f} [{low:.2f}, {high:.2f}]"
-
-            lines.append(f"| {label} | {density} | {len(found)} | {cell('return_mean')} | {iqm()} | "
-                         f"{cell('collision_rate', spread=False)} | {cell('return_mean', True)} | {iqm(True)} | "
-                         f"{cell('collision_rate', True, False)} | {cell('lane_changes_per_episode', True, False)} | "
-                         f"{cell('yields_per_episode', True, False)} |")
+            for supervisor in ("on", "off"):
+                results_ = [e if supervisor == "on" else e["supervisor_off"] for e in found]
+                means = np.array([r["return_mean"] for r in results_])
+                returns = [r.get("returns") for r in results_]
+                if all(returns):
+                    scores = np.array(returns) if len(returns) > 1 else np.array(returns[0])[:, None]
+                    value, low, high = iqm_with_ci(scores)
+                    iqm = f"{value:.2f} [{low:.2f}, {high:.2f}]"
+                else:
+                    iqm = "—"
+                n = sum(r["episodes"] for r in results_)
+                crashes = int(round(sum(r["collision_rate"] * r["episodes"] for r in results_)))
+                upper = clopper_pearson_upper(crashes, n)
+                mean = lambda key, rs=results_: np.mean([r.get(key, float("nan")) for r in rs])  # noqa: E731
+                lines.append(f"| {label} | {actions} | {density} | {len(found)} | {supervisor} | "
+                             f"{means.mean():.2f} ± {means.std():.2f} | {iqm} | {crashes} / {n} | "
+                             f"{crashes / n:.4f} ({upper:.4f}) | {mean('rule_agreement'):.3f} | "
+                             f"{mean('lane_changes_per_episode'):.2f} | {mean('yields_per_episode'):.2f} |")
     return "\n".join(lines) + "\n"
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("-f", "--log-folder", default="results/paper-grid")
-    parser.add_argument("--algo", default="ma2c")
+    parser.add_argument("--algo", nargs="+", default=["ma2c"])
+    parser.add_argument("--greedy", action="store_true", help="also evaluate the argmax policy")
     parser.add_argument("--variants", nargs="+", default=["default"])
     parser.add_argument("--densities", type=int, nargs="+", default=[1, 2, 3])
     parser.add_argument("--seeds", type=int, default=3)

@@ -170,6 +170,7 @@ class ScenarioEvalCallback(BaseCallback):
         "lane_changes_per_episode",
         "yields_per_episode",
         "intervention_rate",
+        "rule_agreement",
     )
     #: Prefix of the policy-alone (supervisor off) arrays in ``evaluations.npz``.
     OFF = "supervisor_off_"

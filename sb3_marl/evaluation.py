@@ -112,6 +112,8 @@ class EpisodeRecord:
     yield_events: list[CooperativeLaneChange] = field(default_factory=list)  # :meth:`EpisodeTrace.yields`
     interventions: int = 0  # AV-steps whose action the safety supervisor replaced
     av_steps: int = 0  # AV-steps on the road
+    rule_agreements: int = 0  # AV-steps on the road whose proposed action was the rule driver's
+    rule_actions: np.ndarray | None = None  # the rule driver's actions in the current state
 
     def add_step(self, reward: float, info: dict) -> None:
         """Accumulate one env step from the scalar (global) reward and the env's info."""
@@ -124,6 +126,9 @@ class EpisodeRecord:
         self.lane_changes += int(np.asarray(info["lane_change"]).sum())
         self.interventions += int(np.asarray(info.get("intervened", False))[on_road].sum())
         self.av_steps += int(on_road.sum())
+        if self.rule_actions is not None:
+            self.rule_agreements += int((np.asarray(info["proposed_action"]) == self.rule_actions)[on_road].sum())
+        self.rule_actions = info.get("rule_action")
 
     def add_slot_step(self, slot_info: dict) -> None:
         """Accumulate one AV's share of a parameter-sharing VecEnv step (a slot's info, see
@@ -159,6 +164,7 @@ def summarize(records: list[EpisodeRecord]) -> dict[str, float]:
         "lane_changes_per_episode": float(np.mean([r.lane_changes for r in records])),
         "yields_per_episode": float(np.mean([len(r.yield_events) for r in records])),
         "intervention_rate": float(sum(r.interventions for r in records) / max(sum(r.av_steps for r in records), 1)),
+        "rule_agreement": float(sum(r.rule_agreements for r in records) / max(sum(r.av_steps for r in records), 1)),
     }
 
 
@@ -226,7 +232,7 @@ def run_episodes(
             trace.record(env, info)
             if on_step is not None:
                 on_step(env, info)
-            record, done = EpisodeRecord(), False
+            record, done = EpisodeRecord(rule_actions=info.get("rule_action")), False
             while not done:
                 obs, reward, terminated, truncated, info = env.step(policy(env, obs))
                 record.add_step(reward, info)

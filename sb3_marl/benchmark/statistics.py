@@ -4,6 +4,7 @@ the final evaluation over seeds of every curve, and the hand-written reference p
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -176,3 +177,32 @@ def reference_summaries(trials: list[TrialLog], log_folder: str | Path, seed: in
             iqm, low, high = iqm_with_ci(np.array([[r.episode_return] for r in records]))
             summaries[name, density] = {**summary, "iqm": iqm, "iqm_low": low, "iqm_high": high, "supervisor_off": alone}
     return summaries
+
+
+def clopper_pearson_upper(events: int, trials: int, confidence: float = 0.95) -> float:
+    """Upper end of the two-sided Clopper–Pearson ``confidence`` interval of a rate observed as
+    ``events`` in ``trials`` (e.g. crashes in episodes): the p at which P(X <= events) under
+    Binomial(trials, p) is (1 - confidence) / 2; 1 when every trial was an event."""
+    if not 0 <= events <= trials or trials < 1:
+        raise ValueError(f"Invalid events={events}, trials={trials}: expected 0 <= events <= trials and trials >= 1.")
+    if events == trials:
+        return 1.0
+    tail = (1 - confidence) / 2
+
+    def cdf(p: float) -> float:
+        return sum(
+            math.exp(
+                math.lgamma(trials + 1)
+                - math.lgamma(i + 1)
+                - math.lgamma(trials - i + 1)
+                + i * math.log(p)
+                + (trials - i) * math.log1p(-p)
+            )
+            for i in range(events + 1)
+        )
+
+    low, high = events / trials, 1.0
+    for _ in range(100):  # cdf falls as p rises: bisect for cdf(p) = tail
+        middle = (low + high) / 2
+        low, high = (middle, high) if cdf(middle) > tail else (low, middle)
+    return high

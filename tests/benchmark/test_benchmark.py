@@ -272,3 +272,16 @@ def test_iqm_and_its_bootstrap_interval_follow_rliable():
     wide = iqm_with_ci(rng.normal(10.0, 5.0, size=(3, 30)), reps=2_000)
     narrow = iqm_with_ci(rng.normal(10.0, 5.0, size=(30, 30)), reps=2_000)
     assert narrow[2] - narrow[1] < wide[2] - wide[1]
+
+
+def test_the_clopper_pearson_upper_bound_matches_the_beta_quantile():
+    from scipy.stats import beta
+
+    from sb3_marl.benchmark.statistics import clopper_pearson_upper
+
+    assert clopper_pearson_upper(0, 900) == pytest.approx(1 - 0.025 ** (1 / 900))
+    for events, trials in ((3, 900), (9, 300), (1, 10), (29, 30)):
+        assert clopper_pearson_upper(events, trials) == pytest.approx(beta.ppf(0.975, events + 1, trials - events))
+    assert clopper_pearson_upper(5, 5) == 1.0
+    with pytest.raises(ValueError, match="events=6, trials=5"):
+        clopper_pearson_upper(6, 5)
