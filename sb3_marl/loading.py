@@ -80,9 +80,16 @@ def parse_literal(text: str, key: str) -> Any:
         ) from None
     if isinstance(tree, ast.Name) and tree.id not in ALLOWED_NAMES:
         return text  # a bare word (reward_mode:local)
+    if re.fullmatch(r"[A-Za-z_][\w]*(-[A-Za-z_\w]+)+", text):
+        return text  # a hyphenated bare word (prior:idm-mobil), not a subtraction of names
     try:
         return _literal(tree)
     except ValueError as error:
+        if isinstance(tree, ast.Dict) and any(isinstance(k, ast.Name) for k in tree.keys):
+            raise ValueError(
+                f"Invalid value for {key}: {text!r}: a mapping's keys are quoted strings, as in Python: "
+                "{'comfort': False} or dict(comfort=False)."
+            ) from None
         raise ValueError(
             f"Invalid value for {key}: {text!r}: {error} (it would run code). Allowed: numbers, strings, "
             "lists, tuples, dicts, dict(key=value, ...) and the names "

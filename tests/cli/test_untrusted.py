@@ -163,6 +163,9 @@ def test_literals_parse():
     assert parse_literal("{'comfort': False, 'hdv_politeness': -1.5}", "k") == {"comfort": False, "hdv_politeness": -1.5}
     assert parse_literal("lin_5e-4", "k") == "lin_5e-4" and parse_literal("global", "k") == "global"
     assert parse_literal("local", "k") == "local" and parse_literal("3e-4", "k") == 3e-4
+    assert parse_literal("idm-mobil", "prior") == "idm-mobil"  # a hyphenated word, not a subtraction
+    with pytest.raises(ValueError, match=r"keys are quoted strings, as in Python: \{'comfort': False\}"):
+        parse_literal("{comfort: False}", "env_config")  # a YAML habit
 
 
 @pytest.mark.parametrize(
