@@ -18,13 +18,16 @@ setup(
     description="Stable-Baselines3 extension for multi-agent RL of cooperative AV lane changes in mixed traffic",
     long_description=Path("README.md").read_text(encoding="utf-8"),
     long_description_content_type="text/markdown",
+    author="sb3-marl developers",
+    license="MIT",
+    keywords="reinforcement-learning multi-agent autonomous-vehicles highway-env stable-baselines3 pettingzoo",
     python_requires=">=3.10",
     # zoo_configs/ ships beside the packages, so sb3_marl finds it installed as in a checkout
     packages=[*find_packages(include=["sb3_marl", "sb3_marl.*", "wrappers", "wrappers.*"]), "zoo_configs"],
     package_data={"zoo_configs": ["*.yml"]},
     install_requires=[
-        # torch is installed first as `pip install torch==2.13.0` (a local CPU wheel here)
-        "torch==2.13.0",
+        # any torch 2 release; the README installs the CPU build first (`pip install torch==2.13.0`)
+        "torch>=2.3,<3",
         "stable-baselines3>=2.9,<2.10",
         "sb3-contrib>=2.9,<2.10",
         "highway-env>=1.12,<1.13",
@@ -39,6 +42,8 @@ setup(
         "imageio-ffmpeg>=0.5",
         "tqdm",
         "rich",
+        "huggingface_hub>=1.0",  # push-to-hub / load-from-hub
+        "requests",  # rl_zoo3's plotting scripts, which read our log folders
     ],
     extras_require={
         # Ray Tune runs the paper-reproduction benchmark (`sb3-marl benchmark`)
@@ -54,7 +59,14 @@ setup(
     },
     entry_points={"console_scripts": ["sb3-marl=sb3_marl.cli:main"]},
     classifiers=[
+        "Development Status :: 4 - Beta",
+        "Intended Audience :: Science/Research",
+        "License :: OSI Approved :: MIT License",
+        "Operating System :: OS Independent",
         "Programming Language :: Python :: 3",
+        "Programming Language :: Python :: 3.10",
+        "Programming Language :: Python :: 3.11",
+        "Programming Language :: Python :: 3.12",
         "Topic :: Scientific/Engineering :: Artificial Intelligence",
     ],
 )
