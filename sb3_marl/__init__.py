@@ -9,6 +9,6 @@ os.environ.setdefault(
     os.path.join(os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "sb3-marl", "numba"),
 )
 
-from sb3_marl import envs  # noqa: E402, F401  (registers the gymnasium ids)
+from sb3_marl import envs  # noqa: F401  (registers the gymnasium ids)
 
 __version__ = "0.1.0"
