@@ -1,11 +1,13 @@
-"""How safe the safety supervisor keeps a random masked policy, per density (one process).
+"""How safe the safety supervisor keeps simple policies, per density and AV count (one process).
 
-A seeded random policy over each AV's available meta-actions drives ``--episodes`` seeded episodes
-per density (cycling through the density's AV counts) with the safety supervisor on; prints the
-share of episodes with a crash and the supervisor's interventions per AV-step. Run it on two
-commits to compare supervisor versions on the same episodes.
+Each policy (``random``: uniform over each AV's available meta-actions, from a seeded generator;
+``idle``: always IDLE) drives ``--episodes`` seeded episodes at every AV count of each density
+(the largest included) with the safety supervisor on; prints, per count, the share of episodes
+with a crash, the supervisor's interventions per AV-step, and for each crash the step it happened
+at and the AVs' proposed and executed meta-actions of that step. Run it on two commits to compare
+supervisor versions on the same episodes.
 
-    python benchmarks/supervisor_safety.py [--episodes 1000] [--densities 1 2 3] [--seed 200000]
+    python benchmarks/supervisor_safety.py [--episodes 1000] [--densities 1 2 3] [--policies random idle] [--seed 200000]
 """
 
 from __future__ import annotations
@@ -18,8 +20,9 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np
 
-from sb3_marl.envs import DENSITIES, ENV_IDS
-from sb3_marl.evaluation import evaluation_records, summarize
+from sb3_marl.baselines import CruisePolicy
+from sb3_marl.envs import DENSITIES, ENV_IDS, make_scenario
+from sb3_marl.evaluation import run_episodes, summarize
 
 
 class MaskedRandomPolicy:
@@ -36,18 +39,35 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=1000)
     parser.add_argument("--densities", type=int, nargs="+", default=list(DENSITIES))
+    parser.add_argument("--policies", nargs="+", default=["random", "idle"], choices=["random", "idle"])
     parser.add_argument("--seed", type=int, default=200_000, help="first episode seed (default: 200000)")
     args = parser.parse_args()
     for density in args.densities:
-        start = time.perf_counter()
-        records = evaluation_records(MaskedRandomPolicy(args.seed), ENV_IDS[density], args.episodes, args.seed,
-                                     {"safety_supervisor": True})
-        summary = summarize(records)
-        crashes = sum(r.crashed for r in records)
-        print(f"density {density}: crash_rate {summary['collision_rate']:.4f} ({crashes} of {args.episodes} episodes), "
-              f"interventions_per_av_step {summary['intervention_rate']:.4f}, "
-              f"wall {time.perf_counter() - start:.0f} s", flush=True)
+        low, high = DENSITIES[density]["avs"]
+        for n_avs in range(low, high + 1):
+            for name in args.policies:
+                start = time.perf_counter()
+                env = make_scenario(ENV_IDS[density], {"safety_supervisor": True, "n_avs": n_avs})
+                policy = MaskedRandomPolicy(args.seed) if name == "random" else CruisePolicy()
+                crashes: list[str] = []
+                records = []
+                for episode in range(args.episodes):
+                    seed = args.seed + episode
 
+                    def on_step(env, info, seed=seed, crashes=crashes) -> None:
+                        if info["step"] and info["crashed"].any():
+                            crashes.append(
+                                f"    seed {seed} step {info['step']}: crashed {np.flatnonzero(info['crashed']).tolist()}, "
+                                f"proposed {info['proposed_action'].tolist()}, executed {info['executed_action'].tolist()}"
+                            )
+
+                    records += run_episodes(env, policy, 1, seed, on_step)
+                summary = summarize(records)
+                print(f"density {density}, {n_avs} AVs, {name}: crash_rate {summary['collision_rate']:.4f} "
+                      f"({len(crashes)} of {args.episodes} episodes), interventions_per_av_step "
+                      f"{summary['intervention_rate']:.4f}, wall {time.perf_counter() - start:.0f} s", flush=True)
+                for line in crashes:
+                    print(line, flush=True)
 
 if __name__ == "__main__":
     main()
