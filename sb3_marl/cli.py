@@ -773,7 +773,7 @@ def benchmark(args: argparse.Namespace) -> int:
 
         try:
             written = write_report(args.log_folder, args.output)
-        except FileNotFoundError as error:
+        except (FileNotFoundError, ValueError) as error:
             raise UsageError(str(error)) from None
         for path in written:
             print(f"wrote {path}")
@@ -834,7 +834,10 @@ def _benchmark_evaluate(args: argparse.Namespace) -> int:
     if not results:
         raise UsageError(f"-f/--log-folder: no finished trial (trials/*/{RESULT}) under {args.log_folder!r}.")
     _set_num_threads(argparse.Namespace(num_threads=1))
-    done = [path.parent.name for path in tqdm(results, desc="trials", unit="trial") if reevaluate_trial(path.parent)]
+    try:
+        done = [path.parent.name for path in tqdm(results, desc="trials", unit="trial") if reevaluate_trial(path.parent)]
+    except (ValueError, KeyError, TypeError) as error:  # an unreadable or edited result.json, named
+        raise UsageError(f"-f/--log-folder: {error}") from None
     print(
         f"re-evaluated {len(done)} of {len(results)} finished trials under both supervisor protocols (the current supervisor)"
     )
@@ -847,7 +850,7 @@ def _benchmark_status(args: argparse.Namespace) -> int:
 
     try:
         statuses = grid_status(args.grid, args.log_folder, args.seeds, tuple(args.densities))
-    except FileNotFoundError as error:
+    except (FileNotFoundError, ValueError) as error:
         raise UsageError(str(error)) from None
     counts = {
         state: sum(s.state == state for s in statuses) for state in ("finished", "unfinished", "not started", "unreadable")

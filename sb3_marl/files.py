@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -42,6 +43,18 @@ def save_figure(figure: Any, path: str | Path, dpi: int = 100) -> Path:
     with replaced_atomically(path) as temporary:
         figure.savefig(temporary, dpi=dpi)
     return Path(path)
+
+
+def read_json_object(path: str | Path) -> dict[str, Any]:
+    """The JSON object (a mapping) in ``path``; a ValueError naming the file and what is wrong
+    (unreadable, truncated, not JSON, or JSON that is not an object)."""
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, ValueError) as error:
+        raise ValueError(f"{path} is not readable JSON ({type(error).__name__}: {error}).") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{path} holds a JSON {type(data).__name__}, expected an object.")
+    return data
 
 
 def read_evaluations(path: str | Path) -> dict[str, Any]:

@@ -27,14 +27,13 @@ removed from the output folder, so it always shows one report; other files there
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from sb3_marl.benchmark.figures import plot_comfort, plot_final_returns, plot_interpretation, plot_learning_curves
 from sb3_marl.benchmark.runner import SETTINGS_FILE
 from sb3_marl.benchmark.statistics import curve_summaries, load_trials, reference_summaries
 from sb3_marl.benchmark.tables import paper_table
-from sb3_marl.files import write_text
+from sb3_marl.files import read_json_object, write_text
 
 #: Names (glob patterns) of the files a report writes into its output folder.
 REPORT_OUTPUTS = ("paper_table.md", "learning_curves_*.png", "final_returns.png", "comfort.png", "cooperative_lane_change.*")
@@ -58,7 +57,7 @@ def write_report(log_folder: str | Path, out_dir: str | Path = "results", seed: 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     settings_path = Path(log_folder) / SETTINGS_FILE
-    settings = json.loads(settings_path.read_text()) if settings_path.is_file() else None
+    settings = read_json_object(settings_path) if settings_path.is_file() else None
     table = out_dir / "paper_table.md"
     references = reference_summaries(trials, log_folder, seed)
     summaries = curve_summaries(trials)

@@ -29,7 +29,7 @@ from sb3_marl.benchmark.grid import (
 )
 from sb3_marl.benchmark.trial import CHECKPOINT, RESULT, checkpoint_timesteps, final_evaluation, run_trial, trial_folder
 from sb3_marl.envs import DENSITIES
-from sb3_marl.files import write_text
+from sb3_marl.files import read_json_object, write_text
 
 SETTINGS_FILE = "benchmark.json"
 
@@ -51,7 +51,7 @@ def check_settings(log_folder: Path, settings: dict[str, Any]) -> None:
     from those it was started with (results at different budgets do not aggregate)."""
     path = log_folder / SETTINGS_FILE
     if path.is_file():
-        recorded = json.loads(path.read_text())
+        recorded = read_json_object(path)
         changed = {key: (recorded.get(key), value) for key, value in settings.items() if recorded.get(key) != value}
         if changed:
             details = ", ".join(f"{key}={new!r} (it has {old!r})" for key, (old, new) in changed.items())
@@ -206,18 +206,21 @@ def grid_status(
         raise FileNotFoundError(
             f"No benchmark in {log_folder}/ (no {SETTINGS_FILE}): run `sb3-marl benchmark -f {log_folder}` first."
         )
-    budget = json.loads(settings_path.read_text())["budget"]
+    settings = read_json_object(settings_path)
+    budget = settings.get("budget")
+    if isinstance(budget, bool) or not isinstance(budget, (int, float)):
+        raise ValueError(f"{settings_path}: 'budget' is {budget!r}, expected a fraction in (0, 1].")
     statuses = []
     for spec in trials:
         folder = trial_folder(log_folder, spec)
         status = TrialStatus(spec.trial_id, "not started", 0, spec.n_timesteps(budget))
         if (folder / RESULT).is_file():
             try:
-                result = json.loads((folder / RESULT).read_text())
+                result = read_json_object(folder / RESULT)
                 final = final_evaluation(result)
                 status.state, status.timesteps = "finished", result["num_timesteps"]
                 status.return_mean, status.wall_time_s = final["return_mean"], result.get("wall_time_s")
-            except (ValueError, KeyError, TypeError) as error:  # a truncated or edited file: this trial only
+            except (ValueError, KeyError, TypeError, AttributeError) as error:  # a truncated or edited file: this trial only
                 status.state = "unreadable"
                 status.problem = f"{folder / RESULT}: {type(error).__name__}: {error}"
         elif (folder / CHECKPOINT / "state.json").is_file():

@@ -3,7 +3,6 @@ the final evaluation over seeds of every curve, and the hand-written reference p
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -14,7 +13,7 @@ import numpy as np
 from sb3_marl.benchmark.grid import EPISODE_STEPS, EXPERIMENTS, TrialSpec
 from sb3_marl.benchmark.trial import RESULT, TRIAL, final_evaluation
 from sb3_marl.envs import DENSITIES
-from sb3_marl.files import read_evaluations
+from sb3_marl.files import read_evaluations, read_json_object
 
 #: Driving metrics of the final evaluation, averaged over seeds in the table.
 DRIVING_METRICS = ("collision_rate", "lane_changes_per_episode", "speed_mean", "acceleration_std", "intervention_rate")
@@ -51,16 +50,15 @@ def load_trials(log_folder: str | Path, problems: list[str] | None = None) -> li
     trials = []
     for info_path in sorted(Path(log_folder).glob(f"trials/*/{TRIAL}")):
         try:
-            spec = TrialSpec(**json.loads(info_path.read_text())["trial"])
+            spec = TrialSpec(**read_json_object(info_path)["trial"])
             npz = sorted(info_path.parent.glob(f"{spec.algo}/*_1/evaluations.npz"))
             if not npz:
                 continue
             evaluations = read_evaluations(npz[0])
             result_path = info_path.parent / RESULT
-            try:
-                result = json.loads(result_path.read_text()) if result_path.is_file() else None
-            except ValueError as error:
-                raise ValueError(f"{result_path}: {error}") from None
+            result = read_json_object(result_path) if result_path.is_file() else None
+            if result is not None:
+                final_evaluation(result)  # a result without its evaluation is unreadable: KeyError
         except (ValueError, KeyError, TypeError) as error:
             if problems is None:
                 raise

@@ -32,7 +32,7 @@ from typing import Any
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_marl.benchmark.grid import TrialSpec
-from sb3_marl.files import REPLAY_BUFFER_FILE, save_replay_buffer, write_text
+from sb3_marl.files import REPLAY_BUFFER_FILE, read_json_object, save_replay_buffer, write_text
 
 RUN_ID = 1
 CHECKPOINT = "checkpoint"
@@ -52,7 +52,7 @@ def trial_folder(log_folder: str | Path, spec: TrialSpec) -> Path:
 
 def checkpoint_timesteps(checkpoint: Path) -> int:
     """AV-steps the trial had trained when it wrote ``checkpoint`` (its ``state.json``)."""
-    return json.loads((checkpoint / "state.json").read_text())["num_timesteps"]
+    return read_json_object(checkpoint / "state.json")["num_timesteps"]
 
 
 def final_evaluation(result: dict[str, Any]) -> dict[str, Any]:
@@ -146,7 +146,7 @@ def run_trial(config: dict[str, Any]) -> None:
     resumed_at = checkpoint_timesteps(checkpoint) if checkpoint.is_dir() else 0
 
     info = (
-        json.loads((folder / TRIAL).read_text())
+        read_json_object(folder / TRIAL)
         if (folder / TRIAL).is_file()
         else {
             "trial": spec.to_dict(),
@@ -244,7 +244,9 @@ def reevaluate_trial(folder: Path) -> bool:
     from sb3_marl.envs.supervisor import VERSION
     from sb3_marl.runs import find_run
 
-    result = json.loads((folder / RESULT).read_text())
+    result = read_json_object(folder / RESULT)
+    if "trial" not in result:
+        raise ValueError(f"{folder / RESULT} has no 'trial' entry: not a finished trial's result.")
     earlier = result.get("paper_evaluation") or {}
     if earlier.get("supervisor_version") == VERSION and "yields_per_episode" in earlier.get("supervisor_off", {}):
         return False

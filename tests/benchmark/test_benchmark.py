@@ -53,7 +53,8 @@ def test_grids_hold_each_trial_once():
     paper = make_grid("paper")
     assert len(paper) == (4 + 5) * 3 * 2 == len({spec.trial_id for spec in paper})
     assert set(GRIDS) == {"paper", "baselines", "reward", "sharing", "comfort", "politeness", "penalty", "safety",
-                          "ctde"}
+                          "ctde", "rule-prior"}
+    assert {(s.algo, s.variant) for s in make_grid("rule-prior", seeds=3)} == {("ma2c", "rule-prior"), ("mappo", "rule-prior")}
     safety = make_grid("safety", seeds=1)
     assert [spec.variant for spec in safety] == ["default"] * 3 + ["safety-training"] * 3
     assert safety[-1].hyperparams == VARIANTS["safety-training"] and safety[-1].hyperparams["supervisor_dropout"] > 0

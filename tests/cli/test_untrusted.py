@@ -403,3 +403,26 @@ def test_sizes_that_allocate_are_bounded_before_any_folder(argv, flag, tmp_path,
     err = capsys.readouterr().err
     assert flag in err and ("<= 256" in err or "<= 100,000" in err)
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("content", ["[1, 2]", "{}", '{"trial": {"algo": "ma2c"'])
+def test_malformed_benchmark_files_are_named_by_every_benchmark_command(tmp_path, capsys, content):
+    """A result.json that is a list, empty or truncated, and a corrupt benchmark.json: status,
+    report and evaluate name the file, no traceback."""
+    grid = Path(__file__).resolve().parents[2] / "results" / "paper-grid"
+    copy = tmp_path / "grid"
+    (copy / "trials").mkdir(parents=True)
+    (copy / "benchmark.json").write_text((grid / "benchmark.json").read_text())
+    trial = copy / "trials" / "ma2c_density1_default_seed0"
+    subprocess.run(["cp", "-r", str(grid / "trials" / trial.name), str(trial)], check=True)
+    (trial / "result.json").write_text(content)
+    status = ["benchmark", "status", "--grid", "reward", "--seeds", "1", "--densities", "1", "-f", str(copy)]
+    assert main(status) == 1
+    assert re.search(r"ma2c_density1_default_seed0 +unreadable", capsys.readouterr().out)
+    assert main(["benchmark", "evaluate", "-f", str(copy)]) == 2
+    assert str(trial / "result.json") in capsys.readouterr().err
+    (trial / "result.json").write_text((grid / "trials" / trial.name / "result.json").read_text())
+    (copy / "benchmark.json").write_text('{"budget": ')
+    for argv in (status, ["benchmark", "report", "-f", str(copy), "-o", str(tmp_path / "out")]):
+        assert main(argv) == 2
+        assert str(copy / "benchmark.json") in capsys.readouterr().err
