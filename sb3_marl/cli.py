@@ -81,6 +81,18 @@ def _positive(kind: type = int, maximum: float | None = None) -> Any:
     return parse
 
 
+def _every(text: str) -> int:
+    """A period in AV-steps: an integer >= 1, or -1 for "never" (rl-zoo's convention; 0 is refused,
+    rather than silently meaning never)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1 (AV-steps) or -1 (never), got {text!r}") from None
+    if value != -1 and value < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1 (AV-steps) or -1 (never), got {text!r}")
+    return value
+
+
 def _positive_or_default(text: str) -> int:
     """An integer >= 1, or -1 for "the default" (rl-zoo's convention)."""
     try:
@@ -210,11 +222,11 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument(
         "-tb", "--tensorboard-log", default=None, help="TensorBoard folder (default: <log-folder>/tensorboard; '' disables)"
     )
-    train.add_argument("--eval-freq", type=int, default=10_000, help="evaluate every N AV-steps; -1 disables")
+    train.add_argument("--eval-freq", type=_every, default=10_000, help="evaluate every N AV-steps; -1 disables")
     train.add_argument(
         "--eval-episodes", type=_positive(maximum=MAX_EPISODES), default=5, help="episodes per evaluation (default: 5)"
     )
-    train.add_argument("--save-freq", type=int, default=-1, help="checkpoint every N AV-steps; -1 disables")
+    train.add_argument("--save-freq", type=_every, default=-1, help="checkpoint every N AV-steps; -1 disables")
     train.add_argument("-c", "--conf-file", default=None, help="YAML instead of zoo_configs/<algo>.yml")
     train.add_argument(
         "-params",

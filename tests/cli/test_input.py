@@ -49,6 +49,8 @@ def test_version(capsys):
         (["train", "-n", "-5"], "argument -n/--n-timesteps: expected an integer >= 1 or -1"),
         (["train", "--log-interval", "0"], "argument --log-interval: expected an integer >= 1 or -1"),
         (["train", "--num-threads", "0"], "argument --num-threads: expected an integer >= 1 or -1"),
+        (["train", "--eval-freq", "0"], "argument --eval-freq: expected an integer >= 1 (AV-steps) or -1 (never)"),
+        (["train", "--save-freq", "-3"], "argument --save-freq: expected an integer >= 1 (AV-steps) or -1 (never)"),
     ],
 )
 def test_bad_numbers_are_usage_errors(argv, message, capsys):
