@@ -458,8 +458,32 @@ def _check_train_args(args: argparse.Namespace) -> None:
             check_model_file(args.trained_agent, args.algo, args.trust_remote_code)
             if not args.trust_remote_code:
                 safe_custom_objects(get_algo(args.algo), args.trained_agent)  # refused here, before any folder
+            _check_trained_agent(args)
         except ValueError as error:
             raise UsageError(f"-i/--trained-agent: {error}") from None
+
+
+def _check_trained_agent(args: argparse.Namespace) -> None:
+    """The ``-i`` model loads (its tensors readable) and observes what ``--env`` with the run's
+    hyperparameters shows each AV: a ValueError naming the file otherwise."""
+    from sb3_marl.algos import get_algo
+    from sb3_marl.hyperparams import load_hyperparams, merge_hyperparams
+    from sb3_marl.loading import UnsafeModelError
+    from sb3_marl.runs import check_observation_shape
+
+    try:
+        model = get_algo(args.algo).load(args.trained_agent, device="cpu", trust_remote_code=args.trust_remote_code)
+    except UnsafeModelError:
+        raise
+    except Exception as error:  # a truncated zip, unreadable tensors, ...
+        raise ValueError(
+            f"{args.trained_agent} is not a readable {args.algo} model ({type(error).__name__}: {error})."
+        ) from None
+    try:
+        hyperparams = merge_hyperparams(load_hyperparams(args.algo, args.env, args.conf_file), args.hyperparams)
+    except ValueError:
+        return  # bad hyperparameters: reported by their own check, with their own flag
+    check_observation_shape(model, args.trained_agent, args.env, hyperparams.get("env_config") or {})
 
 
 def train(args: argparse.Namespace) -> int:

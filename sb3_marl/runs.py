@@ -21,6 +21,26 @@ from sb3_marl.evaluation import evaluate_protocols, model_policy, protocol_label
 from sb3_marl.loading import UnsafeModelError, read_model_data, read_run_yaml, saved_policy_class
 
 
+def check_observation_shape(model: BaseAlgorithm, path: str | Path, env_id: str, config: dict[str, Any]) -> None:
+    """A ValueError naming ``path`` unless the model observes what ``env_id`` with ``config``
+    shows each AV (its per-AV observation shape: vehicles × features)."""
+    import gymnasium as gym
+    from gymnasium import spaces
+
+    from sb3_marl.envs import default_config
+    from sb3_marl.envs.observation import LOCAL_KEY, observation_space
+
+    density = (gym.spec(env_id).kwargs or {}).get("density", 1)
+    expected = observation_space(1, {**default_config(), "density": density, **config, "n_avs": 1}).shape[1:]
+    space = model.observation_space
+    local = space[LOCAL_KEY] if isinstance(space, spaces.Dict) else space
+    if local.shape != expected:
+        raise ValueError(
+            f"{path} observes {local.shape} per AV, but {env_id} with this run's scenario config shows each AV "
+            f"{expected} (vehicles × features): the model was trained on another observation."
+        )
+
+
 @dataclass
 class Run:
     """One trained run: where its model is and the hyperparameters it was trained with."""
@@ -41,13 +61,15 @@ class Run:
         :mod:`sb3_marl.loading`); a ValueError naming the file if it is not a readable model of ``algo``."""
         check_model_file(self.model_path, self.algo, trust_remote_code)
         try:
-            return get_algo(self.algo).load(self.model_path, device=device, trust_remote_code=trust_remote_code)
+            model = get_algo(self.algo).load(self.model_path, device=device, trust_remote_code=trust_remote_code)
         except UnsafeModelError:
             raise
         except Exception as error:  # a truncated zip, tensors that do not fit the policy, ...
             raise ValueError(
                 f"{self.model_path} is not a readable {self.algo} model ({type(error).__name__}: {error})."
             ) from None
+        check_observation_shape(model, self.model_path, self.env_id, self.env_config)
+        return model
 
     def evaluate(self, model: BaseAlgorithm, n_episodes: int, seed: int, deterministic: bool = False) -> dict[str, Any]:
         """The paper's metrics of ``model`` on ``n_episodes`` seeded episodes of the run's scenario,

@@ -426,3 +426,40 @@ def test_malformed_benchmark_files_are_named_by_every_benchmark_command(tmp_path
     for argv in (status, ["benchmark", "report", "-f", str(copy), "-o", str(tmp_path / "out")]):
         assert main(argv) == 2
         assert str(copy / "benchmark.json") in capsys.readouterr().err
+
+
+def test_a_model_of_another_observation_is_named_by_every_command(run, tmp_path, capsys):
+    """A run whose model zip observes 6 features (obs_target_speed) where its scenario config shows
+    5: evaluate, record-video and push-to-hub --dry-run name the model and both shapes."""
+    other = tmp_path / "other"
+    assert (
+        main(["train", "-f", str(other), *TINY[:-2], "-params", "n_steps:20", "env_config:dict(obs_target_speed=True)"]) == 0
+    )
+    logs = tmp_path / "logs"
+    subprocess.run(["cp", "-r", str(run), str(logs)], check=True)
+    model = logs / "ma2c" / f"{ENV_NAME}_1" / f"{ENV_NAME}.zip"
+    model.write_bytes((other / "ma2c" / f"{ENV_NAME}_1" / f"{ENV_NAME}.zip").read_bytes())
+    capsys.readouterr()
+    for argv in (
+        ["evaluate", "--eval-episodes", "1"],
+        ["record-video"],
+        ["push-to-hub", "-orga", "me", "--dry-run", str(tmp_path / "hub")],
+    ):
+        assert main([*argv, "-f", str(logs)]) == 2
+        err = capsys.readouterr().err
+        assert str(model) in err and "(5, 6) per AV" in err and "(5, 5)" in err
+
+
+def test_continuing_from_a_model_of_another_observation_is_refused_before_any_folder(run, tmp_path, capsys):
+    model = run / "ma2c" / f"{ENV_NAME}_1" / f"{ENV_NAME}.zip"
+    argv = ["train", "-f", str(tmp_path / "logs"), "-i", str(model), *TINY[:-2]]
+    assert main([*argv, "-params", "n_steps:20", "env_config:dict(obs_vehicles_count=7)"]) == 2
+    err = capsys.readouterr().err
+    assert "-i/--trained-agent" in err and "(5, 5) per AV" in err and "(7, 5)" in err
+    broken = tmp_path / "broken.zip"
+    with zipfile.ZipFile(model) as source, zipfile.ZipFile(broken, "w") as target:
+        for item in source.namelist():
+            target.writestr(item, source.read(item)[:40] if item.endswith(".pth") else source.read(item))
+    assert main(["train", "-f", str(tmp_path / "logs"), "-i", str(broken), *TINY]) == 2
+    assert "-i/--trained-agent" in capsys.readouterr().err
+    assert not (tmp_path / "logs").exists()
