@@ -24,6 +24,7 @@ import os
 import shutil
 import signal
 import sys
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -139,6 +140,10 @@ def _check_folder(flag: str, path: str | None) -> None:
     folder writable (checked before anything is created)."""
     if not path:
         return
+    try:
+        path.encode("utf-8")
+    except UnicodeEncodeError:
+        raise UsageError(f"{flag}: {path!r} is not a valid UTF-8 path (the logs and configs name it).") from None
     if os.path.exists(path) and not os.path.isdir(path):
         raise UsageError(f"{flag}: {path!r} is a file, expected a folder.")
     too_long = [part for part in Path(path).parts if len(os.fsencode(part)) > 255]
@@ -149,6 +154,12 @@ def _check_folder(flag: str, path: str | None) -> None:
         existing = existing.parent
     if not os.access(existing, os.W_OK | os.X_OK):
         raise UsageError(f"{flag}: {path!r} cannot be written: {str(existing)!r} is not writable.")
+    try:  # a real folder can be made there (not so in /proc, on a read-only mount, ...): probe and remove
+        os.rmdir(tempfile.mkdtemp(prefix=".sb3-marl-probe-", dir=existing))
+    except OSError as error:
+        raise UsageError(
+            f"{flag}: {path!r} cannot be written: no folder can be made in {str(existing)!r} ({error.strerror})."
+        ) from None
 
 
 def _check_file(flag: str, path: str | Path | None) -> None:
@@ -746,7 +757,10 @@ def plot(args: argparse.Namespace) -> int:
     for algo in args.algos:
         for folder in run_folders(args.folder, algo, args.env):
             if args.exp_ids is None or run_id(folder) in args.exp_ids:
-                overrides = run_overrides(folder, args.env)
+                try:
+                    overrides = run_overrides(folder, args.env)
+                except ValueError as error:  # an args.yml that is not plain data: named, never read
+                    raise UsageError(str(error)) from None
                 runs[f"{algo} run {run_id(folder)}" + (f" ({overrides})" if overrides else "")] = folder
     if not runs:
         raise UsageError(f"No runs of {args.algos} on {args.env} under {args.folder}/ (exp ids: {args.exp_ids or 'all'}).")

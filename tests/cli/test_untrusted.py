@@ -123,6 +123,16 @@ def test_run_yaml_with_a_python_tag_is_refused(run, tmp_path, capsys, name):
         read_run_yaml(path)
 
 
+def test_plot_names_a_run_yaml_with_a_python_tag(run, tmp_path, capsys):
+    logs = tmp_path / "logs"
+    subprocess.run(["cp", "-r", str(run), str(logs)], check=True)
+    args = logs / "ma2c" / f"{ENV_NAME}_1" / ENV_NAME / "args.yml"
+    args.write_text(args.read_text() + f'- !!python/object/apply:os.system ["touch {tmp_path / "marker"}"]\n')
+    assert main(["plot", "-f", str(logs), "-o", str(tmp_path / "plots")]) == 2
+    assert f"{args} is not a plain-data YAML file" in capsys.readouterr().err
+    assert not (tmp_path / "marker").exists() and not (tmp_path / "plots").exists()
+
+
 def test_rl_zoo_run_yaml_still_reads(run):
     config = read_run_yaml(run / "ma2c" / f"{ENV_NAME}_1" / ENV_NAME / "config.yml")
     assert config["env_config"] == {"safety_supervisor": True} and config["n_steps"] == 20
@@ -202,6 +212,10 @@ def test_unwritable_and_overlong_log_folders_exit_2(tmp_path, capsys):
         locked.chmod(0o700)
     assert main(["train", "-f", str(tmp_path / ("x" * 300)), "-n", "100"]) == 2
     assert "too long" in capsys.readouterr().err
+    assert main(["train", "-f", "/proc/nope", "-n", "100"]) == 2  # a folder no one can make
+    assert "-f/--log-folder: '/proc/nope' cannot be written: no folder can be made in '/proc'" in capsys.readouterr().err
+    assert main(["train", "-f", os.fsdecode(bytes(tmp_path) + b"/\xff\xfe"), "-n", "100"]) == 2
+    assert "is not a valid UTF-8 path" in capsys.readouterr().err and list(tmp_path.iterdir()) == [locked]
 
 
 def _no_large_files() -> None:
