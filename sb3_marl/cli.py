@@ -699,9 +699,9 @@ def push_to_hub(args: argparse.Namespace) -> int:
     if dry_run and (os.path.islink(dry_run) or occupied):
         raise UsageError(f"--dry-run: {args.dry_run!r} exists and is not an empty folder: give a new or empty folder.")
     run = _find_run(args)
-    _load_model(run, args)  # a clear error for an unreadable model, before building anything
+    model = _load_model(run, args)  # a clear error for an unreadable model, before building anything
     folder = Path(args.dry_run) if args.dry_run else fresh_folder(run.log_path / "hub")
-    build_model_folder(run, folder, repo_id, args.eval_episodes, args.seed + EVAL_SEED_OFFSET, not args.no_video)
+    build_model_folder(run, folder, repo_id, args.eval_episodes, args.seed + EVAL_SEED_OFFSET, not args.no_video, model)
     print(f"built the model folder {folder} for {repo_id}")
     if args.dry_run:
         return 0

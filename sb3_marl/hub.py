@@ -26,6 +26,7 @@ from huggingface_hub import (
 )
 from huggingface_hub.errors import LocalEntryNotFoundError
 from rl_zoo3.utils import EnvironmentName, get_latest_run_id
+from stable_baselines3.common.base_class import BaseAlgorithm
 
 from sb3_marl.algos import get_algo
 from sb3_marl.evaluation import model_policy
@@ -74,12 +75,21 @@ def model_file_name(algo: str, env_id: str) -> str:
 
 
 def build_model_folder(
-    run: Run, folder: str | Path, repo_id: str, n_eval_episodes: int = 10, seed: int = 10_000, video: bool = True
+    run: Run,
+    folder: str | Path,
+    repo_id: str,
+    n_eval_episodes: int = 10,
+    seed: int = 10_000,
+    video: bool = True,
+    model: BaseAlgorithm | None = None,
 ) -> Path:
-    """Write the model folder of ``run`` (see module doc) into ``folder``; returns it."""
+    """Write the model folder of ``run`` (see module doc) into ``folder``; returns it.
+
+    :param model: the run's model, loaded already (e.g. with ``trust_remote_code``); default: loaded as data
+    """
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    model = run.load_model("cpu")
+    model = model if model is not None else run.load_model("cpu")
     shutil.copyfile(run.model_path, folder / model_file_name(run.algo, run.env_id))
     write_text(folder / "config.yml", yaml.safe_dump(_plain(run.hyperparams), sort_keys=True))
     write_text(folder / "config.json", json.dumps(_plain(run.hyperparams), indent=2, sort_keys=True))
