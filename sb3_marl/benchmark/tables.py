@@ -48,6 +48,10 @@ PAPER_FINDINGS = {
         "Beyond the paper: MA2C with a local critic vs a centralised critic (CTDE), separate networks both",
         "not studied (the paper's critics see one AV's view)",
     ),
+    "rule-prior": (
+        "Beyond the paper: MA2C and MAPPO started from the IDM/MOBIL rule driver and regularised toward it",
+        "not studied (the authors' learners start from scratch); IDM/MOBIL's own row is in the reference section",
+    ),
 }
 
 #: Experiment -> what a reader must know to compare its curves' returns.
@@ -240,7 +244,7 @@ def _findings(experiment: str, summaries: dict[tuple[str, str, int], dict[str, A
         if len(finals) < len(curves):
             continue
         (first, a), (second, b) = list(finals.items())[:2]
-        if experiment in ("reward", "sharing", "penalty", "safety", "ctde"):
+        if experiment in ("reward", "sharing", "penalty", "safety", "ctde", "rule-prior"):
             finding = (
                 f"{first} vs {second}: return {_compare(a['return_mean'], b['return_mean'], 'higher', 'lower')}"
                 f" ({_ci_verdict(a, b)}), "
