@@ -41,13 +41,16 @@ def main() -> None:
     parser.add_argument("--densities", type=int, nargs="+", default=list(DENSITIES))
     parser.add_argument("--policies", nargs="+", default=["random", "idle"], choices=["random", "idle"])
     parser.add_argument("--seed", type=int, default=200_000, help="first episode seed (default: 200000)")
+    parser.add_argument("--n-avs", type=int, nargs="+", default=None, help="only these AV counts (default: all)")
+    parser.add_argument("--no-rear-avs", action="store_true", help="supervisor_rear_avs: false (see the config)")
     args = parser.parse_args()
     for density in args.densities:
         low, high = DENSITIES[density]["avs"]
-        for n_avs in range(low, high + 1):
+        for n_avs in [n for n in range(low, high + 1) if args.n_avs is None or n in args.n_avs]:
             for name in args.policies:
                 start = time.perf_counter()
-                env = make_scenario(ENV_IDS[density], {"safety_supervisor": True, "n_avs": n_avs})
+                config = {"safety_supervisor": True, "n_avs": n_avs, "supervisor_rear_avs": not args.no_rear_avs}
+                env = make_scenario(ENV_IDS[density], config)
                 policy = MaskedRandomPolicy(args.seed) if name == "random" else CruisePolicy()
                 crashes: list[str] = []
                 records = []

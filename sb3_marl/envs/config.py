@@ -86,6 +86,10 @@ def default_config() -> dict[str, Any]:
         "supervisor_horizon": 1.4,  # [s] prediction horizon (7 policy steps at 5 Hz)
         "supervisor_min_gap": 2.0,  # [m] smallest predicted bumper-to-bumper gap accepted
         "supervisor_repeat_actions": True,  # AVs repeat their action at each step of the horizon
+        # False: an AV's room leaves out the AVs following it in its own lane (they are served
+        # themselves and brake for it), so that it may brake behind a slower vehicle; True (v3):
+        # every vehicle counts, and a platoon of AVs behind a slower HDV holds its speed
+        "supervisor_rear_avs": True,
         # Rule driver (IDM/MOBIL as meta-actions, info["rule_action"]): FASTER / SLOWER when IDM's
         # acceleration is above / below +- this threshold
         "rule_acceleration_threshold": 1.0,  # [m/s²]
@@ -191,6 +195,7 @@ _SCHEMA: dict[str, tuple[Check, str]] = {
     "supervisor_horizon": _number(0, 60, strict_lo=True),
     "supervisor_min_gap": _number(0, 100),
     "supervisor_repeat_actions": _boolean(),
+    "supervisor_rear_avs": _boolean(),
     "screen_width": _integer(1),
     "screen_height": _integer(1),
     "centering_position": _any(),

@@ -45,6 +45,7 @@ import numpy as np
 from sb3_marl.envs.kernel import (
     COLLIDABLE,
     HEADING,
+    LANE,
     LENGTH,
     SPEED,
     TARGET_LANE,
@@ -179,6 +180,19 @@ def _set_action(
 
 
 @numba.njit(cache=True)
+def _counted(state0: np.ndarray, ego: int, n_avs: int, collidable: np.ndarray, rear_avs: bool) -> np.ndarray:
+    """The vehicles the room of AV ``ego`` counts: the collidable ones, without (unless
+    ``rear_avs``) the AVs behind it in its own lane, which are served themselves and may brake
+    for it (counted, they make braking look worse than holding the speed)."""
+    counted = collidable.copy()
+    if not rear_avs:
+        for j in range(n_avs):
+            if j != ego and state0[j, LANE] == state0[ego, LANE] and state0[j, X] < state0[ego, X]:
+                counted[j] = False
+    return counted
+
+
+@numba.njit(cache=True)
 def supervise_arrays(
     state0: np.ndarray,
     candidate_lane: np.ndarray,
@@ -189,6 +203,7 @@ def supervise_arrays(
     headway_time: float,
     min_gap: float,
     repeat_actions: bool,
+    rear_avs: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The supervisor on the road's state array (the kernel's layout, AVs first). Returns the
     executed actions and each AV's room [m] under them (NaN for AVs not served: past the road end).
@@ -199,6 +214,8 @@ def supervise_arrays(
     :param proposed: (n_avs,) the policy's meta-actions
     :param headway_time: [s] of the priority's headway margin
     :param min_gap: [m] the smallest room an action may leave
+    :param rear_avs: whether an AV's room counts the AVs behind it in its lane (see
+        :func:`_counted`)
     """
     n_avs = proposed.size
     executed = proposed.copy()
@@ -222,15 +239,16 @@ def supervise_arrays(
         for i in order:
             if not collidable[i]:
                 continue
+            counted = _counted(state0, i, n_avs, collidable, rear_avs)
             current = executed[i]
-            room = _room(i, path, collidable, dt)
+            room = _room(i, path, counted, dt)
             if room < min_gap:
                 best, best_room, best_path = current, room, path
                 for a in PREFERENCE:
                     if available[i, a] and a != current:
                         _set_action(state, i, a, speed_step, candidate_lane, candidate_speed, repeat_actions)
                         # stopped once it cannot beat the best: such a candidate is never chosen
-                        candidate_path, candidate_room = _predict(state, horizon, speed_step, i, collidable, best_room)
+                        candidate_path, candidate_room = _predict(state, horizon, speed_step, i, counted, best_room)
                         if candidate_room > best_room:
                             best, best_room, best_path = a, candidate_room, candidate_path
                 changed = changed or best != current
@@ -256,7 +274,7 @@ def supervise_arrays(
         before, after = np.inf, np.inf
         for i in order:
             if collidable[i]:
-                trial_rooms[i] = _room(i, trial_path, collidable, dt)
+                trial_rooms[i] = _room(i, trial_path, _counted(state0, i, n_avs, collidable, rear_avs), dt)
                 before, after = min(before, rooms[i]), min(after, trial_rooms[i])
         if after > before:
             for i in range(n_avs):
@@ -301,4 +319,5 @@ def supervise(
         float(config["headway_time"]),
         float(config["supervisor_min_gap"]),
         bool(config["supervisor_repeat_actions"]),
+        bool(config["supervisor_rear_avs"]),
     )

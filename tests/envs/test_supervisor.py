@@ -169,3 +169,19 @@ def test_supervised_episodes_are_reproducible():
 def test_bad_supervisor_keys_name_the_key(key, value):
     with pytest.raises(ValueError, match=f"config\\['{key}'\\]"):
         make(1, **{key: value})
+
+
+@pytest.mark.parametrize("rear_avs", [True, False])
+def test_an_av_followed_by_an_av_brakes_behind_a_slow_hdv_only_without_rear_avs(rear_avs):
+    """The failure mode of v3 (supervisor_rear_avs: true) at the largest AV counts: an AV at
+    25 m/s closes on a 15 m/s HDV with another AV 3 m behind it and the other lane blocked; counted
+    in its room, the follower makes braking look worse than holding the speed, so the AV holds and
+    crashes. Left to its own serving (false), the follower brakes too and no one crashes."""
+    env = make(1, n_avs=2, safety_supervisor=True, supervisor_rear_avs=rear_avs)
+    env.reset(seed=0)
+    env.place([(135.0, 0, 25.0), (127.0, 0, 25.0)], [(150.0, 0, 15.0), (131.0, 1, 25.0), (142.0, 1, 25.0)])
+    for _ in range(40):
+        _, _, terminated, truncated, info = env.step(np.array([IDLE, IDLE]))
+        if terminated or truncated:
+            break
+    assert bool(info["crashed"].any()) == rear_avs
