@@ -265,7 +265,13 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument(
         "--log-interval", type=_positive_or_default, default=-1, help="SB3 log_interval (>= 1); -1: the algorithm's default"
     )
-    train.add_argument("--verbose", type=int, default=1, choices=[0, 1, 2])
+    train.add_argument(
+        "--verbose",
+        type=int,
+        default=1,
+        choices=[0, 1, 2],
+        help="0: quiet; 1 (default): set-up, progress and evaluation lines; 2: also SB3's logger tables",
+    )
     search = train.add_argument_group("hyperparameter search (rl-zoo's -optimize, Optuna)")
     search.add_argument(
         "-optimize",

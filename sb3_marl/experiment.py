@@ -143,11 +143,21 @@ class MARLExperimentManager(ExperimentManager):
 
     def _preprocess_hyperparams(self, hyperparams: dict[str, Any]) -> tuple:
         self.scenario = {key: hyperparams.pop(key) for key in SCENARIO_KEYS if key in hyperparams}
-        hyperparams, env_wrapper, callbacks, vec_env_wrapper = super()._preprocess_hyperparams(hyperparams)
+        verbose, self.verbose = self.verbose, 0  # rl_zoo3 would print "Using 1 environments": ours below
+        try:
+            hyperparams, env_wrapper, callbacks, vec_env_wrapper = super()._preprocess_hyperparams(hyperparams)
+        finally:
+            self.verbose = verbose
         hyperparams["policy_kwargs"] = policy_kwargs_for(self.algo, {**hyperparams, **self.scenario})
         hyperparams["policy"] = policy_for({**hyperparams, **self.scenario})
         # rl_zoo3 divides eval/save frequencies by n_envs: every VecEnv step is one step per AV slot
-        self.n_envs = sum(copy_av_counts(self.env_name.gym_id, self.scenario.get("env_config"), self.scenario.get("n_copies")))
+        counts = copy_av_counts(self.env_name.gym_id, self.scenario.get("env_config"), self.scenario.get("n_copies"))
+        self.n_envs = sum(counts)
+        if self.verbose > 0:
+            print(
+                f"{len(counts)} scenario copies with {', '.join(map(str, counts))} AVs: {self.n_envs} AV slots "
+                "of one VecEnv, one shared policy"
+            )
         return hyperparams, env_wrapper, callbacks, vec_env_wrapper
 
     # ---- env, callbacks, model ----------------------------------------------------------------
@@ -239,7 +249,8 @@ class MARLExperimentManager(ExperimentManager):
         stops training cleanly so that the model can be saved."""
         remaining = self.n_timesteps - model.num_timesteps if self.continue_training else self.n_timesteps
         # TensorBoard run <ALGO>_<id> matches the log folder <env>_<id>, resumed runs included
-        outputs: list[KVWriter] = [HumanOutputFormat(sys.stdout)] if self.verbose >= 1 else []
+        # SB3's logger tables on the console with --verbose 2 (1: progress and evaluation lines)
+        outputs: list[KVWriter] = [HumanOutputFormat(sys.stdout)] if self.verbose >= 2 else []
         tensorboard_folder = None
         if self.tensorboard_log:
             tensorboard_folder = os.path.join(self.tensorboard_log, f"{self.algo.upper()}_{self.run_id}")

@@ -28,12 +28,17 @@ def trained(tmp_path_factory) -> Path:
     return folder
 
 
-def test_default_verbosity_trains_and_prints_the_logger_table(tmp_path, capsys):
-    """MA2C dumps its logger every 10 updates: 1200 AV-steps of 120-step rollouts."""
-    assert main(["train", "-f", str(tmp_path), *TINY, "-n", "1200"]) == 0
+def test_default_verbosity_is_short_and_verbose_2_prints_the_logger_table(tmp_path, capsys):
+    """MA2C dumps its logger every 10 updates: 1200 AV-steps of 120-step rollouts. By default the
+    console has the set-up lines (copies and AV slots) and the evaluations, no logger tables."""
+    argv = ["train", "-f", str(tmp_path), *TINY, "-n", "1200", "--eval-freq", "600", "--eval-episodes", "1"]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert "3 scenario copies with 1, 2, 3 AVs: 6 AV slots" in out and "Using 1 environments" not in out
+    assert "Eval num_timesteps=" in out and "rollout/" not in out
+    assert main([*argv, "--verbose", "2"]) == 0
     out = capsys.readouterr().out
     assert "rollout/" in out and "supervisor_interventions" in out and "train/" in out
-    assert main(["train", "-f", str(tmp_path), *TINY, "--verbose", "2"]) == 0
 
 
 def test_version(capsys):
