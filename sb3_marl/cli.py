@@ -638,7 +638,7 @@ def evaluate(args: argparse.Namespace) -> int:
     model = _load_model(run, args)
     seed = args.seed + EVAL_SEED_OFFSET
     start = time.perf_counter()
-    result = {"model": str(run.model_path), **run.evaluate(model, args.eval_episodes, seed, args.deterministic)}
+    result = {"model": str(run.model_path), **run.evaluate(model, args.eval_episodes, seed, args.deterministic, progress=True)}
     rows = protocol_rows({"policy": args.algo, "timesteps": model.num_timesteps}, result)
     if args.with_baselines is not None:
         from sb3_marl.baselines import BASELINES
@@ -647,7 +647,7 @@ def evaluate(args: argparse.Namespace) -> int:
         for name, policy_class in BASELINES.items():
             if args.with_baselines and name not in args.with_baselines:
                 continue
-            baseline = evaluate_protocols(policy_class(), args.env, args.eval_episodes, seed, run.env_config)
+            baseline = evaluate_protocols(policy_class(), args.env, args.eval_episodes, seed, run.env_config, progress=True)
             result["baselines"][name] = baseline
             rows += protocol_rows({"policy": name, "timesteps": "-"}, baseline)
     heading = (

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 import torch as th
 from gymnasium import spaces
+from tqdm import tqdm
 
 from sb3_marl.algos.masking import uses_action_masks
 from sb3_marl.envs import av_counts, kernel, make_scenario
@@ -294,13 +295,15 @@ def evaluation_records(
     seed: int = 0,
     config: dict | None = None,
     on_step: StepHook | None = None,
+    progress: str | None = None,
 ) -> list[EpisodeRecord]:
     """``n_episodes`` episodes with seeds ``seed, seed + 1, ...``, cycling through the density's AV
-    counts (``on_step`` as in :func:`run_episodes`)."""
+    counts (``on_step`` as in :func:`run_episodes`); with ``progress``, a progress bar of that name
+    on stderr."""
     counts = av_counts(env_id, config)
     envs = {n: make_scenario(env_id, {**(config or {}), "n_avs": n}) for n in counts}
     records = []
-    for episode in range(n_episodes):
+    for episode in tqdm(range(n_episodes), desc=progress, unit="episode", disable=progress is None, leave=False):
         env = envs[counts[episode % len(counts)]]
         records += run_episodes(env, policy, 1, seed=seed + episode, on_step=on_step)
     for env in envs.values():
@@ -316,21 +319,29 @@ def evaluate_on_density(
 
 
 def protocol_records(
-    policy: Policy, env_id: str, n_episodes: int, seed: int = 0, config: dict | None = None
+    policy: Policy, env_id: str, n_episodes: int, seed: int = 0, config: dict | None = None, progress: bool = False
 ) -> dict[str, list[EpisodeRecord]]:
-    """The same seeded episodes under each of :data:`SUPERVISOR_PROTOCOLS`: ``{"on": ..., "off": ...}``."""
+    """The same seeded episodes under each of :data:`SUPERVISOR_PROTOCOLS`: ``{"on": ..., "off": ...}``
+    (``progress``: a progress bar per protocol)."""
     return {
-        name: evaluation_records(policy, env_id, n_episodes, seed, with_supervisor(config, name))
+        name: evaluation_records(
+            policy,
+            env_id,
+            n_episodes,
+            seed,
+            with_supervisor(config, name),
+            progress=f"supervisor {name}" if progress else None,
+        )
         for name in SUPERVISOR_PROTOCOLS
     }
 
 
 def evaluate_protocols(
-    policy: Policy, env_id: str, n_episodes: int, seed: int = 0, config: dict | None = None
+    policy: Policy, env_id: str, n_episodes: int, seed: int = 0, config: dict | None = None, progress: bool = False
 ) -> dict[str, Any]:
     """The summary with the supervisor (the authors' protocol) at the top level, each episode's
     return in ``returns``, and the same under ``supervisor_off`` for the policy alone."""
-    records = protocol_records(policy, env_id, n_episodes, seed, config)
+    records = protocol_records(policy, env_id, n_episodes, seed, config, progress)
     return {**protocol_result(records["on"]), "supervisor_off": protocol_result(records["off"])}
 
 

@@ -71,7 +71,9 @@ class Run:
         check_observation_shape(model, self.model_path, self.env_id, self.env_config)
         return model
 
-    def evaluate(self, model: BaseAlgorithm, n_episodes: int, seed: int, deterministic: bool = False) -> dict[str, Any]:
+    def evaluate(
+        self, model: BaseAlgorithm, n_episodes: int, seed: int, deterministic: bool = False, progress: bool = False
+    ) -> dict[str, Any]:
         """The paper's metrics of ``model`` on ``n_episodes`` seeded episodes of the run's scenario,
         with the safety supervisor (top level, the authors' protocol) and without it
         (``supervisor_off``), with what identifies the evaluation (algo, env, timesteps, seeds, env
@@ -84,7 +86,7 @@ class Run:
             "protocol": protocol_label(deterministic, model),
             "seeds": [seed, seed + n_episodes - 1],
             "env_config": self.env_config,
-            **evaluate_protocols(model_policy(model, deterministic), self.env_id, n_episodes, seed, self.env_config),
+            **evaluate_protocols(model_policy(model, deterministic), self.env_id, n_episodes, seed, self.env_config, progress),
         }
 
 

@@ -8,6 +8,7 @@ from typing import Any
 
 import imageio.v2 as imageio
 import numpy as np
+from tqdm import tqdm
 
 from sb3_marl.envs import copy_av_counts, make_scenario
 from sb3_marl.evaluation import Policy, run_episodes
@@ -31,7 +32,7 @@ def record_video(
     counts = copy_av_counts(env_id, config, n_episodes)
     frames: list[np.ndarray | None] = []
     fps = None
-    for episode, n_avs in enumerate(counts):
+    for episode, n_avs in enumerate(tqdm(counts, desc="recording", unit="episode", leave=False)):
         env = make_scenario(env_id, {**(config or {}), "n_avs": n_avs}, render_mode="rgb_array")
         fps = env.config["policy_frequency"]
         run_episodes(env, policy, 1, seed + episode, on_step=lambda env, info: frames.append(env.render()))
