@@ -213,10 +213,38 @@ def _add_trust_remote_code(parser: argparse.ArgumentParser) -> None:
     )
 
 
+class _CommandParser(argparse.ArgumentParser):
+    """A subcommand's parser, showing defaults in its ``--help``."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("formatter_class", _DefaultsHelpFormatter)
+        super().__init__(*args, **kwargs)
+
+
+class _DefaultsHelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """argparse's defaults in ``--help`` (as rl-zoo users expect), unless the help already says
+    what the default is or there is none to show."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ""
+        if (
+            "default" in text.lower()
+            or action.default is None
+            or action.default is False
+            or action.default == argparse.SUPPRESS
+        ):
+            return text
+        return super()._get_help_string(action)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="sb3-marl", description="Multi-agent RL for cooperative lane changing of CAVs")
+    parser = argparse.ArgumentParser(
+        prog="sb3-marl",
+        description="Multi-agent RL for cooperative lane changing of CAVs",
+        formatter_class=_DefaultsHelpFormatter,
+    )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
-    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=_CommandParser)
 
     train = commands.add_parser("train", help="train a learner (rl-zoo's train.py flags)")
     train.add_argument("--algo", default="ma2c", choices=ALGO_NAMES, help="learner (default: ma2c)")
@@ -325,9 +353,11 @@ def build_parser() -> argparse.ArgumentParser:
         )
 
     plot = commands.add_parser("plot", help="learning-curve PNGs of one or several runs")
-    plot.add_argument("--algo", "--algos", dest="algos", nargs="+", default=["ma2c"], choices=ALGO_NAMES)
-    plot.add_argument("--env", default=DEFAULT_ENV, choices=list(ENV_IDS.values()))
-    plot.add_argument("-f", "--folder", "--log-folder", dest="folder", default="logs")
+    plot.add_argument(
+        "--algo", "--algos", dest="algos", nargs="+", default=["ma2c"], choices=ALGO_NAMES, help="learners to plot"
+    )
+    plot.add_argument("--env", default=DEFAULT_ENV, choices=list(ENV_IDS.values()), help="scenario id")
+    plot.add_argument("-f", "--folder", "--log-folder", dest="folder", default="logs", help="log folder of the runs")
     plot.add_argument("--exp-ids", type=int, nargs="+", default=None, help="runs to plot (default: all)")
     plot.add_argument("-w", "--episode-window", type=_positive(), default=100, help="rolling window of training returns")
     plot.add_argument("-o", "--output", default=None, help="folder for the PNGs (default: <folder>/plots)")
@@ -341,29 +371,31 @@ def build_parser() -> argparse.ArgumentParser:
     _add_run_selection(push)
     push.add_argument("--repo-name", default=None, help="default: <algo>-<env name>")
     push.add_argument("-orga", "--organization", required=True, help="Hub user or organisation")
-    push.add_argument("-m", "--commit-message", default="Upload sb3-marl model")
+    push.add_argument("-m", "--commit-message", default="Upload sb3-marl model", help="the Hub commit's message")
     push.add_argument(
         "--eval-episodes", type=_positive(maximum=MAX_EPISODES), default=10, help="episodes of the card's evaluation"
     )
     push.add_argument("--no-video", action="store_true", help="leave replay.mp4 out")
-    push.add_argument("--private", action="store_true")
+    push.add_argument("--private", action="store_true", help="create the Hub repo private")
     push.add_argument("--dry-run", metavar="PATH", default=None, help="only build the folder at PATH")
 
     summary = commands.add_parser("summary", help="markdown table of the evaluated runs of a log folder")
-    summary.add_argument("-f", "--folder", "--log-folder", dest="folder", default="logs")
+    summary.add_argument("-f", "--folder", "--log-folder", dest="folder", default="logs", help="log folder of the runs")
     summary.add_argument("-o", "--output", default=None, help="markdown file (default: <folder>/summary.md)")
 
     load = commands.add_parser("load-from-hub", help="download a model into the log layout (then evaluate/enjoy it)")
     load.add_argument("--repo-id", required=True, help="ORG/NAME")
-    load.add_argument("-f", "--folder", "--log-folder", dest="folder", default="logs")
+    load.add_argument("-f", "--folder", "--log-folder", dest="folder", default="logs", help="log folder to place the run in")
 
     baselines = commands.add_parser("baselines", help="metrics of the reference policies (random, cruise, IDM/MOBIL)")
-    baselines.add_argument("--density", type=int, choices=sorted(DENSITIES), default=1)
+    baselines.add_argument("--density", type=int, choices=sorted(DENSITIES), default=1, help="traffic density")
     baselines.add_argument(
         "--episodes", type=_positive(maximum=MAX_EPISODES), default=20, help="episodes per policy and AV count"
     )
-    baselines.add_argument("--seed", type=int, default=0)
-    baselines.add_argument("--out", type=Path, default=Path("logs/scenario_baselines.md"))
+    baselines.add_argument("--seed", type=int, default=0, help="first episode seed")
+    baselines.add_argument(
+        "--out", type=Path, default=Path("logs/scenario_baselines.md"), help="markdown table (and .json beside)"
+    )
 
     benchmark = commands.add_parser(
         "benchmark", help="the paper's experiment grid as Ray Tune trials; `benchmark report` writes its table and figures"
@@ -389,7 +421,9 @@ def build_parser() -> argparse.ArgumentParser:
     benchmark.add_argument(
         "--seeds", type=_positive(maximum=MAX_COUNT), default=PAPER_SEEDS, help="seeds per trial setting (default: 2)"
     )
-    benchmark.add_argument("--densities", type=int, nargs="+", choices=sorted(DENSITIES), default=sorted(DENSITIES))
+    benchmark.add_argument(
+        "--densities", type=int, nargs="+", choices=sorted(DENSITIES), default=sorted(DENSITIES), help="traffic densities"
+    )
     benchmark.add_argument(
         "--eval-every",
         type=_positive(float),
@@ -409,7 +443,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     benchmark.add_argument("--max-failures", type=int, default=2, help="restarts of a failed trial (default: 2)")
     benchmark.add_argument("-o", "--output", default="results", help="report: output folder (default: results)")
-    benchmark.add_argument("--verbose", type=int, default=1, choices=[0, 1, 2])
+    benchmark.add_argument("--verbose", type=int, default=1, choices=[0, 1, 2], help="Ray Tune's verbosity")
     return parser
 
 

@@ -190,3 +190,18 @@ def test_a_worker_dying_mid_training_saves_the_model_and_says_why(tmp_path):
     assert "training stopped by" in err and "was saved; continue with -i" in err
     model = tmp_path / "ma2c" / f"{ENV_NAME}_1" / f"{ENV_NAME}.zip"
     assert 0 < MaskableA2C.load(model).num_timesteps < 2_000_000
+
+
+def test_every_flag_has_help_and_help_shows_the_defaults(capsys):
+    import argparse
+
+    from sb3_marl.cli import build_parser
+
+    commands = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    missing = [(name, action.option_strings) for name, parser in commands.choices.items()
+               for action in parser._actions if action.option_strings and not action.help]
+    assert missing == []
+    with pytest.raises(SystemExit):
+        main(["baselines", "--help"])
+    out = " ".join(capsys.readouterr().out.split())
+    assert "first episode seed (default: 0)" in out and "(default: logs/scenario_baselines.md)" in out
