@@ -55,7 +55,8 @@ setup(
         "benchmarl": BENCHMARL,
         # seaborn and scipy: rl_zoo3's own plotting scripts, run by the tests on our logs;
         # ruff and mypy: lint and types, run by `make test`
-        "dev": ["pytest>=8", "seaborn", "scipy", "ruff>=0.16,<0.17", "mypy>=2.3,<2.5", *RAY, *TORCHRL, *RLLIB],
+        # build: the packaging test builds the sdist
+        "dev": ["pytest>=8", "seaborn", "scipy", "ruff>=0.16,<0.17", "mypy>=2.3,<2.5", "build", *RAY, *TORCHRL, *RLLIB],
     },
     entry_points={"console_scripts": ["sb3-marl=sb3_marl.cli:main"]},
     classifiers=[

@@ -170,7 +170,10 @@ on the same episodes.
 
 ## Usage
 
-`pip install sb3-marl`, then with the command line (rl-zoo's layout):
+Install sb3-marl from its source (it is not on PyPI): `pip install torch==2.13.0` (or any torch 2
+build), then `pip install .` in a clone of the repository, or the wheel built there
+(`pip wheel . --no-deps -w dist`, then `pip install dist/sb3_marl-*.whl`). Then with the command
+line (rl-zoo's layout):
 
 ```bash
 sb3-marl load-from-hub --repo-id {repo_id} -f logs
