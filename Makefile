@@ -29,7 +29,7 @@ run: $(STAMP)
 ## test: lint (ruff), format check, types (mypy), then the whole test suite
 test: $(STAMP)
 	$(VENV)/bin/ruff check .
-	$(VENV)/bin/ruff format --check sb3_marl wrappers
+	$(VENV)/bin/ruff format --check .
 	$(VENV)/bin/mypy sb3_marl wrappers
 	$(PYTHON) -m pytest -q
 

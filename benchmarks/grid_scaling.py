@@ -33,15 +33,25 @@ def main() -> None:
     args = parser.parse_args()
 
     n_trials = len(make_grid(args.grid, tuple(args.densities), args.seeds))
-    print(f"grid {args.grid!r}, densities {args.densities}, {args.seeds} seeds: {n_trials} trials of "
-          f"{args.budget * 1e6:,.0f} env steps; {os.cpu_count()} cores")
+    print(
+        f"grid {args.grid!r}, densities {args.densities}, {args.seeds} seeds: {n_trials} trials of "
+        f"{args.budget * 1e6:,.0f} env steps; {os.cpu_count()} cores"
+    )
     ray.init(num_cpus=max(args.workers), include_dashboard=False, configure_logging=False, log_to_driver=False)
     rates = {}
     try:
         for workers in args.workers:
             with tempfile.TemporaryDirectory() as folder:
-                outcome = run_benchmark(args.grid, folder, args.budget, args.seeds, tuple(args.densities),
-                                        args.eval_every, max_concurrent=workers, verbose=0)
+                outcome = run_benchmark(
+                    args.grid,
+                    folder,
+                    args.budget,
+                    args.seeds,
+                    tuple(args.densities),
+                    args.eval_every,
+                    max_concurrent=workers,
+                    verbose=0,
+                )
             assert not outcome.failed, outcome.failed
             rates[workers] = len(outcome.completed) / outcome.wall_time_s * 3600
             print(f"grid_wall_time_{workers}_workers: {outcome.wall_time_s:.1f} s")

@@ -48,14 +48,21 @@ def evaluate_all(args: argparse.Namespace) -> dict:
     results = json.loads(path.read_text()) if path.is_file() else {}
     if results.get("protocol", {}).get("supervisor_version") != SUPERVISOR_VERSION:
         results = {}  # evaluated under another safety supervisor: start afresh
-    results["protocol"] = {"episodes": args.episodes, "seeds": [args.seed, args.seed + args.episodes - 1],
-                           "actions": "sampled (the authors' protocol)" + (" and greedy (argmax)" if args.greedy else "")
-                           + ", action masks",
-                           "supervisor": "on (top level) and off (supervisor_off)",
-                           "supervisor_version": SUPERVISOR_VERSION}
+    results["protocol"] = {
+        "episodes": args.episodes,
+        "seeds": [args.seed, args.seed + args.episodes - 1],
+        "actions": "sampled (the authors' protocol)" + (" and greedy (argmax)" if args.greedy else "") + ", action masks",
+        "supervisor": "on (top level) and off (supervisor_off)",
+        "supervisor_version": SUPERVISOR_VERSION,
+    }
     jobs = [(f"idm-mobil_density{d}", None, d) for d in args.densities]
-    jobs += [(TrialSpec(algo, d, v, s).trial_id, TrialSpec(algo, d, v, s), d)
-             for algo in args.algo for v in args.variants for d in args.densities for s in range(args.seeds)]
+    jobs += [
+        (TrialSpec(algo, d, v, s).trial_id, TrialSpec(algo, d, v, s), d)
+        for algo in args.algo
+        for v in args.variants
+        for d in args.densities
+        for s in range(args.seeds)
+    ]
     for name, spec, density in tqdm(jobs, desc="held-out evaluations", unit="policy"):
         if name in results.get("entries", {}):
             continue
@@ -88,15 +95,18 @@ def table(results: dict, variants: list[str], densities: list[int], seeds: int, 
     supervisor and without: return over training seeds, its IQM, the pooled collision rate with
     its 95 % Clopper–Pearson upper bound, agreement with the rule driver, lane changes, yields."""
     entries, episodes = results["entries"], results["protocol"]["episodes"]
-    lines = [f"Held-out evaluation: {episodes} episodes, seeds {results['protocol']['seeds'][0]}.."
-             f"{results['protocol']['seeds'][1]}, {results['protocol']['actions']}, safety supervisor "
-             f"v{results['protocol']['supervisor_version']} on and off; learners: mean ± std over training seeds; "
-             "IQM over every (seed, episode) return, its CI by stratified bootstrap over seeds (IDM/MOBIL, one "
-             "policy: over episodes); collisions pooled over seeds with the 95 % Clopper–Pearson upper bound; "
-             "agreement: share of AV-steps whose proposed action is the rule driver's (IDM/MOBIL).", "",
-             "| policy | actions | density | seeds | supervisor | return | IQM [95 % CI] | collisions | "
-             "collision rate (95 % upper) | agreement | lane changes / ep. | yields / ep. |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        f"Held-out evaluation: {episodes} episodes, seeds {results['protocol']['seeds'][0]}.."
+        f"{results['protocol']['seeds'][1]}, {results['protocol']['actions']}, safety supervisor "
+        f"v{results['protocol']['supervisor_version']} on and off; learners: mean ± std over training seeds; "
+        "IQM over every (seed, episode) return, its CI by stratified bootstrap over seeds (IDM/MOBIL, one "
+        "policy: over episodes); collisions pooled over seeds with the 95 % Clopper–Pearson upper bound; "
+        "agreement: share of AV-steps whose proposed action is the rule driver's (IDM/MOBIL).",
+        "",
+        "| policy | actions | density | seeds | supervisor | return | IQM [95 % CI] | collisions | "
+        "collision rate (95 % upper) | agreement | lane changes / ep. | yields / ep. |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for density in densities:
         rows = [("IDM/MOBIL", "rules", [entries.get(f"idm-mobil_density{density}")])]
         for algo in algos:
@@ -122,10 +132,12 @@ def table(results: dict, variants: list[str], densities: list[int], seeds: int, 
                 crashes = int(round(sum(r["collision_rate"] * r["episodes"] for r in results_)))
                 upper = clopper_pearson_upper(crashes, n)
                 mean = lambda key, rs=results_: np.mean([r.get(key, float("nan")) for r in rs])  # noqa: E731
-                lines.append(f"| {label} | {actions} | {density} | {len(found)} | {supervisor} | "
-                             f"{means.mean():.2f} ± {means.std():.2f} | {iqm} | {crashes} / {n} | "
-                             f"{crashes / n:.4f} ({upper:.4f}) | {mean('rule_agreement'):.3f} | "
-                             f"{mean('lane_changes_per_episode'):.2f} | {mean('yields_per_episode'):.2f} |")
+                lines.append(
+                    f"| {label} | {actions} | {density} | {len(found)} | {supervisor} | "
+                    f"{means.mean():.2f} ± {means.std():.2f} | {iqm} | {crashes} / {n} | "
+                    f"{crashes / n:.4f} ({upper:.4f}) | {mean('rule_agreement'):.3f} | "
+                    f"{mean('lane_changes_per_episode'):.2f} | {mean('yields_per_episode'):.2f} |"
+                )
     return "\n".join(lines) + "\n"
 
 

@@ -29,8 +29,9 @@ from sb3_marl.envs import DENSITIES, ENV_IDS
 def measure(density: int, steps: int, supervisor: bool, seed: int = 0) -> dict[str, float]:
     """Seconds per step and per supervisor call over ``steps`` steps of a random masked policy."""
     n_avs, n_hdvs = DENSITIES[density]["avs"][1], DENSITIES[density]["hdvs"][1]
-    env = gym.make(ENV_IDS[density], config={"n_avs": n_avs, "hdv_count_range": [n_hdvs, n_hdvs],
-                                             "safety_supervisor": supervisor}).unwrapped
+    env = gym.make(
+        ENV_IDS[density], config={"n_avs": n_avs, "hdv_count_range": [n_hdvs, n_hdvs], "safety_supervisor": supervisor}
+    ).unwrapped
     supervise, spent = lane_change_env.supervise, [0.0, 0]
 
     def timed(*args, **kwargs):
@@ -56,8 +57,11 @@ def measure(density: int, steps: int, supervisor: bool, seed: int = 0) -> dict[s
                 env.reset(seed=seed + episode)
     finally:
         lane_change_env.supervise = supervise
-    return {"step": stepping / steps, "supervisor": spent[0] / max(spent[1], 1),
-            "interventions_per_step": interventions / steps}
+    return {
+        "step": stepping / steps,
+        "supervisor": spent[0] / max(spent[1], 1),
+        "interventions_per_step": interventions / steps,
+    }
 
 
 def main() -> None:

@@ -66,11 +66,15 @@ def main() -> None:
 
                     records += run_episodes(env, policy, 1, seed, on_step)
                 summary = summarize(records)
-                print(f"density {density}, {n_avs} AVs, {name}: crash_rate {summary['collision_rate']:.4f} "
-                      f"({len(crashes)} of {args.episodes} episodes), interventions_per_av_step "
-                      f"{summary['intervention_rate']:.4f}, wall {time.perf_counter() - start:.0f} s", flush=True)
+                print(
+                    f"density {density}, {n_avs} AVs, {name}: crash_rate {summary['collision_rate']:.4f} "
+                    f"({len(crashes)} of {args.episodes} episodes), interventions_per_av_step "
+                    f"{summary['intervention_rate']:.4f}, wall {time.perf_counter() - start:.0f} s",
+                    flush=True,
+                )
                 for line in crashes:
                     print(line, flush=True)
+
 
 if __name__ == "__main__":
     main()

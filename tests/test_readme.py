@@ -33,8 +33,7 @@ def test_the_command_line_section_runs_verbatim(tmp_path):
         if argv[1] == "train":
             argv += SHORT_BUDGET["resumed" if "-i" in argv else "first"]
             trains += 1
-        completed = subprocess.run([str(executable), *argv[1:]], cwd=tmp_path, capture_output=True, text=True,
-                                   timeout=600)
+        completed = subprocess.run([str(executable), *argv[1:]], cwd=tmp_path, capture_output=True, text=True, timeout=600)
         assert completed.returncode == 0, f"{line}\n{completed.stdout[-2000:]}\n{completed.stderr[-2000:]}"
     assert trains == 3
     run = tmp_path / "logs" / "ma2c" / "sb3_marl-LaneChange-density1-v0_1"
@@ -50,8 +49,9 @@ def test_the_quick_start_main_job_runs_verbatim(tmp_path):
     commands = section_commands("Quick start")
     assert commands == ["make run", "make test"]
     checkout_logs = sorted((REPO / "logs").rglob("*")) if (REPO / "logs").exists() else []
-    completed = subprocess.run([*shlex.split(commands[0]), f"RUN_LOGS={tmp_path / 'logs'}"], cwd=REPO,
-                               capture_output=True, text=True, timeout=1800)
+    completed = subprocess.run(
+        [*shlex.split(commands[0]), f"RUN_LOGS={tmp_path / 'logs'}"], cwd=REPO, capture_output=True, text=True, timeout=1800
+    )
     assert completed.returncode == 0, completed.stdout[-3000:] + completed.stderr[-3000:]
     out = completed.stdout
     assert "| ma2c |" in out and "| idm-mobil |" in out and "sampled actions (the authors' protocol)" in out

@@ -113,16 +113,24 @@ def _readme_table(readme: Path, header: list[str]) -> list[dict[str, str]]:
 @pytest.fixture(scope="module")
 def committed_rows() -> dict[tuple[str, int], dict[str, str]]:
     """results/paper_table.md's rows keyed by (curve or policy, density)."""
-    return {(row.get("curve", row.get("policy")), int(row["density"])): row
-            for table in _markdown_tables((RESULTS / "paper_table.md").read_text()) for row in table}
+    return {
+        (row.get("curve", row.get("policy")), int(row["density"])): row
+        for table in _markdown_tables((RESULTS / "paper_table.md").read_text())
+        for row in table
+    }
 
 
 DENSITIES = ["density 1", "density 2", "density 3"]
 #: A Table-5 row's first cell in the READMEs (its start) -> (the curve's label in paper_table.md,
 #: the algorithm whose paper return goes in parentheses); longest prefix first.
-TABLE_5_ROWS = (("MA2C, separate actor and critic", "separate actor and critic", None),
-                ("MA2C (", "MA2C", "ma2c"), ("MADQN", "MADQN", "madqn"), ("MAACKTR", "MAACKTR", "maacktr"),
-                ("MAPPO", "MAPPO", "mappo"), ("IDM/MOBIL", "idm-mobil", None))
+TABLE_5_ROWS = (
+    ("MA2C, separate actor and critic", "separate actor and critic", None),
+    ("MA2C (", "MA2C", "ma2c"),
+    ("MADQN", "MADQN", "madqn"),
+    ("MAACKTR", "MAACKTR", "maacktr"),
+    ("MAPPO", "MAPPO", "mappo"),
+    ("IDM/MOBIL", "idm-mobil", None),
+)
 
 
 @pytest.mark.parametrize("readme", [RESULTS.parent / "README.md", RESULTS / "README.md"], ids=["README", "results"])
@@ -148,10 +156,12 @@ MA2C_DETAIL_ROWS = {
     "MA2C (current config): mean ± std over seeds": lambda rows, d: rows["MA2C", d]["return: mean ± std over seeds"],
     "MA2C: IQM [95 % CI]": lambda rows, d: rows["MA2C", d]["return: IQM [95 % CI]"],
     "the paper's MA2C": lambda rows, d: rows["MA2C", d]["return (paper)"],
-    "MA2C, the authors' reward (no penalty)":
-        lambda rows, d: rows["no penalty (the authors' reward)", d]["return: mean ± std over seeds"],
-    "MA2C collision rate / lane changes per episode":
-        lambda rows, d: f"{rows['MA2C', d]['collision rate']} / {rows['MA2C', d]['lane changes / ep.']}",
+    "MA2C, the authors' reward (no penalty)": lambda rows, d: rows["no penalty (the authors' reward)", d][
+        "return: mean ± std over seeds"
+    ],
+    "MA2C collision rate / lane changes per episode": lambda rows, d: (
+        f"{rows['MA2C', d]['collision rate']} / {rows['MA2C', d]['lane changes / ep.']}"
+    ),
     "MA2C acceleration std [m/s²]": lambda rows, d: rows["MA2C", d]["accel. std [m/s²]"],
 }
 
@@ -169,15 +179,26 @@ def test_status_piped_into_head_stops_quietly():
     import sys
 
     executable = Path(sys.executable).parent / "sb3-marl"
-    piped = subprocess.run(f"'{executable}' benchmark status --seeds 3 -f '{PAPER_GRID}' | head -n 1", shell=True,
-                           capture_output=True, text=True, timeout=120)
+    piped = subprocess.run(
+        f"'{executable}' benchmark status --seeds 3 -f '{PAPER_GRID}' | head -n 1",
+        shell=True,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert piped.stdout.startswith("Benchmark grid 'paper' in ") and piped.stderr == ""
 
 
 #: A row of the READMEs' policy-alone table -> its curve or policy label in paper_table.md.
-POLICY_ALONE_ROWS = {"MADQN": "MADQN", "MA2C (paper's method)": "MA2C", "MAACKTR": "MAACKTR", "MAPPO": "MAPPO",
-                     "MA2C, separate actor and critic (experiment 2)": "separate actor and critic",
-                     "MA2C, safety training": "safety training", "IDM/MOBIL (not learned)": "idm-mobil"}
+POLICY_ALONE_ROWS = {
+    "MADQN": "MADQN",
+    "MA2C (paper's method)": "MA2C",
+    "MAACKTR": "MAACKTR",
+    "MAPPO": "MAPPO",
+    "MA2C, separate actor and critic (experiment 2)": "separate actor and critic",
+    "MA2C, safety training": "safety training",
+    "IDM/MOBIL (not learned)": "idm-mobil",
+}
 
 
 @pytest.mark.parametrize("readme", [RESULTS.parent / "README.md", RESULTS / "README.md"], ids=["README", "results"])

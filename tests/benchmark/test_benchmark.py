@@ -52,8 +52,18 @@ def test_grids_hold_each_trial_once():
     # the paper grid shares the default MA2C trials between experiments: 4 algos + 5 MA2C variants
     paper = make_grid("paper")
     assert len(paper) == (4 + 5) * 3 * 2 == len({spec.trial_id for spec in paper})
-    assert set(GRIDS) == {"paper", "baselines", "reward", "sharing", "comfort", "politeness", "penalty", "safety",
-                          "ctde", "rule-prior"}
+    assert set(GRIDS) == {
+        "paper",
+        "baselines",
+        "reward",
+        "sharing",
+        "comfort",
+        "politeness",
+        "penalty",
+        "safety",
+        "ctde",
+        "rule-prior",
+    }
     assert {(s.algo, s.variant) for s in make_grid("rule-prior", seeds=3)} == {("ma2c", "rule-prior"), ("mappo", "rule-prior")}
     safety = make_grid("safety", seeds=1)
     assert [spec.variant for spec in safety] == ["default"] * 3 + ["safety-training"] * 3
@@ -117,16 +127,19 @@ def test_report_writes_the_table_and_the_figures(tiny_benchmark, tmp_path, capsy
 
 def test_status_lists_where_each_trial_stands(tiny_benchmark, capsys):
     # the comfort grid shares its default MA2C trial with the reward grid: finished; comfort off: not started
-    assert main(["benchmark", "status", "--grid", "comfort", "--seeds", "1", "--densities", "1",
-                 "-f", str(tiny_benchmark)]) == 0
+    assert (
+        main(["benchmark", "status", "--grid", "comfort", "--seeds", "1", "--densities", "1", "-f", str(tiny_benchmark)]) == 0
+    )
     out = capsys.readouterr().out
     assert "1 of 2 trials finished, 0 unfinished (continue from their checkpoint), 1 not started" in out
     final = json.loads((tiny_benchmark / "trials" / "ma2c_density1_default_seed0" / "result.json").read_text())
     row = next(line for line in out.splitlines() if line.startswith("ma2c_density1_default_seed0 "))
     assert row.split()[1:5] == ["finished", f"{final['num_timesteps']:,}", "/", "600"]
     assert f"{final['paper_evaluation']['return_mean']:.2f}" in row
-    assert next(line for line in out.splitlines() if line.startswith("ma2c_density1_no-comfort_seed0 ")).split()[1:3] \
-        == ["not", "started"]
+    assert next(line for line in out.splitlines() if line.startswith("ma2c_density1_no-comfort_seed0 ")).split()[1:3] == [
+        "not",
+        "started",
+    ]
     assert main(["benchmark", "status", "-f", str(tiny_benchmark / "missing")]) == 2
     assert "No benchmark in" in capsys.readouterr().err and not (tiny_benchmark / "missing").exists()
 
@@ -216,8 +229,9 @@ def test_bad_api_arguments_and_changed_settings_name_the_field(tiny_benchmark, t
 
 
 def test_comfort_grid_reports_the_comfort_figure(local_ray, tmp_path):
-    outcome = run_benchmark("comfort", tmp_path / "logs", budget=0.0003, seeds=1, densities=(1,),
-                            eval_every_episodes=1, verbose=0)
+    outcome = run_benchmark(
+        "comfort", tmp_path / "logs", budget=0.0003, seeds=1, densities=(1,), eval_every_episodes=1, verbose=0
+    )
     assert sorted(outcome.completed) == ["ma2c_density1_default_seed0", "ma2c_density1_no-comfort_seed0"]
     written = write_report(tmp_path / "logs", tmp_path / "results")
     assert tmp_path / "results" / "comfort.png" in written
@@ -226,9 +240,11 @@ def test_comfort_grid_reports_the_comfort_figure(local_ray, tmp_path):
     assert "| comfort off | 1 | 1 | 300 |" in table and "(paper 0.582)" in table
     stds = {t.spec.variant: t.final()["acceleration_std"] for t in load_trials(tmp_path / "logs")}
     on, off = stds["default"], stds["no-comfort"]
-    assert (f"- Here, density 1: acceleration std {on:.3f} m/s² (comfort on) vs {off:.3f} m/s² (comfort off): "
-            f"{'lower' if on < off else 'higher'} with comfort (seeds {on:.3f}–{on:.3f} vs {off:.3f}–{off:.3f}: "
-            "every seed apart).") in table  # one seed each: apart unless equal
+    assert (
+        f"- Here, density 1: acceleration std {on:.3f} m/s² (comfort on) vs {off:.3f} m/s² (comfort off): "
+        f"{'lower' if on < off else 'higher'} with comfort (seeds {on:.3f}–{on:.3f} vs {off:.3f}–{off:.3f}: "
+        "every seed apart)."
+    ) in table  # one seed each: apart unless equal
     trial = next(t for t in load_trials(tmp_path / "logs") if t.spec.variant == "no-comfort")
     trace = acceleration_traces(trial, tmp_path / "logs", seed=10_000)
     assert trace.shape[1] == 3 and 1 <= len(trace) <= 100  # 3 AVs (density 1's largest count), <= 20 s at 5 Hz
@@ -239,8 +255,26 @@ def test_comfort_grid_reports_the_comfort_figure(local_ray, tmp_path):
 def test_cli_attaches_to_an_existing_ray_cluster(local_ray, tmp_path):
     """`sb3-marl benchmark --address` in another process runs its trials on this test's Ray cluster."""
     address = ray.get_runtime_context().gcs_address
-    command = [sys.executable, "-m", "sb3_marl", "benchmark", "--grid", "reward", "--densities", "1", "--seeds", "1",
-               "--budget", "0.0003", "--eval-every", "1", "--address", address, "-f", str(tmp_path)]
+    command = [
+        sys.executable,
+        "-m",
+        "sb3_marl",
+        "benchmark",
+        "--grid",
+        "reward",
+        "--densities",
+        "1",
+        "--seeds",
+        "1",
+        "--budget",
+        "0.0003",
+        "--eval-every",
+        "1",
+        "--address",
+        address,
+        "-f",
+        str(tmp_path),
+    ]
     completed = subprocess.run(command, capture_output=True, text=True, timeout=300)
     assert completed.returncode == 0, completed.stdout[-3000:] + completed.stderr[-3000:]
     assert "2 trials completed, 0 skipped (finished before), 0 failed, 0 stopped unfinished" in completed.stdout

@@ -24,8 +24,22 @@ from sb3_marl.cli import main
 ENV = "sb3_marl/LaneChange-density1-v0"
 ENV_NAME = "sb3_marl-LaneChange-density1-v0"
 # density 1: copies with 1, 2 and 3 AVs = 6 slots; 20-step rollouts = 120 AV-steps per update
-TINY = ["-n", "1200", "--eval-freq", "600", "--eval-episodes", "2", "--save-freq", "600",
-        "-params", "n_steps:20", "--log-interval", "1", "--verbose", "0"]
+TINY = [
+    "-n",
+    "1200",
+    "--eval-freq",
+    "600",
+    "--eval-episodes",
+    "2",
+    "--save-freq",
+    "600",
+    "-params",
+    "n_steps:20",
+    "--log-interval",
+    "1",
+    "--verbose",
+    "0",
+]
 
 
 def run_dir(folder: Path, exp_id: int, algo: str = "ma2c") -> Path:
@@ -43,8 +57,16 @@ def logs(tmp_path_factory) -> Path:
 
 def test_train_writes_rl_zoo_layout(logs):
     run = run_dir(logs, 1)
-    for name in (f"{ENV_NAME}.zip", "best_model.zip", "rl_model_600_steps.zip", "rl_model_1200_steps.zip",
-                 "evaluations.npz", "monitor.csv", f"{ENV_NAME}/config.yml", f"{ENV_NAME}/args.yml"):
+    for name in (
+        f"{ENV_NAME}.zip",
+        "best_model.zip",
+        "rl_model_600_steps.zip",
+        "rl_model_1200_steps.zip",
+        "evaluations.npz",
+        "monitor.csv",
+        f"{ENV_NAME}/config.yml",
+        f"{ENV_NAME}/args.yml",
+    ):
         assert (run / name).is_file(), name
     assert not list(run.glob(".*partial*")), "no temporary files left"
     config = yaml.load((run / ENV_NAME / "config.yml").read_text(), Loader=yaml.UnsafeLoader)
@@ -75,8 +97,14 @@ def test_tensorboard_has_driving_metrics_and_reward_terms(logs):
     assert [r.name for r in runs] == ["MA2C_1", "MA2C_2"]
     events = EventAccumulator(str(runs[0])).Reload()
     tags = set(events.Tags()["scalars"])
-    for metric in ("collision_rate", "success_rate", "speed_mean", "headway_mean", "acceleration_std",
-                   "lane_changes_per_episode"):
+    for metric in (
+        "collision_rate",
+        "success_rate",
+        "speed_mean",
+        "headway_mean",
+        "acceleration_std",
+        "lane_changes_per_episode",
+    ):
         assert f"rollout/{metric}" in tags and f"eval/{metric}" in tags, metric
     for term in ("safety", "headway", "speed", "comfort", "harsh_acceleration", "lane_change"):
         assert f"rollout/reward_{term}" in tags, term
@@ -91,8 +119,16 @@ def test_tensorboard_has_driving_metrics_and_reward_terms(logs):
 def test_evaluate_prints_and_saves_the_paper_metrics(logs, capsys):
     assert main(["enjoy", "-f", str(logs), "--exp-id", "1", "--load-best", "--eval-episodes", "3", "--with-baselines"]) == 0
     result = json.loads((run_dir(logs, 1) / "evaluation.json").read_text())
-    for key in ("return_mean", "return_std", "collision_rate", "success_rate", "speed_mean", "headway_mean",
-                "acceleration_std", "lane_changes_per_episode"):
+    for key in (
+        "return_mean",
+        "return_std",
+        "collision_rate",
+        "success_rate",
+        "speed_mean",
+        "headway_mean",
+        "acceleration_std",
+        "lane_changes_per_episode",
+    ):
         assert np.isfinite(result[key]), key
     assert result["model"].endswith("best_model.zip") and result["seeds"] == [10_000, 10_002]
     assert result["return_mean"] == pytest.approx(np.mean(result["returns"]))
@@ -113,8 +149,9 @@ def test_plot_and_rl_zoo3_plots_read_our_logs(logs, tmp_path, monkeypatch):
     from rl_zoo3.plots.plot_train import plot_train
 
     out = tmp_path / "all_plots"
-    monkeypatch.setattr(sys, "argv", ["all_plots", "-a", "ma2c", "-e", "LaneChange-density1", "-f", str(logs),
-                                      "--no-display", "-o", str(out)])
+    monkeypatch.setattr(
+        sys, "argv", ["all_plots", "-a", "ma2c", "-e", "LaneChange-density1", "-f", str(logs), "--no-display", "-o", str(out)]
+    )
     all_plots()
     with open(f"{out}.pkl", "rb") as file:
         curves = pickle.load(file)["LaneChange-density1"][f"MA2C-{logs}"]
@@ -191,8 +228,24 @@ def test_a_signal_during_compiled_code_counts_as_an_interruption():
 
 
 def test_sigterm_saves_the_model_and_logs(tmp_path):
-    command = [sys.executable, "-m", "sb3_marl", "train", "-f", str(tmp_path), "-n", "10000000", "--save-freq", "240",
-               "--eval-freq", "-1", "-params", "n_steps:20", "--verbose", "0"]
+    command = [
+        sys.executable,
+        "-m",
+        "sb3_marl",
+        "train",
+        "-f",
+        str(tmp_path),
+        "-n",
+        "10000000",
+        "--save-freq",
+        "240",
+        "--eval-freq",
+        "-1",
+        "-params",
+        "n_steps:20",
+        "--verbose",
+        "0",
+    ]
     process = subprocess.Popen(command, env={**os.environ, "OMP_NUM_THREADS": "1"})
     run = run_dir(tmp_path, 1)
     deadline = time.time() + 120
@@ -269,8 +322,20 @@ def test_baselines_table(tmp_path, capsys):
 def test_two_trainings_started_together_get_their_own_run_folders(tmp_path):
     """Two `train` processes started at once into one log folder: each creates its own run folder
     (ids 1 and 2), saves its own model and writes its own TensorBoard folder."""
-    command = [str(Path(sys.executable).parent / "sb3-marl"), "train", "-n", "200", "--eval-freq", "200",
-               "--eval-episodes", "1", "-f", str(tmp_path), "-params", "n_steps:20"]
+    command = [
+        str(Path(sys.executable).parent / "sb3-marl"),
+        "train",
+        "-n",
+        "200",
+        "--eval-freq",
+        "200",
+        "--eval-episodes",
+        "1",
+        "-f",
+        str(tmp_path),
+        "-params",
+        "n_steps:20",
+    ]
     processes = [subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) for _ in range(2)]
     outputs = [p.communicate(timeout=300)[0] for p in processes]
     assert [p.returncode for p in processes] == [0, 0], outputs

@@ -141,12 +141,15 @@ def test_hub_flags_are_checked(trained, tmp_path, capsys):
     cases = [
         (["load-from-hub", "--repo-id", "no slash here", "-f", str(tmp_path)], "--repo-id: invalid Hub repo id"),
         (["load-from-hub", "--repo-id", "a/b/c", "-f", str(tmp_path)], "--repo-id: invalid Hub repo id 'a/b/c'"),
-        (["push-to-hub", "-orga", "bad org!", "-f", str(trained), "--dry-run", str(tmp_path / "new")],
-         "invalid Hub repo id"),
-        (["push-to-hub", "-orga", "me", "-f", str(trained), "--dry-run", str(not_empty)],
-         f"--dry-run: '{not_empty}' exists and is not an empty folder"),
-        (["push-to-hub", "-orga", "me", "-f", str(trained), "--dry-run", str(not_empty / "x")],
-         "exists and is not an empty folder"),
+        (["push-to-hub", "-orga", "bad org!", "-f", str(trained), "--dry-run", str(tmp_path / "new")], "invalid Hub repo id"),
+        (
+            ["push-to-hub", "-orga", "me", "-f", str(trained), "--dry-run", str(not_empty)],
+            f"--dry-run: '{not_empty}' exists and is not an empty folder",
+        ),
+        (
+            ["push-to-hub", "-orga", "me", "-f", str(trained), "--dry-run", str(not_empty / "x")],
+            "exists and is not an empty folder",
+        ),
     ]
     for argv, message in cases:
         assert main(argv) == 2, argv
@@ -171,8 +174,24 @@ def _grandchildren(pid: int) -> list[int]:
 
 def test_a_worker_dying_mid_training_saves_the_model_and_says_why(tmp_path):
     """A real failure during training (a subproc worker killed): the model is saved, then a clear error."""
-    command = [sys.executable, "-m", "sb3_marl", "train", "-f", str(tmp_path), "--vec-env", "subproc",
-               "-n", "2000000", "--eval-freq", "-1", "--verbose", "0", "-params", "n_steps:20"]
+    command = [
+        sys.executable,
+        "-m",
+        "sb3_marl",
+        "train",
+        "-f",
+        str(tmp_path),
+        "--vec-env",
+        "subproc",
+        "-n",
+        "2000000",
+        "--eval-freq",
+        "-1",
+        "--verbose",
+        "0",
+        "-params",
+        "n_steps:20",
+    ]
     process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         monitor = tmp_path / "ma2c" / f"{ENV_NAME}_1" / "monitor.csv"
@@ -198,8 +217,12 @@ def test_every_flag_has_help_and_help_shows_the_defaults(capsys):
     from sb3_marl.cli import build_parser
 
     commands = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
-    missing = [(name, action.option_strings) for name, parser in commands.choices.items()
-               for action in parser._actions if action.option_strings and not action.help]
+    missing = [
+        (name, action.option_strings)
+        for name, parser in commands.choices.items()
+        for action in parser._actions
+        if action.option_strings and not action.help
+    ]
     assert missing == []
     with pytest.raises(SystemExit):
         main(["baselines", "--help"])

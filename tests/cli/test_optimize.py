@@ -17,8 +17,24 @@ from sb3_marl.tuning import TrialPruningCallback
 
 ENV = "sb3_marl/LaneChange-density1-v0"
 ENV_NAME = "sb3_marl-LaneChange-density1-v0"
-SEARCH = ["train", "--algo", "ma2c", "-optimize", "-n", "1200", "--n-evaluations", "2", "--eval-episodes", "2",
-          "--n-startup-trials", "1", "-params", "n_steps:20", "--verbose", "0"]
+SEARCH = [
+    "train",
+    "--algo",
+    "ma2c",
+    "-optimize",
+    "-n",
+    "1200",
+    "--n-evaluations",
+    "2",
+    "--eval-episodes",
+    "2",
+    "--n-startup-trials",
+    "1",
+    "-params",
+    "n_steps:20",
+    "--verbose",
+    "0",
+]
 
 
 def test_a_tiny_in_memory_study_writes_the_report_and_a_usable_zoo_config(tmp_path, capsys):
@@ -48,8 +64,25 @@ def test_a_tiny_in_memory_study_writes_the_report_and_a_usable_zoo_config(tmp_pa
 def test_a_sqlite_study_is_resumed_by_a_second_invocation(tmp_path):
     storage = f"sqlite:///{tmp_path / 'study.db'}"
     for trials in ("2", "1"):
-        argv = [*SEARCH, "--algo", "mappo", "-f", str(tmp_path), "--n-trials", trials, "--storage", storage,
-                "--study-name", "resumed", "--sampler", "random", "--pruner", "none", "-params", "n_steps:32"]
+        argv = [
+            *SEARCH,
+            "--algo",
+            "mappo",
+            "-f",
+            str(tmp_path),
+            "--n-trials",
+            trials,
+            "--storage",
+            storage,
+            "--study-name",
+            "resumed",
+            "--sampler",
+            "random",
+            "--pruner",
+            "none",
+            "-params",
+            "n_steps:32",
+        ]
         assert main(argv) == 0
     study = optuna.load_study(study_name="resumed", storage=storage)
     assert len(study.trials) == 3

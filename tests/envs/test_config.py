@@ -84,9 +84,7 @@ def test_bad_actions(actions, match):
         env.step(actions)
 
 
-@pytest.mark.parametrize(
-    "key", ["safety_weight", "headway_time", "duration", "road_length", "speed_limit", "obs_x_range"]
-)
+@pytest.mark.parametrize("key", ["safety_weight", "headway_time", "duration", "road_length", "speed_limit", "obs_x_range"])
 @pytest.mark.parametrize("value", [float("nan"), float("inf"), -float("inf")])
 def test_non_finite_numbers_are_rejected_naming_the_key(key, value):
     with pytest.raises(ValueError, match=f"config\\['{key}'\\] = {value!r}: expected a finite number"):

@@ -90,7 +90,9 @@ def test_missing_action_names_the_agent():
 def test_supersuit_to_sb3_ppo_learns_on_it():
     vec = ss.concat_vec_envs_v1(
         ss.pettingzoo_env_to_vec_env_v1(parallel_env(density=1, n_avs=2, safety_supervisor=True)),
-        2, num_cpus=0, base_class="stable_baselines3",
+        2,
+        num_cpus=0,
+        base_class="stable_baselines3",
     )
     vec.venv.reset(seed=0)  # SuperSuit's SB3 wrapper cannot take SB3's seed (see the README)
     model = PPO("MlpPolicy", vec, n_steps=64, batch_size=64)
@@ -108,8 +110,14 @@ def test_the_readme_pettingzoo_example_runs_verbatim(capsys):
     assert re.search(r"MA2C episode return \(local rewards\): -?\d+\.\d\d", capsys.readouterr().out)
 
 
-@pytest.mark.parametrize("options", [{"flatten_observations": True}, {"action_mask_in_observation": True},
-                                     {"flatten_observations": True, "action_mask_in_observation": True}])
+@pytest.mark.parametrize(
+    "options",
+    [
+        {"flatten_observations": True},
+        {"action_mask_in_observation": True},
+        {"flatten_observations": True, "action_mask_in_observation": True},
+    ],
+)
 def test_other_libraries_conventions_pass_pettingzoos_tests(options):
     parallel_api_test(parallel_env(density=1, safety_supervisor=True, **options), num_cycles=100)
     env = parallel_env(density=3, **options)

@@ -19,8 +19,9 @@ def snapshot(vehicles, n_avs, road_length=520.0):
     x = np.array([v[0] for v in vehicles], dtype=float)
     lane = np.array([v[1] for v in vehicles])
     speed = np.array([v[2] for v in vehicles], dtype=float)
-    return TrafficSnapshot(x=x, y=4.0 * lane, vx=speed, vy=np.zeros_like(x), speed=speed, lane=lane,
-                           visible=x <= road_length, n_avs=n_avs)
+    return TrafficSnapshot(
+        x=x, y=4.0 * lane, vx=speed, vy=np.zeros_like(x), speed=speed, lane=lane, visible=x <= road_length, n_avs=n_avs
+    )
 
 
 def terms_of(snap, crashed=None, acceleration=None, lane_change=None, config=CONFIG):
@@ -40,8 +41,7 @@ def test_headway_term():
     # AV2: nearest leader AV1 is 260 m ahead -> capped at 60 m -> 0.
     # AV3: leader at 10 m, speed 30 m/s -> log(10 / 36).
     snap = snapshot(
-        [(100, 0, 25), (300, 1, 20), (40, 1, 25), (200, 0, 30), (120, 0, 20), (310, 0, 20), (540, 1, 20),
-         (210, 0, 30)],
+        [(100, 0, 25), (300, 1, 20), (40, 1, 25), (200, 0, 30), (120, 0, 20), (310, 0, 20), (540, 1, 20), (210, 0, 30)],
         n_avs=4,
     )
     terms = terms_of(snap)

@@ -40,8 +40,9 @@ class FakeHub:
         match = re.fullmatch(r"/api/models/([^/]+/[^/]+)/preupload/main", path)
         if match:
             files = json.loads(request.content)["files"]
-            return httpx2.Response(200, json={"files": [
-                {"path": f["path"], "uploadMode": "regular", "shouldIgnore": False} for f in files]})
+            return httpx2.Response(
+                200, json={"files": [{"path": f["path"], "uploadMode": "regular", "shouldIgnore": False} for f in files]}
+            )
         match = re.fullmatch(r"/api/models/([^/]+/[^/]+)/commit/main", path)
         if match:
             repo = self.repos[match.group(1)]
@@ -50,23 +51,33 @@ class FakeHub:
                 if line["key"] == "file":
                     repo[line["value"]["path"]] = base64.b64decode(line["value"]["content"])
             self.commits.append(lines[0]["value"])
-            return httpx2.Response(200, json={"commitUrl": f"https://huggingface.co/{match.group(1)}/commit/{SHA}",
-                                              "commitOid": SHA})
+            return httpx2.Response(
+                200, json={"commitUrl": f"https://huggingface.co/{match.group(1)}/commit/{SHA}", "commitOid": SHA}
+            )
         match = re.fullmatch(r"/api/models/([^/]+/[^/]+)/revision/main", path)
         if match and match.group(1) in self.repos:
             files = self.repos[match.group(1)]
-            return httpx2.Response(200, json={"id": match.group(1), "sha": SHA,
-                                              "siblings": [{"rfilename": name} for name in sorted(files)]})
+            return httpx2.Response(
+                200, json={"id": match.group(1), "sha": SHA, "siblings": [{"rfilename": name} for name in sorted(files)]}
+            )
         match = re.fullmatch(r"/api/models/([^/]+/[^/]+)/tree/[^/]+", path)
         if match and match.group(1) in self.repos:
-            return httpx2.Response(200, json=[
-                {"type": "file", "path": name, "size": len(content), "oid": hashlib.sha1(content).hexdigest()}
-                for name, content in sorted(self.repos[match.group(1)].items())])
+            return httpx2.Response(
+                200,
+                json=[
+                    {"type": "file", "path": name, "size": len(content), "oid": hashlib.sha1(content).hexdigest()}
+                    for name, content in sorted(self.repos[match.group(1)].items())
+                ],
+            )
         match = re.fullmatch(r"/([^/]+/[^/]+)/resolve/[^/]+/(.+)", path)
         if match and match.group(1) in self.repos and match.group(2) in self.repos[match.group(1)]:
             content = self.repos[match.group(1)][match.group(2)]
-            headers = {"X-Repo-Commit": SHA, "ETag": f'"{hashlib.sha1(content).hexdigest()}"',
-                       "Content-Length": str(len(content))}
+            headers = {
+                "X-Repo-Commit": SHA,
+                "ETag": f'"{hashlib.sha1(content).hexdigest()}"',
+                "Content-Length": str(len(content)),
+            }
             return httpx2.Response(200, headers=headers, content=b"" if request.method == "HEAD" else content)
-        return httpx2.Response(404, json={"error": f"{request.method} {path} not found"},
-                               headers={"X-Error-Code": "RepoNotFound"})
+        return httpx2.Response(
+            404, json={"error": f"{request.method} {path} not found"}, headers={"X-Error-Code": "RepoNotFound"}
+        )

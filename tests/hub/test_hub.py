@@ -27,8 +27,7 @@ FILES = {"README.md", "config.yml", "config.json", "results.json", "replay.mp4",
 @pytest.fixture(scope="module")
 def logs(tmp_path_factory) -> Path:
     folder = tmp_path_factory.mktemp("logs")
-    assert main(["train", "-f", str(folder), "-n", "240", "--eval-freq", "-1", "-params", "n_steps:20",
-                 "--verbose", "0"]) == 0
+    assert main(["train", "-f", str(folder), "-n", "240", "--eval-freq", "-1", "-params", "n_steps:20", "--verbose", "0"]) == 0
     return folder
 
 
@@ -67,8 +66,24 @@ def test_dry_run_builds_the_folder_with_a_model_card_matching_the_evaluation(log
 
 
 def test_push_then_load_round_trip(logs, tmp_path, hub, capsys):
-    assert main(["push-to-hub", "-f", str(logs), "-orga", "me", "--repo-name", "lane", "--eval-episodes", "2",
-                 "-m", "first upload"]) == 0
+    assert (
+        main(
+            [
+                "push-to-hub",
+                "-f",
+                str(logs),
+                "-orga",
+                "me",
+                "--repo-name",
+                "lane",
+                "--eval-episodes",
+                "2",
+                "-m",
+                "first upload",
+            ]
+        )
+        == 0
+    )
     assert set(hub.repos["me/lane"]) == FILES
     assert hub.commits[-1]["summary"] == "first upload"
     assert "uploaded to https://huggingface.co/me/lane/commit/" in capsys.readouterr().out

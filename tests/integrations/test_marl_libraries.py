@@ -93,9 +93,11 @@ def test_masks_are_real_constraints_on_this_env():
     assert np.all([obs["action_mask"].dtype == np.int8 for obs in observations.values()])
 
 
-@pytest.mark.skipif(importlib.util.find_spec("benchmarl") is None,
-                    reason="BenchMARL is not installed: it pins TorchRL < 0.12, which cannot live beside the "
-                           "[dev] extra's TorchRL 0.14; install the [benchmarl] extra in its own environment")
+@pytest.mark.skipif(
+    importlib.util.find_spec("benchmarl") is None,
+    reason="BenchMARL is not installed: it pins TorchRL < 0.12, which cannot live beside the "
+    "[dev] extra's TorchRL 0.14; install the [benchmarl] extra in its own environment",
+)
 def test_the_benchmarl_example_runs_two_iterations_of_mappo(capsys, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     module = types.ModuleType("benchmarl_readme_example")  # BenchMARL pickles the task class: a real module

@@ -105,9 +105,7 @@ class TwoHeads(nn.Module):
 
 def per_sample_losses(model: TwoHeads, x1, x2, targets) -> list[th.Tensor]:
     logits1, logits2 = model(x1, x2)
-    return [
-        F.cross_entropy((logits1 if i % 2 == 0 else logits2)[i : i + 1], targets[i : i + 1]) for i in range(len(targets))
-    ]
+    return [F.cross_entropy((logits1 if i % 2 == 0 else logits2)[i : i + 1], targets[i : i + 1]) for i in range(len(targets))]
 
 
 def test_kfac_step_is_the_exact_natural_gradient_step_when_the_fisher_factorises():
@@ -141,7 +139,7 @@ def test_kfac_step_is_the_exact_natural_gradient_step_when_the_fisher_factorises
 
     optimizer.zero_grad()
     logits1, logits2 = model(x1 * 0.5, x2 * 2.0)
-    objective = (logits1 * th.tensor([0.3, -1.0])).sum() + (logits2 ** 2).sum()
+    objective = (logits1 * th.tensor([0.3, -1.0])).sum() + (logits2**2).sum()
     objective.backward()
     gradient = flat(*(p.grad for p in params))
     before = [p.detach().clone() for p in params]
@@ -193,8 +191,11 @@ def test_kfac_needs_statistics_and_valid_settings():
     net(th.ones(1, 2)).sum().backward()
     with pytest.raises(RuntimeError, match="no curvature statistics"):
         optimizer.step()
-    for kwargs, match in (({"kl_clip": 0.0}, "kl_clip=0.0"), ({"momentum": 1.0}, "momentum=1.0"),
-                          ({"inverse_update_freq": 0}, "inverse_update_freq=0")):
+    for kwargs, match in (
+        ({"kl_clip": 0.0}, "kl_clip=0.0"),
+        ({"momentum": 1.0}, "momentum=1.0"),
+        ({"inverse_update_freq": 0}, "inverse_update_freq=0"),
+    ):
         with pytest.raises(ValueError, match=match):
             KFAC(net, **kwargs)
 

@@ -24,8 +24,15 @@ def train_with_evaluations(tmp_path, eval_freq: int) -> tuple[ScenarioEvalCallba
     venv = make_venv(ENV_IDS[1], hyperparams, seed=0)
     model = make_model("ma2c", venv, hyperparams, seed=0)
     record = RecordEvaluations()
-    evaluation = ScenarioEvalCallback(ENV_IDS[1], eval_freq=eval_freq, n_eval_episodes=2, log_path=tmp_path,
-                                      callback_after_eval=record, evaluate_at_end=True, verbose=0)
+    evaluation = ScenarioEvalCallback(
+        ENV_IDS[1],
+        eval_freq=eval_freq,
+        n_eval_episodes=2,
+        log_path=tmp_path,
+        callback_after_eval=record,
+        evaluate_at_end=True,
+        verbose=0,
+    )
     model.learn(240, callback=evaluation)
     venv.close()
     return evaluation, record

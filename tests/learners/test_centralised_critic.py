@@ -55,8 +55,9 @@ def test_the_vecenv_gives_each_slot_its_view_and_its_copy_state_also_at_episode_
     assert dones[3:].all()
     terminal = infos[4]["terminal_observation"]
     assert set(terminal) == {LOCAL_KEY, STATE_KEY} and terminal[STATE_KEY].shape == (3, 27)
-    np.testing.assert_array_equal(terminal[STATE_KEY][:, 2:], np.stack([infos[i]["terminal_observation"][LOCAL_KEY]
-                                                                        for i in range(3, 6)]).reshape(3, -1))
+    np.testing.assert_array_equal(
+        terminal[STATE_KEY][:, 2:], np.stack([infos[i]["terminal_observation"][LOCAL_KEY] for i in range(3, 6)]).reshape(3, -1)
+    )
     assert venv.action_masks().shape == (6, 5)
     venv.close()
 
@@ -76,8 +77,9 @@ def test_each_actor_critic_learner_trains_saves_and_loads_a_centralised_critic(a
     tensors = policy.obs_to_tensor(obs)[0]
     other_state = {**tensors, STATE_KEY: th.zeros_like(tensors[STATE_KEY])}
     with th.no_grad():  # the actor reads only the AV's view, the critic only the state
-        th.testing.assert_close(policy.get_distribution(tensors).distribution.probs,
-                                policy.get_distribution(other_state).distribution.probs)
+        th.testing.assert_close(
+            policy.get_distribution(tensors).distribution.probs, policy.get_distribution(other_state).distribution.probs
+        )
         assert not th.allclose(policy.predict_values(tensors), policy.predict_values(other_state))
 
     model.save(tmp_path / "model.zip")
@@ -106,11 +108,14 @@ def test_a_centralised_model_is_evaluated_on_its_actor_under_both_protocols():
     assert {"return_mean", "supervisor_off"} <= set(result)
 
 
-@pytest.mark.parametrize(("overrides", "message"), [
-    ({"critic": "global"}, "Invalid critic='global'"),
-    ({"critic": "centralised", "architecture": "shared"}, "expected 'separate'"),
-    ({"critic": "centralised", "architecture": "separate", "policy": "CnnPolicy"}, "Invalid policy"),
-])
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        ({"critic": "global"}, "Invalid critic='global'"),
+        ({"critic": "centralised", "architecture": "shared"}, "expected 'separate'"),
+        ({"critic": "centralised", "architecture": "separate", "policy": "CnnPolicy"}, "Invalid policy"),
+    ],
+)
 def test_bad_critic_settings_are_named(overrides, message):
     with pytest.raises(ValueError, match=message):
         validate_hyperparams("ma2c", {**load_hyperparams("ma2c", ENV_IDS[1]), **overrides}, ENV_IDS[1])
@@ -122,7 +127,9 @@ def test_a_q_learner_has_no_critic_to_centralise():
 
 
 def test_the_ctde_experiment_compares_the_same_network_with_each_critic():
-    assert EXPERIMENTS["ctde"] == {"local critic (separate networks)": ("ma2c", "separate-networks"),
-                                   "centralised critic": ("ma2c", "centralised-critic")}
+    assert EXPERIMENTS["ctde"] == {
+        "local critic (separate networks)": ("ma2c", "separate-networks"),
+        "centralised critic": ("ma2c", "centralised-critic"),
+    }
     assert {t.variant for t in make_grid("ctde", densities=(1, 3), seeds=3)} == {"separate-networks", "centralised-critic"}
     assert len(make_grid("paper", seeds=3)) == 81  # the paper's grid is unchanged

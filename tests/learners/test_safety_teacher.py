@@ -53,8 +53,9 @@ def _probabilities(model: MaskableA2C, labels: np.ndarray) -> np.ndarray:
     flat = labels.swapaxes(0, 1).reshape(-1)
     chosen = np.flatnonzero(flat >= 0)
     with th.no_grad():
-        distribution = model.policy.get_distribution(th.as_tensor(buffer.observations[chosen]),
-                                                     action_masks=buffer.action_masks[chosen])
+        distribution = model.policy.get_distribution(
+            th.as_tensor(buffer.observations[chosen]), action_masks=buffer.action_masks[chosen]
+        )
         return distribution.log_prob(th.as_tensor(flat[chosen])).exp().numpy()
 
 
@@ -127,8 +128,29 @@ def test_bad_recipe_keys_exit_2_naming_the_key(algo, params, message, tmp_path, 
 @pytest.mark.parametrize("algo", ["ma2c", "mappo", "madqn"])
 def test_a_short_run_of_each_learner_with_the_recipe(algo, tmp_path):
     logs = tmp_path / "logs"
-    assert main(["train", "--algo", algo, "-f", str(logs), "-n", "1200", "--eval-freq", "600", "--eval-episodes", "2",
-                 "--verbose", "0", "-params", "safety_loss_coef:1.0", "supervisor_dropout:0.5"]) == 0
+    assert (
+        main(
+            [
+                "train",
+                "--algo",
+                algo,
+                "-f",
+                str(logs),
+                "-n",
+                "1200",
+                "--eval-freq",
+                "600",
+                "--eval-episodes",
+                "2",
+                "--verbose",
+                "0",
+                "-params",
+                "safety_loss_coef:1.0",
+                "supervisor_dropout:0.5",
+            ]
+        )
+        == 0
+    )
     assert main(["evaluate", "--algo", algo, "-f", str(logs), "--eval-episodes", "2"]) == 0
     run = logs / algo / "sb3_marl-LaneChange-density1-v0_1"
     result = json.loads((run / "evaluation.json").read_text())
