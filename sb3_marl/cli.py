@@ -519,7 +519,7 @@ def _check_trained_agent(args: argparse.Namespace) -> None:
     hyperparameters shows each AV: a ValueError naming the file otherwise."""
     from sb3_marl.algos import get_algo
     from sb3_marl.hyperparams import load_hyperparams, merge_hyperparams
-    from sb3_marl.loading import UnsafeModelError
+    from sb3_marl.loading import UnsafeModelError, read_run_yaml
     from sb3_marl.runs import check_observation_shape
 
     try:
@@ -535,6 +535,18 @@ def _check_trained_agent(args: argparse.Namespace) -> None:
     except ValueError:
         return  # bad hyperparameters: reported by their own check, with their own flag
     check_observation_shape(model, args.trained_agent, args.env, hyperparams.get("env_config") or {})
+    shared = getattr(model.policy, "share_features_extractor", None)
+    architecture = hyperparams.get("architecture", "default")
+    if shared is not None and architecture in ("shared", "separate") and shared != (architecture == "shared"):
+        actual = "shared" if shared else "separate"
+        raise ValueError(
+            f"{args.trained_agent} has the {actual} actor-critic network, the run's hyperparameters say "
+            f"architecture: {architecture} (pass -params architecture:{actual})."
+        )
+    recorded = next(Path(args.trained_agent).parent.glob("*/args.yml"), None)  # the -i run's own arguments
+    trained_on = read_run_yaml(recorded).get("env") if recorded else None
+    if trained_on and trained_on != args.env:
+        print(f"-i: the model was trained on {trained_on}; training continues on {args.env} (a curriculum).")
 
 
 def train(args: argparse.Namespace) -> int:

@@ -477,3 +477,16 @@ def test_continuing_from_a_model_of_another_observation_is_refused_before_any_fo
     assert main(["train", "-f", str(tmp_path / "logs"), "-i", str(broken), *TINY]) == 2
     assert "-i/--trained-agent" in capsys.readouterr().err
     assert not (tmp_path / "logs").exists()
+
+
+def test_continuing_names_a_network_mismatch_and_notes_a_density_change(run, tmp_path, capsys):
+    """-i of a shared-network model with architecture:separate: refused before any folder, naming
+    both; -i of a density-1 model on density 2: trained, with a note that it is a curriculum."""
+    model = run / "ma2c" / f"{ENV_NAME}_1" / f"{ENV_NAME}.zip"
+    argv = ["train", "-i", str(model), *TINY[:-2]]
+    assert main([*argv, "-f", str(tmp_path / "a"), "-params", "n_steps:20", "architecture:separate"]) == 2
+    err = capsys.readouterr().err
+    assert "has the shared actor-critic network" in err and "architecture: separate" in err
+    assert not (tmp_path / "a").exists()
+    assert main([*argv, "-f", str(tmp_path / "b"), "--env", "sb3_marl/LaneChange-density2-v0", "-params", "n_steps:20"]) == 0
+    assert f"the model was trained on {ENV}; training continues on sb3_marl/LaneChange-density2-v0" in capsys.readouterr().out
