@@ -8,13 +8,15 @@ from sb3_marl.envs.lane_change_env import ACTION_INDEX, LaneChangeEnv
 
 
 class RandomPolicy:
-    """Uniformly random meta-actions (all 5, masked or not), from its own seeded generator."""
-
-    def __init__(self, seed: int = 0) -> None:
-        self.rng = np.random.default_rng(seed)
+    """Each AV's meta-action uniformly among its available ones (the env's action mask), drawn
+    from numpy's global generator, which the episode runner seeds per episode
+    (:func:`sb3_marl.evaluation.run_episodes`): the same episode seed gives the same actions under
+    either supervisor protocol."""
 
     def __call__(self, env: LaneChangeEnv, obs: np.ndarray) -> np.ndarray:
-        return self.rng.integers(0, len(ACTION_INDEX), size=env.n_avs)
+        masks = env.action_masks()
+        scores = np.random.random_sample(masks.shape)
+        return np.where(masks, scores, -1.0).argmax(axis=1)
 
 
 class CruisePolicy:
@@ -35,4 +37,8 @@ class IDMMobilPolicy:
         return env.rule_actions()
 
 
-BASELINES = {"random": RandomPolicy, "cruise": CruisePolicy, "idm-mobil": IDMMobilPolicy}
+BASELINES: dict[str, type[RandomPolicy | CruisePolicy | IDMMobilPolicy]] = {
+    "random": RandomPolicy,
+    "cruise": CruisePolicy,
+    "idm-mobil": IDMMobilPolicy,
+}
