@@ -57,6 +57,10 @@ def test_the_quick_start_main_job_runs_verbatim(tmp_path):
     assert "| ma2c |" in out and "| idm-mobil |" in out and "sampled actions (the authors' protocol)" in out
     assert "| on |" in out and "| off |" in out  # both supervisor protocols
     assert "TensorBoard: " in out and "eval_return.png" in out
+    # the README's reference rows (no learning) are this run's, to the digit
+    quick_start = README.split("\n## Quick start\n", 1)[1].split("\n## ", 1)[0]
+    references = [line for line in quick_start.splitlines() if line.startswith(("| random |", "| cruise |", "| idm-mobil |"))]
+    assert len(references) == 6 and all(line in out.splitlines() for line in references), references
     assert (tmp_path / "logs" / "ma2c" / "sb3_marl-LaneChange-density1-v0_1" / "evaluation.json").is_file()
     assert (sorted((REPO / "logs").rglob("*")) if (REPO / "logs").exists() else []) == checkout_logs
 
