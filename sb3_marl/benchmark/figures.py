@@ -19,10 +19,16 @@ from sb3_marl.envs import DENSITIES
 from sb3_marl.files import save_figure, write_text
 from sb3_marl.plotting import with_default_style
 
+#: Experiments whose learning curves also show the collision rate of the policy alone (the
+#: periodic evaluations without the supervisor).
+ALONE_CURVES = ("safety", "rule-prior")
+ALONE_KEY = "supervisor_off_collision_rate"
+
 
 @with_default_style
 def plot_learning_curves(trials: list[TrialLog], out_dir: str | Path) -> list[Path]:
-    """One ``learning_curves_<experiment>.png`` per experiment with data (see module doc)."""
+    """One ``learning_curves_<experiment>.png`` per experiment with data (see module doc); for
+    :data:`ALONE_CURVES`, a second row with the collision rate of the policy alone."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
@@ -30,9 +36,11 @@ def plot_learning_curves(trials: list[TrialLog], out_dir: str | Path) -> list[Pa
         densities = sorted({t.spec.density for t in trials if (t.spec.algo, t.spec.variant) in curves.values()})
         if not densities:
             continue
-        fig = Figure(figsize=(5 * len(densities), 4))
-        axes = fig.subplots(1, len(densities), squeeze=False)
-        for ax, density in zip(axes[0], densities):
+        rows = 2 if experiment in ALONE_CURVES else 1
+        fig = Figure(figsize=(5 * len(densities), 4 * rows))
+        axes = fig.subplots(rows, len(densities), squeeze=False)
+        for column, density in enumerate(densities):
+            ax = axes[0][column]
             for label, (algo, variant) in curves.items():
                 selected = select_trials(trials, algo, variant, density)
                 if not selected:
@@ -43,6 +51,14 @@ def plot_learning_curves(trials: list[TrialLog], out_dir: str | Path) -> list[Pa
                 mean, std = returns.mean(axis=0), returns.std(axis=0)
                 ax.plot(x, mean, label=f"{label} ({len(selected)} seeds)")
                 ax.fill_between(x, mean - std, mean + std, alpha=0.25)
+                if rows == 2 and all(len(t.evaluations.get(ALONE_KEY, ())) >= length for t in selected):
+                    alone = np.stack([t.evaluations[ALONE_KEY][:length] for t in selected]).mean(axis=0)
+                    axes[1][column].plot(x, alone, label=f"{label} ({len(selected)} seeds)")
+            if rows == 2:
+                axes[1][column].set_xlabel("training episodes")
+                axes[1][column].set_ylabel("collision rate without the supervisor")
+                axes[1][column].grid(alpha=0.3)
+                axes[1][column].legend(fontsize=8)
             ax.set_title(f"density {density}")
             ax.set_xlabel("training episodes")
             ax.set_ylabel("evaluation episode return")
