@@ -82,27 +82,25 @@ def _positive(kind: type = int, maximum: float | None = None) -> Any:
     return parse
 
 
-def _every(text: str) -> int:
-    """A period in AV-steps: an integer >= 1, or -1 for "never" (rl-zoo's convention; 0 is refused,
-    rather than silently meaning never)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1 (AV-steps) or -1 (never), got {text!r}") from None
-    if value != -1 and value < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1 (AV-steps) or -1 (never), got {text!r}")
-    return value
+def _positive_or_minus_one(expected: str) -> Any:
+    """A parser of an integer >= 1, or -1 with rl-zoo's meaning (``expected`` says which); 0 and
+    other values are refused with ``expected`` in the message."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = 0
+        if value != -1 and value < 1:
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
+        return value
+
+    return parse
 
 
-def _positive_or_default(text: str) -> int:
-    """An integer >= 1, or -1 for "the default" (rl-zoo's convention)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1 or -1 (the default), got {text!r}") from None
-    if value != -1 and value < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1 or -1 (the default), got {text!r}")
-    return value
+#: A period in AV-steps (0 is refused rather than silently meaning never), and a count or the default.
+_every = _positive_or_minus_one("an integer >= 1 (AV-steps) or -1 (never)")
+_positive_or_default = _positive_or_minus_one("an integer >= 1 or -1 (the default)")
 
 
 def _add_num_threads(parser: argparse.ArgumentParser) -> None:
