@@ -21,7 +21,7 @@ an entry may set the scenario and the wrapper:
   scenario copy, :class:`~sb3_marl.policies.CentralisedCriticPolicy`; needs ``architecture: separate``)
 
 and ``safety_loss_coef`` (``ma2c``, ``mappo``, ``madqn``): weight of the loss that teaches the
-policy the safety supervisor's replacements (default 0, see :mod:`sb3_marl.algos.masking`);
+policy the safety supervisor's replacements (default 0, see :mod:`sb3_marl.algos.teacher`);
 
 and the rule prior (``ma2c``, ``mappo``, ``maacktr``; :mod:`sb3_marl.algos.rule_prior`): ``prior``
 (``idm-mobil`` or null), ``prior_warm_start`` (AV-steps of the DAgger warm start),
@@ -243,7 +243,7 @@ def validate_hyperparams(algo: str, hyperparams: dict[str, Any], env_id: str | N
     for key, value in hyperparams.items():
         check_value(key, value)
     # keys whose check lives beside the code that uses them (one check each)
-    from sb3_marl.algos.masking import check_safety_loss_coef
+    from sb3_marl.algos.base import check_safety_loss_coef
     from sb3_marl.algos.rule_prior import RulePrior
 
     prior = {key: value for key, value in hyperparams.items() if key in RulePrior().as_kwargs()}

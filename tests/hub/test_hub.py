@@ -13,7 +13,7 @@ import pytest
 from huggingface_hub import ModelCard, metadata_load
 from huggingface_hub.utils._http import default_client_factory
 
-from sb3_marl.algos.masking import MaskableA2C
+from sb3_marl.algos.a2c import MaskableA2C
 from sb3_marl.cli import main
 
 sys.path.insert(0, str(Path(__file__).parent))
