@@ -47,7 +47,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
     try:
-        return args.handler(args)
+        handler = vars(args).pop("handler")  # not an argument: rl-zoo saves the arguments in args.yml
+        return handler(args)
     except (UsageError, CommandFailed) as error:
         print(f"sb3-marl {args.command}: error: {error}", file=sys.stderr)
         return 2 if isinstance(error, UsageError) else 1
