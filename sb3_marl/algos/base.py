@@ -24,7 +24,6 @@ learner of the ablation) with the same network. The setting is saved with the mo
 from __future__ import annotations
 
 import inspect
-import math
 from typing import Any
 
 import numpy as np
@@ -34,6 +33,7 @@ from stable_baselines3.common.policies import BasePolicy
 
 from sb3_marl.algos.rule_prior import RulePrior, RulePriorLearner
 from sb3_marl.algos.teacher import SupervisorTeacher
+from sb3_marl.checks import check_number
 from sb3_marl.loading import SafeLoading
 from sb3_marl.policies import CentralisedCriticPolicy
 
@@ -61,9 +61,7 @@ class MaskingLearner(SafeLoading):
 
 def check_safety_loss_coef(coef: Any) -> float:
     """``safety_loss_coef`` as a float; a ValueError naming it unless a finite number >= 0."""
-    if isinstance(coef, bool) or not isinstance(coef, (int, float)) or not 0 <= coef < math.inf:
-        raise ValueError(f"Invalid safety_loss_coef={coef!r}: expected a finite number >= 0 (0: off).")
-    return float(coef)
+    return check_number("safety_loss_coef", coef, 0, expected="a finite number >= 0 (0: off)")
 
 
 class ActionMaskingMixin(RulePriorLearner, SupervisorTeacher, MaskingLearner):

@@ -24,7 +24,6 @@ start's included.
 
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -33,6 +32,8 @@ import torch as th
 import torch.nn.functional as F
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvStepReturn
+
+from sb3_marl.checks import check_integer, check_number, invalid
 
 #: Rule drivers a learner can start from: the scenario's IDM/MOBIL decision.
 PRIORS = ("idm-mobil",)
@@ -73,15 +74,12 @@ class RulePrior:
 
     def __post_init__(self) -> None:
         if self.name is not None and self.name not in PRIORS:
-            raise ValueError(f"Invalid prior={self.name!r}: expected one of {list(PRIORS)} (or null: off).")
-        for key, value, low in (("prior_warm_start", self.warm_start, 0), ("prior_decay_steps", self.decay_steps, 1)):
-            if isinstance(value, bool) or not isinstance(value, int) or value < low:
-                raise ValueError(f"Invalid {key}={value!r}: expected an integer >= {low} (AV-steps).")
-        for key, coef in (("prior_coef", self.coef), ("prior_coef_final", self.coef_final)):
-            if isinstance(coef, bool) or not isinstance(coef, (int, float)) or not 0 <= coef < math.inf:
-                raise ValueError(f"Invalid {key}={coef!r}: expected a finite number >= 0.")
-        if isinstance(self.smoothing, bool) or not isinstance(self.smoothing, (int, float)) or not 0 <= self.smoothing < 1:
-            raise ValueError(f"Invalid prior_smoothing={self.smoothing!r}: expected a number in [0, 1).")
+            raise invalid("prior", self.name, f"one of {list(PRIORS)} (or null: off)")
+        check_integer("prior_warm_start", self.warm_start, 0, expected="an integer >= 0 (AV-steps)")
+        check_integer("prior_decay_steps", self.decay_steps, 1, expected="an integer >= 1 (AV-steps)")
+        check_number("prior_coef", self.coef, 0)
+        check_number("prior_coef_final", self.coef_final, 0)
+        check_number("prior_smoothing", self.smoothing, 0, 1, high_open=True, expected="a number in [0, 1)")
 
     @property
     def active(self) -> bool:
