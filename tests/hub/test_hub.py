@@ -158,3 +158,15 @@ def test_the_upload_holds_only_the_files_built_for_it(logs, tmp_path, hub):
     (tmp_path / "link").symlink_to(tmp_path / "empty", target_is_directory=True)
     (tmp_path / "empty").mkdir()
     assert main(["push-to-hub", "-f", str(logs), "-orga", "me", "--dry-run", str(tmp_path / "link")]) == 2
+
+
+def test_a_repo_with_a_file_name_leaving_the_folder_is_one_message(logs, tmp_path, hub, capsys):
+    """A hostile repo whose file list names ``../outside.txt``: one message, nothing written outside."""
+    assert (
+        main(["push-to-hub", "-f", str(logs), "-orga", "me", "--repo-name", "evil", "--eval-episodes", "1", "--no-video"]) == 0
+    )
+    hub.repos["me/evil"]["../outside.txt"] = b"written outside"
+    assert main(["load-from-hub", "--repo-id", "me/evil", "-f", str(tmp_path / "downloaded")]) == 1
+    err = capsys.readouterr().err
+    assert "Download of me/evil failed" in err and "Traceback" not in err
+    assert not list(tmp_path.rglob("outside.txt")) and not (tmp_path.parent / "outside.txt").exists()
