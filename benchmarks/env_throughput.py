@@ -2,7 +2,7 @@
 
 For each density at its maximum vehicle count (3+3, 4+4, 6+6 AVs+HDVs), both envs take uniformly
 random meta-actions for every AV (seeded), resetting when an episode ends (reset time included),
-on one process. Prints ``name: value unit`` lines.
+on one process; and the cost of the rule driver each step reports. Prints ``name: value unit`` lines.
 
     python benchmarks/env_throughput.py [--steps 2000] [--densities 1 2 3]
 """
@@ -67,6 +67,18 @@ def steps_per_second(env: gym.Env, steps: int, seed: int = 0) -> tuple[float, fl
     return steps / (time.perf_counter() - start), steps / stepping
 
 
+def rule_action_seconds(env: gym.Env, calls: int = 20_000, seed: int = 0) -> float:
+    """Seconds per ``rule_actions()`` call (the rule driver every step reports as
+    ``info["rule_action"]``) on a seeded episode's start state."""
+    scenario = env.unwrapped
+    scenario.reset(seed=seed)
+    scenario.rule_actions()  # compiled code loaded
+    start = time.perf_counter()
+    for _ in range(calls):
+        scenario.rule_actions()
+    return (time.perf_counter() - start) / calls
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=2000, help="env steps per measurement")
@@ -86,6 +98,8 @@ def main() -> None:
         print(f"{tag}_ours_step_only: {ours_step_only:.1f} steps/s")
         print(f"{tag}_stock_step_only: {stock_step_only:.1f} steps/s")
         print(f"{tag}_step_only_speedup: {ours_step_only / stock_step_only:.2f} x")
+        rule = rule_action_seconds(ours(n_avs, n_hdvs, density))
+        print(f"{tag}_rule_actions: {rule * 1e6:.1f} us per step ({rule * ours_step_only:.1%} of a step, included above)")
 
 
 if __name__ == "__main__":

@@ -20,7 +20,7 @@ import torch as th
 from gymnasium import spaces
 from tqdm import tqdm
 
-from sb3_marl.algos.masking import uses_action_masks
+from sb3_marl.algos.base import uses_action_masks
 from sb3_marl.envs import av_counts, kernel, make_scenario
 from sb3_marl.envs.lane_change_env import ACTION_INDEX, LaneChangeEnv
 from sb3_marl.envs.observation import STATE_KEY, centralised_observations

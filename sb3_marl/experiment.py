@@ -54,6 +54,10 @@ from sb3_marl.runs import run_id
 from sb3_marl.training import make_venv
 from sb3_marl.tuning import SAMPLERS, TrialPruningCallback, best_hyperparams_yaml, config_trial, merge_sampled
 
+# rl_zoo3 builds and loads models through its ALGOS table: our learners join it once, under their
+# own names (no clash with rl_zoo3's a2c, ppo, ...)
+zoo_utils.ALGOS.update(ALGOS)
+
 #: Evaluation episodes use seeds from ``seed + EVAL_SEED_OFFSET`` on, apart from training seeds.
 EVAL_SEED_OFFSET = 10_000
 
@@ -105,9 +109,6 @@ class MARLExperimentManager(ExperimentManager):
         trust_remote_code: bool = False,
         **kwargs: Any,
     ) -> None:
-        # rl_zoo3 builds and loads models through its ALGOS table: our learners join it under their
-        # own names (no clash with rl_zoo3's a2c, ppo, ...)
-        zoo_utils.ALGOS.update(ALGOS)
         config = conf_file or str(config_file(algo))
         super().__init__(args, algo, env_id, log_folder, config=config, vec_env_type="dummy", **kwargs)
         self.vec_backend = vec_env_type

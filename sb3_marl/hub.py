@@ -237,7 +237,12 @@ def load_from_hub(repo_id: str, log_folder: str | Path, token: str | None = None
     with tempfile.TemporaryDirectory() as download:
         try:
             snapshot = Path(snapshot_download(repo_id, token=token, local_dir=download))
-        except (httpx2.HTTPError, LocalEntryNotFoundError, OSError) as error:
+        except (
+            httpx2.HTTPError,
+            LocalEntryNotFoundError,
+            OSError,
+            ValueError,
+        ) as error:  # ValueError: a file name leaving the folder
             raise HubError(f"Download of {repo_id} failed: {error}") from None
         return _place_run(repo_id, snapshot, Path(log_folder))
 

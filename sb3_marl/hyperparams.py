@@ -21,7 +21,7 @@ an entry may set the scenario and the wrapper:
   scenario copy, :class:`~sb3_marl.policies.CentralisedCriticPolicy`; needs ``architecture: separate``)
 
 and ``safety_loss_coef`` (``ma2c``, ``mappo``, ``madqn``): weight of the loss that teaches the
-policy the safety supervisor's replacements (default 0, see :mod:`sb3_marl.algos.masking`);
+policy the safety supervisor's replacements (default 0, see :mod:`sb3_marl.algos.teacher`);
 
 and the rule prior (``ma2c``, ``mappo``, ``maacktr``; :mod:`sb3_marl.algos.rule_prior`): ``prior``
 (``idm-mobil`` or null), ``prior_warm_start`` (AV-steps of the DAgger warm start),
@@ -35,7 +35,6 @@ and the maskable learners (``ma2c``, ``mappo``, ``maacktr``, ``madqn``) take ``a
 from __future__ import annotations
 
 import inspect
-import math
 from pathlib import Path
 from typing import Any
 
@@ -43,6 +42,7 @@ import gymnasium as gym
 import yaml
 
 from sb3_marl.algos import get_algo
+from sb3_marl.checks import is_integer, is_number
 from sb3_marl.envs import av_counts, default_config, validate_config
 from sb3_marl.policies import (
     ACTOR_CRITIC_FUSED_ADAM,
@@ -182,11 +182,9 @@ def check_value(key: str, value: Any) -> None:
     if key in SCHEDULE_KEYS and isinstance(value, str) and value.startswith("lin_"):
         value = _number_or_none(value[4:])
     if kind == "int":
-        ok = isinstance(value, int) and not isinstance(value, bool)
-        expected = "an integer"
+        ok, expected = is_integer(value), "an integer"
     else:
-        ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-        expected = "a finite number"
+        ok, expected = is_number(value), "a finite number"
     bounds = "" if lo is None else f" >= {lo}"
     bounds += "" if hi is None else f" and <= {hi}"
     extra = "".join(f" or {allowed}" for allowed in also)
@@ -243,7 +241,7 @@ def validate_hyperparams(algo: str, hyperparams: dict[str, Any], env_id: str | N
     for key, value in hyperparams.items():
         check_value(key, value)
     # keys whose check lives beside the code that uses them (one check each)
-    from sb3_marl.algos.masking import check_safety_loss_coef
+    from sb3_marl.algos.base import check_safety_loss_coef
     from sb3_marl.algos.rule_prior import RulePrior
 
     prior = {key: value for key, value in hyperparams.items() if key in RulePrior().as_kwargs()}

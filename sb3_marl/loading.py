@@ -24,7 +24,7 @@ import re
 import warnings
 import zipfile
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import yaml
@@ -297,11 +297,13 @@ def _schedule(kind: str, entry: dict[str, Any]) -> Any:
 
 
 def _known_classes(algo_class: Any) -> dict[str, type]:
-    """Classes a model of ``algo_class`` may name: its policies, the buffers and feature extractors."""
+    """Classes a model of ``algo_class`` may name: its policies, SB3's and sb3-contrib's buffers, our
+    feature extractors, and the classes the learner declares (``known_classes``: its own buffers).
+    Classes of ``sb3_marl.algos`` are also known under ``sb3_marl.algos.masking``, the module that
+    held every learner before 2026-12 (zips saved then name it)."""
     from sb3_contrib.common.maskable.buffers import MaskableDictRolloutBuffer, MaskableRolloutBuffer
     from stable_baselines3.common.buffers import ReplayBuffer, RolloutBuffer
 
-    from sb3_marl.algos.masking import MaskedReplayBuffer, PerAgentDictRolloutBuffer, PerAgentRolloutBuffer
     from sb3_marl.policies import GlobalStateExtractor, LocalViewExtractor, MA2CFeaturesExtractor
 
     classes = [
@@ -310,14 +312,14 @@ def _known_classes(algo_class: Any) -> dict[str, type]:
         MaskableDictRolloutBuffer,
         RolloutBuffer,
         ReplayBuffer,
-        MaskedReplayBuffer,
-        PerAgentRolloutBuffer,
-        PerAgentDictRolloutBuffer,
         MA2CFeaturesExtractor,
         LocalViewExtractor,
         GlobalStateExtractor,
+        *getattr(algo_class, "known_classes", ()),
     ]
-    return {f"{c.__module__}.{c.__qualname__}": c for c in classes}
+    known = {f"{c.__module__}.{c.__qualname__}": c for c in classes}
+    legacy = {f"sb3_marl.algos.masking.{c.__qualname__}": c for c in classes if c.__module__.startswith("sb3_marl.algos.")}
+    return {**legacy, **known}
 
 
 def saved_policy_class(data: dict[str, Any], algo_class: Any) -> type | None:
@@ -385,7 +387,10 @@ def load_model(
 
 class SafeLoading:
     """Mixin of the registered learners: ``load`` goes through :func:`load_model` (no unpickling
-    unless ``trust_remote_code=True``); ``sb3_load`` is SB3's own ``load``."""
+    unless ``trust_remote_code=True``); ``sb3_load`` is SB3's own ``load``. ``known_classes``: the
+    learner's own classes its zips may name (its buffers), beside SB3's and its policies."""
+
+    known_classes: ClassVar[tuple[type, ...]] = ()
 
     @classmethod
     def load(

@@ -23,6 +23,7 @@ from stable_baselines3.common.vec_env.base_vec_env import (
     VecEnvStepReturn,
 )
 
+from sb3_marl.checks import check_choice, check_integer, check_number
 from sb3_marl.envs import (  # importing sb3_marl.envs registers the scenario ids
     av_counts,
     copy_av_counts,
@@ -40,28 +41,24 @@ EnvFactory = Callable[[int], gym.Env]
 
 def check_sharing_options(reward_mode: str, n_copies: int | None) -> None:
     """``reward_mode`` and ``n_copies`` (None: one copy per AV count): a ValueError naming the bad one."""
-    if reward_mode not in REWARD_MODES:
-        raise ValueError(f"Invalid reward_mode={reward_mode!r}: expected one of {list(REWARD_MODES)}.")
-    if n_copies is not None and (isinstance(n_copies, bool) or not isinstance(n_copies, int) or n_copies < 1):
-        raise ValueError(f"Invalid n_copies={n_copies!r}: expected an integer >= 1 (or None: one per AV count).")
+    check_choice("reward_mode", reward_mode, list(REWARD_MODES))
+    if n_copies is not None:
+        check_integer("n_copies", n_copies, 1, expected="an integer >= 1 (or None: one per AV count)")
 
 
 def check_penalty(penalty: float, name: str = "penalty") -> None:
     """A ValueError naming ``name`` unless ``penalty`` is a finite number >= 0."""
-    if isinstance(penalty, bool) or not isinstance(penalty, (int, float)) or not 0 <= penalty < float("inf"):
-        raise ValueError(f"Invalid {name}={penalty!r}: expected a finite number >= 0.")
+    check_number(name, penalty, 0)
 
 
 def check_supervisor_dropout(dropout: float) -> None:
     """A ValueError naming ``supervisor_dropout`` unless it is a probability in [0, 1]."""
-    if isinstance(dropout, bool) or not isinstance(dropout, (int, float)) or not 0 <= dropout <= 1:
-        raise ValueError(f"Invalid supervisor_dropout={dropout!r}: expected a probability in [0, 1] (0: off).")
+    check_number("supervisor_dropout", dropout, 0, 1, expected="a probability in [0, 1] (0: off)")
 
 
 def check_reward_scale(scale: float, name: str = "scale") -> None:
-    """A reward scale must be a number > 0; a ValueError naming ``name`` otherwise."""
-    if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not scale > 0:
-        raise ValueError(f"Invalid {name}={scale!r}: expected a number > 0.")
+    """A reward scale must be a finite number > 0; a ValueError naming ``name`` otherwise."""
+    check_number(name, scale, 0, low_open=True, expected="a number > 0")
 
 
 def _make_copy(env: str | EnvFactory, index: int, config: dict[str, Any], render_mode: str | None) -> gym.Env:
@@ -139,8 +136,8 @@ class ParameterSharingVecEnv(VecEnv):
             n_workers = 1
         elif n_workers is None:
             n_workers = min(n_copies, os.cpu_count() or 1)
-        elif isinstance(n_workers, bool) or not isinstance(n_workers, int) or not 1 <= n_workers <= n_copies:
-            raise ValueError(f"Invalid n_workers={n_workers!r}: expected an integer in [1, n_copies={n_copies}].")
+        else:
+            check_integer("n_workers", n_workers, 1, n_copies, expected=f"an integer in [1, n_copies={n_copies}]")
 
         self.reward_mode = reward_mode
         self.vec_backend = vec_backend

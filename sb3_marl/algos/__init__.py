@@ -3,7 +3,7 @@
 With :class:`~wrappers.ParameterSharingVecEnv` every AV is a slot of one VecEnv, so each SB3
 algorithm trains one policy shared by all AVs: A2C acts as MA2C, PPO as MAPPO, and so on; our
 own :class:`~sb3_marl.algos.acktr.ACKTR` (K-FAC) acts as MAACKTR. MA2C, MAPPO, MAACKTR and MADQN mask
-unavailable meta-actions (:mod:`sb3_marl.algos.masking`), as the authors' MA2C does.
+unavailable meta-actions (:mod:`sb3_marl.algos.base`), as the authors' MA2C does.
 """
 
 from __future__ import annotations
@@ -16,12 +16,12 @@ if TYPE_CHECKING:
 
 #: Learner name -> "module:class" (imported on first use: torch is not loaded by the CLI's --help).
 ALGO_CLASSES: dict[str, str] = {
-    "ma2c": "sb3_marl.algos.masking:MaskableA2C",
-    "mappo": "sb3_marl.algos.masking:MaskedPPO",
-    "madqn": "sb3_marl.algos.masking:MaskableDQN",
-    "matrpo": "sb3_marl.algos.masking:SafeTRPO",
-    "maacktr": "sb3_marl.algos.masking:MaskableACKTR",
-    "acktr": "sb3_marl.algos.masking:MaskableACKTR",
+    "ma2c": "sb3_marl.algos.a2c:MaskableA2C",
+    "mappo": "sb3_marl.algos.ppo:MaskedPPO",
+    "madqn": "sb3_marl.algos.dqn:MaskableDQN",
+    "matrpo": "sb3_marl.algos.trpo:SafeTRPO",
+    "maacktr": "sb3_marl.algos.acktr:MaskableACKTR",
+    "acktr": "sb3_marl.algos.acktr:MaskableACKTR",
 }
 ALGO_NAMES: tuple[str, ...] = tuple(sorted(ALGO_CLASSES))
 

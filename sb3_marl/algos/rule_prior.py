@@ -24,7 +24,6 @@ start's included.
 
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -33,6 +32,8 @@ import torch as th
 import torch.nn.functional as F
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvStepReturn
+
+from sb3_marl.checks import check_integer, check_number, invalid
 
 #: Rule drivers a learner can start from: the scenario's IDM/MOBIL decision.
 PRIORS = ("idm-mobil",)
@@ -73,15 +74,12 @@ class RulePrior:
 
     def __post_init__(self) -> None:
         if self.name is not None and self.name not in PRIORS:
-            raise ValueError(f"Invalid prior={self.name!r}: expected one of {list(PRIORS)} (or null: off).")
-        for key, value, low in (("prior_warm_start", self.warm_start, 0), ("prior_decay_steps", self.decay_steps, 1)):
-            if isinstance(value, bool) or not isinstance(value, int) or value < low:
-                raise ValueError(f"Invalid {key}={value!r}: expected an integer >= {low} (AV-steps).")
-        for key, coef in (("prior_coef", self.coef), ("prior_coef_final", self.coef_final)):
-            if isinstance(coef, bool) or not isinstance(coef, (int, float)) or not 0 <= coef < math.inf:
-                raise ValueError(f"Invalid {key}={coef!r}: expected a finite number >= 0.")
-        if isinstance(self.smoothing, bool) or not isinstance(self.smoothing, (int, float)) or not 0 <= self.smoothing < 1:
-            raise ValueError(f"Invalid prior_smoothing={self.smoothing!r}: expected a number in [0, 1).")
+            raise invalid("prior", self.name, f"one of {list(PRIORS)} (or null: off)")
+        check_integer("prior_warm_start", self.warm_start, 0, expected="an integer >= 0 (AV-steps)")
+        check_integer("prior_decay_steps", self.decay_steps, 1, expected="an integer >= 1 (AV-steps)")
+        check_number("prior_coef", self.coef, 0)
+        check_number("prior_coef_final", self.coef_final, 0)
+        check_number("prior_smoothing", self.smoothing, 0, 1, high_open=True, expected="a number in [0, 1)")
 
     @property
     def active(self) -> bool:
@@ -289,3 +287,72 @@ def _fit(
             value_losses.append(value.item())
     policy.set_training_mode(False)
     return float(np.mean(prior_losses)), float(np.mean(value_losses))
+
+
+class RulePriorLearner:
+    """The rule prior of an on-policy actor-critic (``prior``, ``prior_warm_start``, ``prior_coef``,
+    ``prior_coef_final``, ``prior_decay_steps``, ``prior_smoothing``; :mod:`sb3_marl.algos.rule_prior`):
+    the DAgger warm start when learning starts, the rule driver's labels of each rollout, and the
+    prior's term of the loss. The values are saved with the model (plain attributes)."""
+
+    prior: str | None = None
+    prior_warm_start: int = 0
+    prior_coef: float = 1.0
+    prior_coef_final: float = 0.0
+    prior_decay_steps: int = 1
+    prior_smoothing: float = 0.0
+    _rule_labels: np.ndarray | None = None
+
+    def __init__(
+        self,
+        *args: Any,
+        prior: str | None = None,
+        prior_warm_start: int = 0,
+        prior_coef: float = 1.0,
+        prior_coef_final: float = 0.0,
+        prior_decay_steps: int = 1,
+        prior_smoothing: float = 0.0,
+        **kwargs: Any,
+    ) -> None:
+        settings = RulePrior(prior, prior_warm_start, prior_coef, prior_coef_final, prior_decay_steps, prior_smoothing)
+        self.__dict__.update(settings.as_kwargs())
+        super().__init__(*args, **kwargs)
+
+    @property
+    def rule_prior(self) -> RulePrior:
+        return RulePrior.from_kwargs({key: getattr(self, key) for key in RulePrior().as_kwargs()})
+
+    def _excluded_save_params(self) -> list[str]:
+        return [*super()._excluded_save_params(), "_rule_labels"]  # type: ignore[misc]
+
+    def _setup_learn(self, *args: Any, **kwargs: Any) -> Any:
+        """SB3's set-up, then the DAgger warm start where the budget's first ``prior_warm_start``
+        AV-steps are still ahead."""
+        result = super()._setup_learn(*args, **kwargs)  # type: ignore[misc]
+        prior = self.rule_prior
+        if prior.active and self.num_timesteps < prior.warm_start:  # type: ignore[attr-defined]
+            dagger(self, prior.warm_start - self.num_timesteps, prior)  # type: ignore[attr-defined]
+        return result
+
+    def labelled(self, env: Any, n_rollout_steps: int) -> Any:
+        """``env`` recording the rule driver's labels of the rollout (when the prior's weight is on)."""
+        if self.rule_prior.weight(self.num_timesteps) <= 0:  # type: ignore[attr-defined]
+            self._rule_labels = None
+            return env
+        labelled = RuleLabels(env, n_rollout_steps)
+        self._rule_labels = labelled.labels
+        return labelled
+
+    def prior_term(self, observations: Any, action_masks: Any, indices: np.ndarray, logs: dict[str, list]) -> Any:
+        """``w · prior_loss`` of the rollout's samples at ``indices`` (of the flattened, slot-major
+        buffer), 0 without labels; logs the loss, its KL and the weight."""
+        weight = self.rule_prior.weight(self.num_timesteps)  # type: ignore[attr-defined]
+        if self._rule_labels is None or weight <= 0:
+            return 0.0
+        policy: Any = self.policy  # type: ignore[attr-defined]
+        labels = th.as_tensor(self._rule_labels.swapaxes(0, 1).reshape(-1)[indices], device=policy.device)
+        loss, kl = prior_loss(masked_logits(policy, observations, action_masks), labels, self.prior_smoothing, action_masks)
+        logs["prior_loss"].append(loss.item())
+        logs["prior_kl"].append(kl.item())
+        logs["prior_coef"].append(weight)
+        return weight * loss

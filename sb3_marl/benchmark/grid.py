@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 from typing import Any
 
+from sb3_marl.checks import check_choice, check_number
 from sb3_marl.envs import DENSITIES, ENV_IDS, av_steps_per_env_step
 
 #: The paper's budget: 1M env steps (10,000 episodes of 100 steps) per trial.
@@ -130,17 +131,11 @@ class TrialSpec:
         return asdict(self)
 
 
-def check_choice(field: str, value: Any, allowed: Any) -> None:
-    """A ValueError naming ``field``, the bad ``value`` and the allowed values."""
-    if value not in allowed:
-        raise ValueError(f"Invalid {field}={value!r}: expected one of {sorted(allowed)}.")
-
-
 def check_budget(budget: float) -> float:
     """The fraction of the paper's 1M env steps per trial: in (0, 1]."""
-    if not isinstance(budget, (int, float)) or isinstance(budget, bool) or not 0 < budget <= 1:
-        raise ValueError(f"Invalid budget={budget!r}: expected a fraction in (0, 1] of the paper's 1M env steps per trial.")
-    return float(budget)
+    return check_number(
+        "budget", budget, 0, 1, low_open=True, expected="a fraction in (0, 1] of the paper's 1M env steps per trial"
+    )
 
 
 def make_grid(grid: str = "paper", densities: tuple[int, ...] = tuple(DENSITIES), seeds: int = PAPER_SEEDS) -> list[TrialSpec]:

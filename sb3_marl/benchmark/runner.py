@@ -28,6 +28,7 @@ from sb3_marl.benchmark.grid import (
     make_grid,
 )
 from sb3_marl.benchmark.trial import CHECKPOINT, RESULT, checkpoint_timesteps, final_evaluation, run_trial, trial_folder
+from sb3_marl.checks import is_number
 from sb3_marl.envs import DENSITIES
 from sb3_marl.files import read_json_object, write_text
 
@@ -207,8 +208,8 @@ def grid_status(
             f"No benchmark in {log_folder}/ (no {SETTINGS_FILE}): run `sb3-marl benchmark -f {log_folder}` first."
         )
     settings = read_json_object(settings_path)
-    budget = settings.get("budget")
-    if isinstance(budget, bool) or not isinstance(budget, (int, float)):
+    budget: Any = settings.get("budget")
+    if not is_number(budget):
         raise ValueError(f"{settings_path}: 'budget' is {budget!r}, expected a fraction in (0, 1].")
     statuses = []
     for spec in trials:

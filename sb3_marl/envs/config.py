@@ -9,10 +9,10 @@ and what is allowed.
 from __future__ import annotations
 
 import itertools
-import math
 from collections.abc import Callable
-from numbers import Integral, Real
 from typing import Any
+
+from sb3_marl.checks import is_integer, is_number
 
 #: Traffic densities of the paper: inclusive (min, max) counts of AVs and of HDVs per episode.
 DENSITIES: dict[int, dict[str, tuple[int, int]]] = {
@@ -102,7 +102,7 @@ Check = Callable[[Any], bool]
 
 def _number(lo: float | None = None, hi: float | None = None, strict_lo: bool = False) -> tuple[Check, str]:
     def check(v: Any) -> bool:
-        if isinstance(v, bool) or not isinstance(v, Real) or not math.isfinite(v):
+        if not is_number(v):
             return False
         if lo is not None and (v <= lo if strict_lo else v < lo):
             return False
@@ -115,7 +115,7 @@ def _number(lo: float | None = None, hi: float | None = None, strict_lo: bool = 
 
 def _integer(lo: int, hi: int | None = None) -> tuple[Check, str]:
     def check(v: Any) -> bool:
-        return not isinstance(v, bool) and isinstance(v, Integral) and lo <= int(v) and (hi is None or int(v) <= hi)
+        return is_integer(v) and lo <= int(v) and (hi is None or int(v) <= hi)
 
     return check, f"an integer >= {lo}" + ("" if hi is None else f" and <= {hi}")
 
@@ -124,8 +124,7 @@ def _pair(lo: float, integer: bool = False) -> tuple[Check, str]:
     def check(v: Any) -> bool:
         if not isinstance(v, (list, tuple)) or len(v) != 2:
             return False
-        kind = Integral if integer else Real
-        if any(isinstance(x, bool) or not isinstance(x, kind) or not math.isfinite(x) for x in v):
+        if not all(is_integer(x) if integer else is_number(x) for x in v):
             return False
         return lo <= v[0] <= v[1]
 
@@ -141,7 +140,7 @@ def _speeds() -> tuple[Check, str]:
     def check(v: Any) -> bool:
         if not isinstance(v, (list, tuple)) or len(v) < 2:
             return False
-        if any(isinstance(x, bool) or not isinstance(x, Real) or not math.isfinite(x) or x < 0 for x in v):
+        if not all(is_number(x) and x >= 0 for x in v):
             return False
         steps = [b - a for a, b in itertools.pairwise(v)]
         return all(s > 0 for s in steps) and max(steps) - min(steps) < 1e-6

@@ -17,7 +17,7 @@ import yaml
 from stable_baselines3 import A2C
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-from sb3_marl.algos.masking import MaskableA2C
+from sb3_marl.algos.a2c import MaskableA2C
 from sb3_marl.callbacks import atomic_save
 from sb3_marl.cli import main
 

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from sb3_marl import __version__
-from sb3_marl.algos.masking import MaskableA2C
+from sb3_marl.algos.a2c import MaskableA2C
 from sb3_marl.cli import main
 
 ENV = "sb3_marl/LaneChange-density1-v0"

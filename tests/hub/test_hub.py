@@ -13,7 +13,7 @@ import pytest
 from huggingface_hub import ModelCard, metadata_load
 from huggingface_hub.utils._http import default_client_factory
 
-from sb3_marl.algos.masking import MaskableA2C
+from sb3_marl.algos.a2c import MaskableA2C
 from sb3_marl.cli import main
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -158,3 +158,34 @@ def test_the_upload_holds_only_the_files_built_for_it(logs, tmp_path, hub):
     (tmp_path / "link").symlink_to(tmp_path / "empty", target_is_directory=True)
     (tmp_path / "empty").mkdir()
     assert main(["push-to-hub", "-f", str(logs), "-orga", "me", "--dry-run", str(tmp_path / "link")]) == 2
+
+
+def test_a_repo_with_a_file_name_leaving_the_folder_is_one_message(logs, tmp_path, hub, capsys):
+    """A hostile repo whose file list names ``../outside.txt``: one message, nothing written outside."""
+    assert (
+        main(["push-to-hub", "-f", str(logs), "-orga", "me", "--repo-name", "evil", "--eval-episodes", "1", "--no-video"]) == 0
+    )
+    hub.repos["me/evil"]["../outside.txt"] = b"written outside"
+    assert main(["load-from-hub", "--repo-id", "me/evil", "-f", str(tmp_path / "downloaded")]) == 1
+    err = capsys.readouterr().err
+    assert "Download of me/evil failed" in err and "Traceback" not in err
+    assert not list(tmp_path.rglob("outside.txt")) and not (tmp_path.parent / "outside.txt").exists()
+
+
+def test_push_to_hub_of_a_model_that_needs_trust_builds_with_the_flag(logs, tmp_path, capsys):
+    """A model whose learning-rate schedule is a pickled function (SB3 saves any callable so) needs
+    --trust-remote-code: refused without it, the folder built with it (the flag is not asked for
+    again while building)."""
+    from sb3_marl.envs import ENV_IDS
+    from wrappers import ParameterSharingVecEnv
+
+    run = tmp_path / "logs" / "ma2c" / f"{ENV_NAME}_1"
+    shutil.copytree(logs / "ma2c" / f"{ENV_NAME}_1", run)
+    model = MaskableA2C("MlpPolicy", ParameterSharingVecEnv(ENV_IDS[1], seed=0), n_steps=20, learning_rate=lambda p: 5e-4 * p)
+    model.save(run / f"{ENV_NAME}.zip")
+    argv = ["push-to-hub", "-f", str(tmp_path / "logs"), "-orga", "me", "--eval-episodes", "1", "--no-video"]
+    assert main([*argv, "--dry-run", str(tmp_path / "refused")]) == 2
+    assert "trust_remote_code" in capsys.readouterr().err
+    with pytest.warns(UserWarning, match="trust_remote_code=True"):
+        assert main([*argv, "--trust-remote-code", "--dry-run", str(tmp_path / "built")]) == 0
+    assert (tmp_path / "built" / "README.md").is_file()

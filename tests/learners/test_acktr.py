@@ -10,8 +10,7 @@ from stable_baselines3.common.evaluation import evaluate_policy
 from torch import nn
 
 from sb3_marl.algos import ALGOS, get_algo
-from sb3_marl.algos.acktr import ACKTR, KFAC
-from sb3_marl.algos.masking import MaskableACKTR
+from sb3_marl.algos.acktr import ACKTR, KFAC, MaskableACKTR
 
 
 def fisher_targets(logits: th.Tensor, seed: int) -> th.Tensor:

@@ -138,3 +138,16 @@ def test_save_load_gives_the_same_actions(algo, tmp_path):
         obs, *_ = venv.step(actions)
     assert isinstance(extractor_of(loaded), MA2CFeaturesExtractor)
     venv.close()
+
+
+def test_the_loader_imports_no_learner_and_old_module_paths_still_name_the_learners():
+    """No import circle: the loader reads the allow-list each learner class declares. Code that
+    imported the learners from ``sb3_marl.algos.masking`` (one module until 2026-12) still does."""
+    import subprocess
+    import sys
+
+    code = "import sys, sb3_marl.loading; print(sorted(m for m in sys.modules if m.startswith('sb3_marl.algos.')))"
+    assert subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout.strip() == "[]"
+    from sb3_marl.algos import ALGOS, masking
+
+    assert {masking.MaskableA2C, masking.MaskedPPO, masking.MaskableACKTR, masking.MaskableDQN} <= set(ALGOS.values())

@@ -5,7 +5,7 @@ import pytest
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_marl.algos import get_algo
-from sb3_marl.algos.masking import uses_action_masks
+from sb3_marl.algos.base import uses_action_masks
 from sb3_marl.envs import ENV_IDS
 from sb3_marl.evaluation import model_policy, run_episodes
 from sb3_marl.hyperparams import load_hyperparams, validate_hyperparams

@@ -8,7 +8,8 @@ import pytest
 import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sb3_marl.algos.masking import MaskableA2C, MaskableDQN
+from sb3_marl.algos.a2c import MaskableA2C
+from sb3_marl.algos.dqn import MaskableDQN
 from sb3_marl.cli import main
 from wrappers import ParameterSharingVecEnv
 

@@ -1,0 +1,191 @@
+"""``sb3-marl benchmark``: the paper's experiment grid as Ray Tune trials, its status, evaluation and report."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+from pathlib import Path
+from typing import Any
+
+from sb3_marl.benchmark.grid import GRIDS, PAPER_EVAL_EPISODES, PAPER_EVAL_EVERY_EPISODES, PAPER_SEEDS
+from sb3_marl.cli.common import (
+    EXIT_INTERRUPTED,
+    MAX_COPIES,
+    MAX_COUNT,
+    CommandFailed,
+    UsageError,
+    positive,
+    set_num_threads,
+)
+from sb3_marl.envs import DENSITIES
+
+
+def add_parsers(commands: Any) -> None:
+    """Add benchmark's subcommands to the ``sb3-marl`` parser's ``commands``."""
+    benchmark = commands.add_parser(
+        "benchmark", help="the paper's experiment grid as Ray Tune trials; `benchmark report` writes its table and figures"
+    )
+    benchmark.add_argument(
+        "action",
+        nargs="?",
+        choices=["run", "report", "status", "evaluate"],
+        default="run",
+        help="run the grid (default), report on it, list where its trials stand, or evaluate "
+        "its finished trials under both supervisor protocols where they lack one or predate the current supervisor",
+    )
+    benchmark.add_argument(
+        "--grid",
+        default="paper",
+        choices=list(GRIDS),
+        help="paper (the five experiments of the paper and our intervention-penalty one) or one experiment (default: paper)",
+    )
+    benchmark.add_argument("-f", "--log-folder", default="logs/benchmark", help="default: logs/benchmark")
+    benchmark.add_argument(
+        "--budget", type=_budget, default=1.0, help="fraction of the paper's 1M env steps per trial (default: 1)"
+    )
+    benchmark.add_argument(
+        "--seeds", type=positive(maximum=MAX_COUNT), default=PAPER_SEEDS, help="seeds per trial setting (default: 2)"
+    )
+    benchmark.add_argument(
+        "--densities", type=int, nargs="+", choices=sorted(DENSITIES), default=sorted(DENSITIES), help="traffic densities"
+    )
+    benchmark.add_argument(
+        "--eval-every",
+        type=positive(float),
+        default=PAPER_EVAL_EVERY_EPISODES,
+        metavar="EPISODES",
+        help="evaluate every N training episodes (default: 200, the paper's)",
+    )
+    benchmark.add_argument(
+        "--eval-episodes",
+        type=positive(),
+        default=PAPER_EVAL_EPISODES,
+        help="episodes per evaluation (default: 3, the paper's)",
+    )
+    benchmark.add_argument("--address", default=None, help="attach to this Ray cluster (default: a local Ray)")
+    benchmark.add_argument(
+        "--max-concurrent", type=positive(maximum=MAX_COPIES), default=None, help="trials at once (default: one per free CPU)"
+    )
+    benchmark.add_argument("--max-failures", type=int, default=2, help="restarts of a failed trial (default: 2)")
+    benchmark.add_argument("-o", "--output", default="results", help="report: output folder (default: results)")
+    benchmark.add_argument("--verbose", type=int, default=1, choices=[0, 1, 2], help="Ray Tune's verbosity")
+    benchmark.set_defaults(handler=benchmark_command)
+
+
+def _budget(text: str) -> float:
+    from sb3_marl.benchmark.grid import check_budget
+
+    try:
+        return check_budget(float(text))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected a fraction in (0, 1] of the paper's 1M env steps per trial, got {text!r}"
+        ) from None
+
+
+def benchmark_command(args: argparse.Namespace) -> int:
+    if args.action == "report":
+        from sb3_marl.benchmark.report import write_report
+
+        try:
+            written = write_report(args.log_folder, args.output)
+        except (FileNotFoundError, ValueError) as error:
+            raise UsageError(str(error)) from None
+        for path in written:
+            print(f"wrote {path}")
+        return 0
+
+    if args.action == "status":
+        return _benchmark_status(args)
+
+    if args.action == "evaluate":
+        return _benchmark_evaluate(args)
+
+    from sb3_marl.benchmark.runner import run_benchmark
+
+    try:
+        outcome = run_benchmark(
+            args.grid,
+            args.log_folder,
+            args.budget,
+            args.seeds,
+            tuple(args.densities),
+            args.eval_every,
+            args.eval_episodes,
+            args.address,
+            args.max_concurrent,
+            args.max_failures,
+            args.verbose,
+        )
+    except ValueError as error:
+        raise UsageError(str(error)) from None
+    except ModuleNotFoundError as error:
+        raise CommandFailed(str(error)) from None
+    print(
+        f"{len(outcome.completed)} trials completed, {len(outcome.skipped)} skipped (finished before), "
+        f"{len(outcome.failed)} failed, {len(outcome.unfinished)} stopped unfinished in {outcome.wall_time_s:.0f} s"
+    )
+    for trial_id, message in outcome.failed.items():
+        print(f"  failed: {trial_id}: {message.splitlines()[0]}")
+    print(f"report: sb3-marl benchmark report -f {args.log_folder}")
+    if outcome.failed:
+        raise CommandFailed(
+            f"{len(outcome.failed)} trial(s) failed after {args.max_failures} restarts: "
+            f"{sorted(outcome.failed)}; run the command again to retry them."
+        )
+    if outcome.unfinished:
+        print(f"{len(outcome.unfinished)} trial(s) stopped before the end; the same command continues them.")
+        return EXIT_INTERRUPTED[signal.SIGINT]
+    return 0
+
+
+def _benchmark_evaluate(args: argparse.Namespace) -> int:
+    """Re-evaluate every finished trial under ``-f`` that lacks the policy-alone protocol or was
+    evaluated under another version of the safety supervisor (progress bar)."""
+    from tqdm import tqdm
+
+    from sb3_marl.benchmark.trial import RESULT, reevaluate_trial
+
+    results = sorted(Path(args.log_folder).glob(f"trials/*/{RESULT}"))
+    if not results:
+        raise UsageError(f"-f/--log-folder: no finished trial (trials/*/{RESULT}) under {args.log_folder!r}.")
+    set_num_threads(argparse.Namespace(num_threads=1))
+    try:
+        done = [path.parent.name for path in tqdm(results, desc="trials", unit="trial") if reevaluate_trial(path.parent)]
+    except (ValueError, KeyError, TypeError) as error:  # an unreadable or edited result.json, named
+        raise UsageError(f"-f/--log-folder: {error}") from None
+    print(
+        f"re-evaluated {len(done)} of {len(results)} finished trials under both supervisor protocols (the current supervisor)"
+    )
+    return 0
+
+
+def _benchmark_status(args: argparse.Namespace) -> int:
+    """Print each trial of ``--grid`` in ``-f``: state, AV-steps of the budget, final return, wall time."""
+    from sb3_marl.benchmark.runner import grid_status
+
+    try:
+        statuses = grid_status(args.grid, args.log_folder, args.seeds, tuple(args.densities))
+    except (FileNotFoundError, ValueError) as error:
+        raise UsageError(str(error)) from None
+    counts = {
+        state: sum(s.state == state for s in statuses) for state in ("finished", "unfinished", "not started", "unreadable")
+    }
+    print(
+        f"Benchmark grid {args.grid!r} in {args.log_folder}: {counts['finished']} of {len(statuses)} trials finished, "
+        f"{counts['unfinished']} unfinished (continue from their checkpoint), {counts['not started']} not started"
+        + (f", {counts['unreadable']} with an unreadable result" if counts["unreadable"] else "")
+        + "\n"
+    )
+    width = max(len(s.trial_id) for s in statuses)
+    print(f"{'trial':<{width}}  {'state':<11}  {'AV-steps done':>25}  {'return':>7}  {'wall time':>9}")
+    for s in statuses:
+        done = f"{s.timesteps:,} / {s.n_timesteps:,}"
+        returns = f"{s.return_mean:.2f}" if s.return_mean is not None else "-"
+        wall = f"{s.wall_time_s:.0f} s" if s.wall_time_s is not None else "-"
+        print(f"{s.trial_id:<{width}}  {s.state:<11}  {done:>25}  {returns:>7}  {wall:>9}")
+    for s in statuses:
+        if s.problem:
+            print(f"unreadable: {s.problem}", file=sys.stderr)
+    return 1 if counts["unreadable"] else 0

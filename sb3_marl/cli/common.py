@@ -1,0 +1,242 @@
+"""What the command groups share: errors, the checks of flags and paths, argument types, the
+help formatter, finding a run and loading its model."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from sb3_marl.algos import ALGO_NAMES
+from sb3_marl.envs import ENV_IDS
+
+DEFAULT_ENV = ENV_IDS[1]
+
+
+EXIT_INTERRUPTED = {signal.SIGINT: 130, signal.SIGTERM: 143}
+
+
+class StoreHyperparams(argparse.Action):
+    """rl-zoo's ``-params key:value ...``: each value is a literal, never evaluated as code
+    (:func:`sb3_marl.loading.parse_literal`: ``n_steps:20``, ``env_config:"dict(comfort=False)"``,
+    ``policy_kwargs:"dict(activation_fn=nn.Tanh)"``); a bare word stays a string
+    (``reward_mode:global``); anything else (a call, an operator) exits 2 naming the key."""
+
+    def __call__(
+        self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any, option_string: Any = None
+    ) -> None:
+        from sb3_marl.loading import parse_literal
+
+        parsed = {}
+        for item in values:
+            key, sep, expression = item.partition(":")
+            if not sep or not key:
+                parser.error(f"argument {option_string}: expected key:value, got {item!r}")
+            try:
+                parsed[key] = parse_literal(expression, key)
+            except ValueError as error:
+                parser.error(f"argument {option_string}: {error}")
+        setattr(namespace, self.dest, parsed)
+
+
+def positive(kind: type = int, maximum: float | None = None) -> Any:
+    def parse(text: str) -> Any:
+        value = kind(text)
+        if value < 1 or (maximum is not None and value > maximum):
+            bound = "" if maximum is None else f" and <= {maximum:,}"
+            raise argparse.ArgumentTypeError(f"expected a value >= 1{bound}, got {text}")
+        return value
+
+    return parse
+
+
+def positive_or_minus_one(expected: str) -> Any:
+    """A parser of an integer >= 1, or -1 with rl-zoo's meaning (``expected`` says which); 0 and
+    other values are refused with ``expected`` in the message."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = 0
+        if value != -1 and value < 1:
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
+        return value
+
+    return parse
+
+
+#: Upper bounds of the sizes that allocate: scenario copies (each an env), episodes, seeds, trials.
+MAX_COPIES, MAX_EPISODES, MAX_COUNT = 256, 100_000, 10_000
+
+
+#: A period in AV-steps (0 is refused rather than silently meaning never), and a count or the default.
+every = positive_or_minus_one("an integer >= 1 (AV-steps) or -1 (never)")
+
+
+positive_or_default = positive_or_minus_one("an integer >= 1 or -1 (the default)")
+
+
+def add_num_threads(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--num-threads",
+        type=positive_or_default,
+        default=1,
+        help="torch threads (default: 1, fastest for these small networks); -1: torch's default",
+    )
+
+
+def set_num_threads(args: argparse.Namespace) -> None:
+    import torch
+
+    if args.num_threads > 0:
+        torch.set_num_threads(args.num_threads)
+
+
+def check_device(device: str) -> None:
+    """``--device``: auto, or a torch device this machine has."""
+    import torch
+
+    if device == "auto":
+        return
+    try:
+        parsed = torch.device(device)
+    except (RuntimeError, ValueError):
+        raise UsageError(f"--device: invalid device {device!r}: expected auto, cpu, cuda or cuda:<index>.") from None
+    if parsed.type == "cuda" and not torch.cuda.is_available():
+        raise UsageError(f"--device: {device!r} asked for, but this machine has no CUDA GPU: use auto or cpu.")
+
+
+def check_folder(flag: str, path: str | None) -> None:
+    """A folder the command may write into: not a file, no over-long name, and its nearest existing
+    folder writable (checked before anything is created)."""
+    if not path:
+        return
+    try:
+        path.encode("utf-8")
+    except UnicodeEncodeError:
+        raise UsageError(f"{flag}: {path!r} is not a valid UTF-8 path (the logs and configs name it).") from None
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise UsageError(f"{flag}: {path!r} is a file, expected a folder.")
+    too_long = [part for part in Path(path).parts if len(os.fsencode(part)) > 255]
+    if too_long or len(os.fsencode(os.path.abspath(path))) > 4000:
+        raise UsageError(f"{flag}: {path!r} is too long a path (at most 255 bytes per folder name).")
+    existing = Path(os.path.abspath(path))
+    while not existing.exists():
+        existing = existing.parent
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise UsageError(f"{flag}: {path!r} cannot be written: {str(existing)!r} is not writable.")
+    try:  # a real folder can be made there (not so in /proc, on a read-only mount, ...): probe and remove
+        os.rmdir(tempfile.mkdtemp(prefix=".sb3-marl-probe-", dir=existing))
+    except OSError as error:
+        raise UsageError(
+            f"{flag}: {path!r} cannot be written: no folder can be made in {str(existing)!r} ({error.strerror})."
+        ) from None
+
+
+def check_file(flag: str, path: str | Path | None) -> None:
+    """A file the command will write (atomically, through a temporary file beside it): not a folder
+    or a device, and its folder writable (checked before the work)."""
+    if not path:
+        return
+    if os.path.isdir(path):
+        raise UsageError(f"{flag}: {str(path)!r} is a folder, expected a file name.")
+    if os.path.exists(path) and not os.path.isfile(path):
+        raise UsageError(f"{flag}: {str(path)!r} is not a regular file (a device or a pipe): give a file name.")
+    check_folder(flag, os.path.dirname(os.path.abspath(path)))
+
+
+#: Seeds numpy and the scenario accept: 0 <= seed < 2**32 (episode seeds add 10,000 for evaluation).
+MAX_SEED = 2**32 - 1 - 100_000
+
+
+def check_seed(seed: int) -> None:
+    if not 0 <= seed <= MAX_SEED:
+        raise UsageError(f"--seed: invalid seed {seed}: expected an integer in [0, {MAX_SEED}].")
+
+
+def add_run_selection(parser: argparse.ArgumentParser) -> None:
+    """rl-zoo ``enjoy``'s flags to pick a trained model."""
+    parser.add_argument("--algo", default="ma2c", choices=ALGO_NAMES, help="learner (default: ma2c)")
+    parser.add_argument("--env", default=DEFAULT_ENV, choices=list(ENV_IDS.values()), help="scenario id")
+    parser.add_argument("-f", "--folder", "--log-folder", dest="folder", default="logs", help="log folder (default: logs)")
+    parser.add_argument("--exp-id", type=int, default=0, help="run id; 0 = latest (default)")
+    picked = parser.add_mutually_exclusive_group()
+    picked.add_argument("--load-best", action="store_true", help="load best_model.zip")
+    picked.add_argument("--load-checkpoint", type=int, metavar="STEPS", help="load rl_model_<STEPS>_steps.zip")
+    picked.add_argument("--load-last-checkpoint", action="store_true", help="load the latest checkpoint")
+    parser.add_argument("--seed", type=int, default=0, help="episode seeds start at seed + 10000 (default: 0)")
+    parser.add_argument(
+        "--deterministic",
+        action="store_true",
+        help="argmax actions (default: sampled from the policy, the authors' evaluation protocol)",
+    )
+    parser.add_argument("--device", default="auto", help="torch device (default: auto)")
+    add_trust_remote_code(parser)
+    add_num_threads(parser)
+
+
+def add_trust_remote_code(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--trust-remote-code",
+        action="store_true",
+        help="load a model zip from another tool that needs unpickling (it can run code: only for "
+        "files you trust); default: models are read as data and such a zip is refused",
+    )
+
+
+class CommandParser(argparse.ArgumentParser):
+    """A subcommand's parser, showing defaults in its ``--help``."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("formatter_class", DefaultsHelpFormatter)
+        super().__init__(*args, **kwargs)
+
+
+class DefaultsHelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """argparse's defaults in ``--help`` (as rl-zoo users expect), unless the help already says
+    what the default is or there is none to show."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ""
+        if (
+            "default" in text.lower()
+            or action.default is None
+            or action.default is False
+            or action.default == argparse.SUPPRESS
+        ):
+            return text
+        return super()._get_help_string(action)
+
+
+def find_run_of(args: argparse.Namespace) -> Any:
+    from sb3_marl.runs import find_run
+
+    check_seed(args.seed)
+    try:
+        return find_run(
+            args.folder, args.algo, args.env, args.exp_id, args.load_best, args.load_checkpoint, args.load_last_checkpoint
+        )
+    except (FileNotFoundError, ValueError) as error:
+        raise UsageError(str(error)) from None
+
+
+def load_model_of(run: Any, args: argparse.Namespace) -> Any:
+    """The run's model on ``--device`` with ``--num-threads``; a usage error naming a bad file."""
+    check_device(args.device)
+    set_num_threads(args)
+    try:
+        return run.load_model(args.device, args.trust_remote_code)
+    except ValueError as error:
+        raise UsageError(str(error)) from None
+
+
+class UsageError(Exception):
+    """Bad input found before any work: printed as ``sb3-marl <command>: error: ...``, exit code 2."""
+
+
+class CommandFailed(Exception):
+    """The work could not be done (e.g. no Hub token, network error): printed like a UsageError, exit code 1."""
