@@ -214,3 +214,21 @@ def test_the_readmes_policy_alone_table_is_the_committed_table(readme, committed
             if row["policy alone (supervisor off)"].startswith("IDM"):  # one policy: no std over seeds
                 ret = ret.split(" ±")[0]
             assert row[column] == f"{ret} / {collision}", (row, density)
+
+
+def test_the_rule_prior_readme_quotes_its_heldout_table():
+    """results/rule-prior/README.md's table of the policy alone is heldout.md's, number for number."""
+    folder = RESULTS / "rule-prior"
+    heldout = {
+        (row["actions"], row["density"], row["supervisor"]): row
+        for table in _markdown_tables((folder / "heldout.md").read_text())
+        for row in table
+        if row["policy"] == "ma2c rule-prior" or row["policy"] == "IDM/MOBIL"
+    }
+    (alone,) = [t for t in _markdown_tables((folder / "README.md").read_text()) if "policy alone (no supervisor)" in t[0]]
+    for row in alone:
+        actions = "sampled" if "sampled" in row["policy alone (no supervisor)"] else "greedy"
+        measured = heldout[(actions, row["density"], "off")]
+        assert row["collisions"].split(" (")[0] == measured["collisions"]
+        assert row["return"] == measured["return"]
+        assert row["IDM/MOBIL's return"] == heldout[("rules", row["density"], "off")]["return"].split(" ±")[0]
