@@ -53,9 +53,10 @@ class _Camera:
         return np.array([rows[:, kernel.X].mean(), rows[:, kernel.Y].mean()])
 
 
-def frame(env: LaneChangeEnv, info: dict[str, Any]) -> np.ndarray:
+def frame(env: LaneChangeEnv, info: dict[str, Any], rows: int | None = None) -> np.ndarray:
     """The road around the AVs under a band with the time, the legend and each AV's speed and
-    meta-action (see the module doc), as an RGB array."""
+    meta-action (see the module doc), as an RGB array; ``rows``: AV lines the band has room for
+    (default: this episode's AVs; a video of several AV counts gives every frame the same size)."""
     if env.viewer is None:
         env.render()  # highway-env creates its viewer on the first frame
     assert env.viewer is not None, "the env renders rgb_array frames"
@@ -68,7 +69,7 @@ def frame(env: LaneChangeEnv, info: dict[str, Any]) -> np.ndarray:
         px, py = env.viewer.sim_surface.pos2pix(x, y)
         labels.text((px - 8, py - 22), f"AV {i}", fill=COLOURS["crashed" if info["crashed"][i] else "label"])
     n = env.n_avs
-    band = Image.new("RGB", (road.width, LINE * (n + 1) + 6), COLOURS["band"])
+    band = Image.new("RGB", (road.width, LINE * (max(rows or 0, n) + 1) + 6), COLOURS["band"])
     draw = ImageDraw.Draw(band)
     time = info["step"] / env.config["policy_frequency"]
     header = f"t = {time:4.1f} s    legend: AV green, HDV blue, crashed red    ({n} AVs, {env.n_hdvs} HDVs)"
@@ -108,7 +109,7 @@ def record_video(
         n_avs = counts[episode % len(counts)]
         env = make_scenario(env_id, {**(config or {}), **VIEW, "n_avs": n_avs}, render_mode="rgb_array")
         fps = env.config["policy_frequency"]
-        run_episodes(env, policy, 1, seed + episode, on_step=lambda env, info: frames.append(frame(env, info)))
+        run_episodes(env, policy, 1, seed + episode, on_step=lambda env, info: frames.append(frame(env, info, counts[0])))
         env.close()
     # libx264 needs even frame sizes; macro_block_size=2 pads odd ones instead of rescaling
     with (

@@ -72,7 +72,7 @@ EXPERIMENTS: dict[str, dict[str, tuple[str, str]]] = {
         "safety training": ("ma2c", "safety-training"),
     },
     # beyond the paper: learners started from, and regularised toward, the IDM/MOBIL rule driver
-    "rule-prior": {"MA2C": ("ma2c", "rule-prior"), "MAPPO": ("mappo", "rule-prior")},
+    "rule-prior": {"MA2C, rule prior": ("ma2c", "rule-prior"), "MAPPO, rule prior": ("mappo", "rule-prior")},
     # beyond the paper: CTDE, a critic that sees every AV of the copy (same networks otherwise)
     "ctde": {
         "local critic (separate networks)": ("ma2c", "separate-networks"),

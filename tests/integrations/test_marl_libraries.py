@@ -77,7 +77,8 @@ def test_the_rllib_example_trains_two_iterations_of_shared_masked_ppo(capsys, ra
 
 
 def test_rllib_with_the_action_masking_module_never_takes_a_masked_action(ray_shut_down_after):
-    code = readme_example("RLlib").replace("ParallelPettingZooEnv(parallel_env(", "ParallelPettingZooEnv(RecordingEnv(")
+    code = re.sub(r"ParallelPettingZooEnv\(\s*parallel_env\(", "ParallelPettingZooEnv(RecordingEnv(", readme_example("RLlib"))
+    assert "ParallelPettingZooEnv(RecordingEnv(" in code
     # RLlib's env check at build time steps the env with unmasked random actions: count from training on
     code = code.replace("algo = config.build_algo()\n", "algo = config.build_algo()\nRecordingEnv.reset_counts()\n")
     assert "RecordingEnv.reset_counts()" in code
