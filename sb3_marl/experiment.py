@@ -38,7 +38,7 @@ from sb3_marl.callbacks import (
     atomic_save,
 )
 from sb3_marl.envs import copy_av_counts
-from sb3_marl.files import REPLAY_BUFFER_FILE, load_replay_buffer
+from sb3_marl.files import REPLAY_BUFFER_FILE, read_replay_buffer
 from sb3_marl.hyperparams import (
     SCENARIO_KEYS,
     config_file,
@@ -182,7 +182,7 @@ class MARLExperimentManager(ExperimentManager):
         folder = os.path.dirname(self.trained_agent)
         arrays, replay_buffer = os.path.join(folder, REPLAY_BUFFER_FILE), os.path.join(folder, "replay_buffer.pkl")
         if os.path.exists(arrays) and getattr(model, "replay_buffer", None) is not None:
-            load_replay_buffer(model.replay_buffer, arrays)
+            read_replay_buffer(model.replay_buffer, arrays)
         elif os.path.exists(replay_buffer) and hasattr(model, "load_replay_buffer"):
             if self.trust_remote_code:
                 model.load_replay_buffer(replay_buffer)

@@ -71,18 +71,18 @@ def read_evaluations(path: str | Path) -> dict[str, Any]:
 REPLAY_BUFFER_FILE = "replay_buffer.npz"
 
 
-def save_replay_buffer(buffer: Any, path: str | Path) -> None:
+def write_replay_buffer(buffer: Any, path: str | Path) -> None:
     """An SB3 replay buffer's arrays (every ndarray attribute) and its ``pos`` / ``full`` as an
-    npz, written atomically: data that :func:`load_replay_buffer` reads back without unpickling."""
+    npz, written atomically: data that :func:`read_replay_buffer` reads back without unpickling."""
     arrays: dict[str, Any] = {key: value for key, value in vars(buffer).items() if isinstance(value, np.ndarray)}
     arrays.update(pos=np.array(buffer.pos, dtype=np.int64), full=np.array(buffer.full, dtype=bool))
     with replaced_atomically(path) as temporary, open(temporary, "wb") as file:
         np.savez(file, **arrays)
 
 
-def load_replay_buffer(buffer: Any, path: str | Path) -> None:
+def read_replay_buffer(buffer: Any, path: str | Path) -> None:
     """Fill ``buffer`` (a freshly built SB3 replay buffer of the same sizes) from
-    :func:`save_replay_buffer`'s npz, as data: a ValueError naming the file and the array when an
+    :func:`write_replay_buffer`'s npz, as data: a ValueError naming the file and the array when an
     array is missing, unknown or of another shape or dtype (nothing is changed then), or when the
     file is unreadable or holds pickled objects."""
     try:

@@ -32,7 +32,7 @@ from typing import Any
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_marl.benchmark.grid import TrialSpec
-from sb3_marl.files import REPLAY_BUFFER_FILE, read_json_object, save_replay_buffer, write_text
+from sb3_marl.files import REPLAY_BUFFER_FILE, read_json_object, write_replay_buffer, write_text
 
 RUN_ID = 1
 CHECKPOINT = "checkpoint"
@@ -95,7 +95,7 @@ def write_checkpoint(model: Any, folder: Path, evaluations: Path) -> Path:
     staging.mkdir(parents=True)
     model.save(staging / "model.zip")
     if getattr(model, "replay_buffer", None) is not None:
-        save_replay_buffer(model.replay_buffer, staging / REPLAY_BUFFER_FILE)
+        write_replay_buffer(model.replay_buffer, staging / REPLAY_BUFFER_FILE)
     shutil.copy2(evaluations, staging / "evaluations.npz")
     (staging / "state.json").write_text(json.dumps({"num_timesteps": int(model.num_timesteps)}))
     previous = folder / PREVIOUS_CHECKPOINT

@@ -344,7 +344,7 @@ def test_a_foreign_checkpoint_resumes_its_replay_buffer_as_data_never_its_pickle
     message; an npz whose arrays do not fit the model's buffer is named."""
     import pickle
 
-    from sb3_marl.files import REPLAY_BUFFER_FILE, load_replay_buffer, save_replay_buffer
+    from sb3_marl.files import REPLAY_BUFFER_FILE, read_replay_buffer, write_replay_buffer
 
     argv = ["train", "--algo", "madqn", "-n", "400", "--eval-freq", "1000", "--eval-episodes", "1"]
     assert main([*argv, "-f", str(tmp_path / "own"), "-params", "learning_starts:100", "buffer_size:2000"]) == 0
@@ -358,13 +358,13 @@ def test_a_foreign_checkpoint_resumes_its_replay_buffer_as_data_never_its_pickle
     buffer = get_algo("madqn")("MlpPolicy", "CartPole-v1", buffer_size=50, learning_starts=0).replay_buffer
     buffer.observations[:] = 1.5
     buffer.pos, buffer.full = 7, True
-    save_replay_buffer(buffer, checkpoint / REPLAY_BUFFER_FILE)
+    write_replay_buffer(buffer, checkpoint / REPLAY_BUFFER_FILE)
     again = get_algo("madqn")("MlpPolicy", "CartPole-v1", buffer_size=50, learning_starts=0).replay_buffer
-    load_replay_buffer(again, checkpoint / REPLAY_BUFFER_FILE)
+    read_replay_buffer(again, checkpoint / REPLAY_BUFFER_FILE)
     assert (again.observations == 1.5).all() and (again.pos, again.full) == (7, True)
     # the madqn run's buffer has other sizes
     with pytest.raises(ValueError, match=r"array 'actions' is int64 \(50, 1, 1\).*expects"):
-        load_replay_buffer(model.replay_buffer, checkpoint / REPLAY_BUFFER_FILE)
+        read_replay_buffer(model.replay_buffer, checkpoint / REPLAY_BUFFER_FILE)
     (checkpoint / REPLAY_BUFFER_FILE).unlink()
     assert main([*argv, "-f", str(tmp_path / "continued"), "-i", str(checkpoint / "model.zip")]) == 0
     assert "Not loading" in capsys.readouterr().out and not marker.exists()
