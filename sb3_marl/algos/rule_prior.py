@@ -33,6 +33,7 @@ import torch.nn.functional as F
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvStepReturn
 
+from sb3_marl.algos.teacher import select_rows
 from sb3_marl.checks import check_integer, check_number, invalid
 
 #: Rule drivers a learner can start from: the scenario's IDM/MOBIL decision.
@@ -198,7 +199,7 @@ def dagger(model: Any, timesteps: int, prior: RulePrior) -> None:
             dones.append(done)
         model.num_timesteps += steps * n_envs
         discounted = _discounted_returns(np.array(rewards), np.array(dones), _value(policy, obs), model.gamma)
-        flat_obs = _stack(observations)
+        flat_obs = _concat(observations)
         labels = mixed.labels.reshape(-1)
         agreement = _agreement(policy, flat_obs, np.concatenate(masks), labels)
         round_data = {"obs": flat_obs, "masks": np.concatenate(masks), "labels": labels, "returns": discounted.reshape(-1)}
@@ -239,20 +240,10 @@ def _discounted_returns(rewards: np.ndarray, dones: np.ndarray, last_values: np.
     return returns
 
 
-def _stack(observations: list[Any]) -> Any:
-    if isinstance(observations[0], dict):
-        return {key: np.concatenate([o[key] for o in observations]) for key in observations[0]}
-    return np.concatenate(observations)
-
-
 def _concat(values: list[Any]) -> Any:
     if isinstance(values[0], dict):
         return {key: np.concatenate([v[key] for v in values]) for key in values[0]}
     return np.concatenate(values)
-
-
-def _take(values: Any, rows: np.ndarray) -> Any:
-    return {key: value[rows] for key, value in values.items()} if isinstance(values, dict) else values[rows]
 
 
 def _agreement(policy: Any, obs: Any, masks: np.ndarray, labels: np.ndarray) -> float:
@@ -274,7 +265,7 @@ def _fit(
         order = rng.permutation(n)
         for start in range(0, n, DAGGER_BATCH):
             rows = order[start : start + DAGGER_BATCH]
-            obs = policy.obs_to_tensor(_take(data["obs"], rows))[0]
+            obs = policy.obs_to_tensor(select_rows(data["obs"], rows))[0]
             masks = th.as_tensor(data["masks"][rows], device=policy.device)
             labels = th.as_tensor(data["labels"][rows], device=policy.device)
             imitation, _ = prior_loss(masked_logits(policy, obs, masks), labels, smoothing, masks)
@@ -295,12 +286,13 @@ class RulePriorLearner:
     the DAgger warm start when learning starts, the rule driver's labels of each rollout, and the
     prior's term of the loss. The values are saved with the model (plain attributes)."""
 
-    prior: str | None = None
-    prior_warm_start: int = 0
-    prior_coef: float = 1.0
-    prior_coef_final: float = 0.0
-    prior_decay_steps: int = 1
-    prior_smoothing: float = 0.0
+    # set by __init__ from a validated RulePrior (its defaults are the only ones)
+    prior: str | None
+    prior_warm_start: int
+    prior_coef: float
+    prior_coef_final: float
+    prior_decay_steps: int
+    prior_smoothing: float
     _rule_labels: np.ndarray | None = None
 
     def __init__(

@@ -96,7 +96,7 @@ class SupervisorTeacher:
         policy = self.policy  # type: ignore[attr-defined]
         policy.set_training_mode(True)
         loss = self.safety_loss(
-            policy.obs_to_tensor(_select(observations, chosen))[0],
+            policy.obs_to_tensor(select_rows(observations, chosen))[0],
             None if masks is None else masks[chosen],
             th.as_tensor(labels[chosen], device=policy.device),
         )
@@ -115,7 +115,8 @@ def _flat_samples(observations: Any, obs_shape: Any, n: int) -> Any:
     return observations.reshape(n, *obs_shape)
 
 
-def _select(observations: Any, rows: np.ndarray) -> Any:
+def select_rows(observations: Any, rows: np.ndarray) -> Any:
+    """The ``rows`` of observations (an array, or a dict of arrays)."""
     if isinstance(observations, dict):
         return {key: value[rows] for key, value in observations.items()}
     return observations[rows]
