@@ -48,6 +48,8 @@ VARIANTS: dict[str, dict[str, Any]] = {
         "prior_decay_steps": 1_000_000,
     },
 }
+# the same without the entropy bonus: a sharper policy, whose sampled actions stray less from its argmax
+VARIANTS["rule-prior-sharp"] = {**VARIANTS["rule-prior"], "ent_coef": 0.0}
 
 #: Experiment -> its curves: label -> (algorithm, variant). In the order of the paper's sections.
 EXPERIMENTS: dict[str, dict[str, tuple[str, str]]] = {
@@ -72,7 +74,11 @@ EXPERIMENTS: dict[str, dict[str, tuple[str, str]]] = {
         "safety training": ("ma2c", "safety-training"),
     },
     # beyond the paper: learners started from, and regularised toward, the IDM/MOBIL rule driver
-    "rule-prior": {"MA2C, rule prior": ("ma2c", "rule-prior"), "MAPPO, rule prior": ("mappo", "rule-prior")},
+    "rule-prior": {
+        "MA2C, rule prior": ("ma2c", "rule-prior"),
+        "MAPPO, rule prior": ("mappo", "rule-prior"),
+        "MA2C, rule prior, no entropy bonus": ("ma2c", "rule-prior-sharp"),
+    },
     # beyond the paper: CTDE, a critic that sees every AV of the copy (same networks otherwise)
     "ctde": {
         "local critic (separate networks)": ("ma2c", "separate-networks"),

@@ -64,7 +64,11 @@ def test_grids_hold_each_trial_once():
         "ctde",
         "rule-prior",
     }
-    assert {(s.algo, s.variant) for s in make_grid("rule-prior", seeds=3)} == {("ma2c", "rule-prior"), ("mappo", "rule-prior")}
+    assert {(s.algo, s.variant) for s in make_grid("rule-prior", seeds=3)} == {
+        ("ma2c", "rule-prior"),
+        ("mappo", "rule-prior"),
+        ("ma2c", "rule-prior-sharp"),
+    }
     safety = make_grid("safety", seeds=1)
     assert [spec.variant for spec in safety] == ["default"] * 3 + ["safety-training"] * 3
     assert safety[-1].hyperparams == VARIANTS["safety-training"] and safety[-1].hyperparams["supervisor_dropout"] > 0
