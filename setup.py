@@ -11,6 +11,8 @@ TORCHRL = ["torchrl>=0.14,<0.15", *PETTINGZOO]
 RLLIB = ["ray[rllib]>=2.60,<2.61", *PETTINGZOO]  # RLlib pins gymnasium 1.2.x
 # BenchMARL 1.5 pins torchrl < 0.12 (and torchvision): its own environment, not [dev]
 BENCHMARL = ["benchmarl>=1.5,<1.6", *PETTINGZOO]
+# the documentation site (mkdocs.yml): MkDocs Material, the API reference from the docstrings
+DOCS = ["mkdocs>=1.6,<2", "mkdocs-material>=9.5,<10", "mkdocstrings[python]>=1.0,<2"]
 
 setup(
     name="sb3-marl",
@@ -53,10 +55,11 @@ setup(
         "torchrl": TORCHRL,
         "rllib": RLLIB,
         "benchmarl": BENCHMARL,
+        "docs": DOCS,
         # seaborn and scipy: rl_zoo3's own plotting scripts, run by the tests on our logs;
         # ruff and mypy: lint and types, run by `make test`
-        # build: the packaging test builds the sdist
-        "dev": ["pytest>=8", "seaborn", "scipy", "ruff>=0.16,<0.17", "mypy>=2.3,<2.5", "build", *RAY, *TORCHRL, *RLLIB],
+        # build: the packaging test builds the sdist; docs: the strict docs build
+        "dev": ["pytest>=8", "seaborn", "scipy", "ruff>=0.16,<0.17", "mypy>=2.3,<2.5", "build", *RAY, *TORCHRL, *RLLIB, *DOCS],
     },
     entry_points={"console_scripts": ["sb3-marl=sb3_marl.cli:main"]},
     classifiers=[

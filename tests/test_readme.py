@@ -1,33 +1,25 @@
-"""The README's commands work exactly as written: the Quick start's main job and every command of
-the Command line section, run verbatim (the section states the short budget appended to `train`)."""
+"""The commands the README and the docs show work exactly as written: the Quick start's main job,
+every command of the Command line page and of its hyperparameter search, run verbatim (the page
+states the short budget appended to `train`)."""
 
-import re
 import shlex
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from documents import REPO, commands, read, section
 
-REPO = Path(__file__).resolve().parent.parent
-README = (REPO / "README.md").read_text()
-#: appended to the Command line section's train commands, as the README says
+#: appended to the Command line page's train commands, as the page says
 SHORT_BUDGET = {"first": ["-n", "1200", "--eval-freq", "600"], "resumed": ["-n", "2400"]}
 
 
-def section_commands(title: str) -> list[str]:
-    """The command lines of the first ```bash block of the README section ``title``."""
-    section = README.split(f"\n## {title}\n", 1)[1].split("\n## ", 1)[0]
-    block = re.search(r"```bash\n(.*?)```", section, re.S).group(1)
-    return [line.split("  #")[0].strip() for line in block.splitlines() if line.strip()]
-
-
 def test_the_command_line_section_runs_verbatim(tmp_path):
-    commands = section_commands("Command line")
-    assert commands[0].startswith("sb3-marl train") and len(commands) >= 8
+    commands_ = commands("command-line.md", "Command line")
+    assert commands_[0].startswith("sb3-marl train") and len(commands_) >= 8
     executable = Path(sys.executable).parent / "sb3-marl"
     trains = 0
-    for line in commands:
+    for line in commands_:
         argv = shlex.split(line)
         assert argv[0] == "sb3-marl", line
         if argv[1] == "train":
@@ -46,11 +38,11 @@ def test_the_quick_start_main_job_runs_verbatim(tmp_path):
     """`make run`, as written (the other Quick start command, `make test`, is this suite), with its
     log folder (the Makefile's RUN_LOGS) in a temporary folder: the test never writes into the
     checkout's own logs/."""
-    commands = section_commands("Quick start")
-    assert commands == ["make run", "make test"]
+    quick_start = commands("README.md", "Quick start")
+    assert quick_start == ["make run", "make test"]
     checkout_logs = sorted((REPO / "logs").rglob("*")) if (REPO / "logs").exists() else []
     completed = subprocess.run(
-        [*shlex.split(commands[0]), f"RUN_LOGS={tmp_path / 'logs'}"], cwd=REPO, capture_output=True, text=True, timeout=1800
+        [*shlex.split(quick_start[0]), f"RUN_LOGS={tmp_path / 'logs'}"], cwd=REPO, capture_output=True, text=True, timeout=1800
     )
     assert completed.returncode == 0, completed.stdout[-3000:] + completed.stderr[-3000:]
     out = completed.stdout
@@ -58,8 +50,11 @@ def test_the_quick_start_main_job_runs_verbatim(tmp_path):
     assert "| on |" in out and "| off |" in out  # both supervisor protocols
     assert "TensorBoard: " in out and "eval_return.png" in out
     # the README's reference rows (no learning) are this run's, to the digit
-    quick_start = README.split("\n## Quick start\n", 1)[1].split("\n## ", 1)[0]
-    references = [line for line in quick_start.splitlines() if line.startswith(("| random |", "| cruise |", "| idm-mobil |"))]
+    references = [
+        line
+        for line in section("README.md", "Quick start").splitlines()
+        if line.startswith(("| random |", "| cruise |", "| idm-mobil |"))
+    ]
     assert len(references) == 6 and all(line in out.splitlines() for line in references), references
     assert (tmp_path / "logs" / "ma2c" / "sb3_marl-LaneChange-density1-v0_1" / "evaluation.json").is_file()
     assert (sorted((REPO / "logs").rglob("*")) if (REPO / "logs").exists() else []) == checkout_logs
@@ -69,10 +64,10 @@ def test_the_hyperparameter_search_section_runs_verbatim(tmp_path):
     """Two invocations share one study (5 trials), then the best entry trains, all as written."""
     import optuna
 
-    commands = section_commands("Hyperparameter search (`-optimize`)")
-    assert len(commands) == 3
+    search = commands("command-line.md", "Hyperparameter search (`-optimize`)")
+    assert len(search) == 3
     executable = Path(sys.executable).parent / "sb3-marl"
-    for line in commands:
+    for line in search:
         argv = shlex.split(line)
         completed = subprocess.run([str(executable), *argv[1:]], cwd=tmp_path, capture_output=True, text=True, timeout=600)
         assert completed.returncode == 0, f"{line}\n{completed.stdout[-2000:]}\n{completed.stderr[-2000:]}"
@@ -83,6 +78,13 @@ def test_the_hyperparameter_search_section_runs_verbatim(tmp_path):
     assert (tmp_path / "logs/ma2c/sb3_marl-LaneChange-density1-v0_1/sb3_marl-LaneChange-density1-v0.zip").is_file()
 
 
-@pytest.mark.parametrize("title", ["Quick start", "Command line", "Hyperparameter search (`-optimize`)"])
-def test_sections_have_commands(title):
-    assert section_commands(title)
+@pytest.mark.parametrize(
+    "page, title",
+    [
+        ("README.md", "Quick start"),
+        ("command-line.md", "Command line"),
+        ("command-line.md", "Hyperparameter search (`-optimize`)"),
+    ],
+)
+def test_sections_have_commands(page, title):
+    assert commands(page, title) and read(page)

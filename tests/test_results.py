@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 import pytest
+from documents import markdown_tables
 
 from sb3_marl.cli import main
 from sb3_marl.runs import find_run
@@ -80,33 +81,19 @@ def test_committed_grid_models_reproduce_their_final_evaluation(algo):
 
 
 def test_the_readmes_state_the_committed_grid_status(capsys):
-    """The grid status both READMEs state is `sb3-marl benchmark status` of the committed trials."""
+    """The grid status the docs' benchmark page and results/README.md state is `sb3-marl benchmark status`
+    of the committed trials."""
     import re
 
     assert main(["benchmark", "status", "--seeds", "3", "-f", str(PAPER_GRID)]) == 0
     finished = re.search(r": (\d+) of 81 trials finished", capsys.readouterr().out).group(1)
-    readme = re.sub(r"\s+", " ", (RESULTS.parent / "README.md").read_text())
+    readme = re.sub(r"\s+", " ", (RESULTS.parent / "docs" / "benchmark.md").read_text())
     assert f"**Status: {finished} of 81 trials finished**" in readme
     assert f"**Done: {finished} of 81 trials**" in (RESULTS / "README.md").read_text()
 
 
-def _markdown_tables(text: str) -> list[list[dict[str, str]]]:
-    """Every markdown table of ``text`` (a block between blank lines) as rows of {header: cell}."""
-
-    def cells(line: str) -> list[str]:
-        return [cell.strip() for cell in line.strip().strip("|").split("|")]
-
-    tables = []
-    for block in text.split("\n\n"):
-        lines = block.strip().splitlines()
-        if len(lines) >= 3 and lines[0].startswith("|") and set(lines[1]) <= set("|-: "):
-            header = cells(lines[0])
-            tables.append([dict(zip(header, cells(line), strict=True)) for line in lines[2:]])
-    return tables
-
-
 def _readme_table(readme: Path, header: list[str]) -> list[dict[str, str]]:
-    (table,) = [t for t in _markdown_tables(readme.read_text()) if list(t[0]) == header]
+    (table,) = [t for t in markdown_tables(readme.read_text()) if list(t[0]) == header]
     return table
 
 
@@ -115,40 +102,27 @@ def committed_rows() -> dict[tuple[str, int], dict[str, str]]:
     """results/paper_table.md's rows keyed by (curve or policy, density)."""
     return {
         (row.get("curve", row.get("policy")), int(row["density"])): row
-        for table in _markdown_tables((RESULTS / "paper_table.md").read_text())
+        for table in markdown_tables((RESULTS / "paper_table.md").read_text())
         for row in table
     }
 
 
 DENSITIES = ["density 1", "density 2", "density 3"]
-#: A Table-5 row's first cell in the READMEs (its start) -> (the curve's label in paper_table.md,
-#: the algorithm whose paper return goes in parentheses); longest prefix first.
-TABLE_5_ROWS = (
-    ("MA2C, separate actor and critic", "separate actor and critic", None),
-    ("MA2C (", "MA2C", "ma2c"),
-    ("MADQN", "MADQN", "madqn"),
-    ("MAACKTR", "MAACKTR", "maacktr"),
-    ("MAPPO", "MAPPO", "mappo"),
-    ("IDM/MOBIL", "idm-mobil", None),
-)
 
 
-@pytest.mark.parametrize("readme", [RESULTS.parent / "README.md", RESULTS / "README.md"], ids=["README", "results"])
-def test_the_readmes_table_5_is_the_committed_table(readme, committed_rows):
-    """The hand-copied Table 5 of each README ("| policy | density 1 | density 2 | density 3 |")
-    gives, per row and density, the mean ± std of results/paper_table.md and the paper's mean."""
-    from sb3_marl.benchmark.tables import PAPER_RETURNS
+def test_the_headline_tables_are_the_reports():
+    """results/headline.md is the report's headline table of the committed trials, and the README's
+    copy of it (between its headline markers) is that file, byte for byte."""
+    from sb3_marl.benchmark.statistics import curve_summaries, load_trials, reference_summaries
+    from sb3_marl.benchmark.tables import headline_table
 
-    rows = _readme_table(readme, ["policy", *DENSITIES])
-    assert len(rows) == len(TABLE_5_ROWS)
-    for row in rows:
-        label, algo = next((label, algo) for prefix, label, algo in TABLE_5_ROWS if row["policy"].startswith(prefix))
-        for density, column in enumerate(DENSITIES, start=1):
-            ours, _, paper = row[column].partition(" (")
-            committed = committed_rows[label, density]
-            assert ours == committed.get("return: mean ± std over seeds", committed.get("return: mean ± std over episodes"))
-            if algo is not None:
-                assert paper == f"{PAPER_RETURNS[algo, density][0]:.2f})", (row, density)
+    trials = load_trials(PAPER_GRID)
+    references = reference_summaries(trials, PAPER_GRID, seed=10_000)
+    headline = (RESULTS / "headline.md").read_text()
+    assert headline_table(curve_summaries(trials), references) == headline
+    readme = (RESULTS.parent / "README.md").read_text()
+    copy = readme.split("<!-- headline:start -->\n", 1)[1].split("<!-- headline:end -->", 1)[0]
+    assert copy == headline
 
 
 #: results/README.md's "MA2C in detail" rows -> the cell of paper_table.md's rows they copy.
@@ -189,43 +163,16 @@ def test_status_piped_into_head_stops_quietly():
     assert piped.stdout.startswith("Benchmark grid 'paper' in ") and piped.stderr == ""
 
 
-#: A row of the READMEs' policy-alone table -> its curve or policy label in paper_table.md.
-POLICY_ALONE_ROWS = {
-    "MADQN": "MADQN",
-    "MA2C (paper's method)": "MA2C",
-    "MAACKTR": "MAACKTR",
-    "MAPPO": "MAPPO",
-    "MA2C, separate actor and critic (experiment 2)": "separate actor and critic",
-    "MA2C, safety training": "safety training",
-    "IDM/MOBIL (not learned)": "idm-mobil",
-}
-
-
-@pytest.mark.parametrize("readme", [RESULTS.parent / "README.md", RESULTS / "README.md"], ids=["README", "results"])
-def test_the_readmes_policy_alone_table_is_the_committed_table(readme, committed_rows):
-    """The hand-copied supervisor-off table of each README gives, per row and density, the
-    supervisor-off return and collision rate of results/paper_table.md."""
-    rows = _readme_table(readme, ["policy alone (supervisor off)", *DENSITIES])
-    assert [row["policy alone (supervisor off)"] for row in rows] == list(POLICY_ALONE_ROWS)
-    for row in rows:
-        for density, column in enumerate(DENSITIES, start=1):
-            committed = committed_rows[POLICY_ALONE_ROWS[row["policy alone (supervisor off)"]], density]
-            ret, collision = committed["supervisor off: return"], committed["supervisor off: collision rate"]
-            if row["policy alone (supervisor off)"].startswith("IDM"):  # one policy: no std over seeds
-                ret = ret.split(" ±")[0]
-            assert row[column] == f"{ret} / {collision}", (row, density)
-
-
 def test_the_rule_prior_readme_quotes_its_heldout_table():
     """results/rule-prior/README.md's table of the policy alone is heldout.md's, number for number."""
     folder = RESULTS / "rule-prior"
     heldout = {
         (row["actions"], row["density"], row["supervisor"]): row
-        for table in _markdown_tables((folder / "heldout.md").read_text())
+        for table in markdown_tables((folder / "heldout.md").read_text())
         for row in table
         if row["policy"] == "ma2c rule-prior" or row["policy"] == "IDM/MOBIL"
     }
-    (alone,) = [t for t in _markdown_tables((folder / "README.md").read_text()) if "policy alone (no supervisor)" in t[0]]
+    (alone,) = [t for t in markdown_tables((folder / "README.md").read_text()) if "policy alone (no supervisor)" in t[0]]
     for row in alone:
         actions = "sampled" if "sampled" in row["policy alone (no supervisor)"] else "greedy"
         measured = heldout[(actions, row["density"], "off")]

@@ -32,7 +32,7 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "no-comfort": {"env_config": {"comfort": False}},
     "politeness-1": {"env_config": {"hdv_politeness": 1.0}},
     "no-intervention-penalty": {"intervention_penalty": 0.0},
-    # training that makes the policy safe on its own (README "Safety without the supervisor"): half
+    # training that makes the policy safe on its own (docs/safety.md): half
     # the training episodes without the supervisor, actor and critic on their own networks
     "safety-training": {"architecture": "separate", "supervisor_dropout": 0.5},
     # centralised training, decentralised execution: the critic reads the copy's global state

@@ -9,6 +9,8 @@
   averaged over seeds) beside the paper's numbers and claims, each claim checked per density (returns
   by their IQM CIs, acceleration std by its range over seeds), and the hand-written reference
   policies (IDM/MOBIL, cruise, random) on the same episodes, with the learners against IDM/MOBIL;
+- ``headline.md``: the README's and the docs' results tables (:func:`headline_table`): the
+  paper's learners and ours with the supervisor beside the paper's Table 5, and alone;
 - ``learning_curves_<experiment>.png``: evaluation return against training episodes, one panel
   per density, mean over seeds with a shaded ± std band (the layout of the paper's figures);
 - ``final_returns.png``: the table's final returns at a glance: per experiment and density, each
@@ -32,11 +34,11 @@ from pathlib import Path
 from sb3_marl.benchmark.figures import plot_comfort, plot_final_returns, plot_interpretation, plot_learning_curves
 from sb3_marl.benchmark.runner import SETTINGS_FILE
 from sb3_marl.benchmark.statistics import curve_summaries, load_trials, reference_summaries
-from sb3_marl.benchmark.tables import paper_table
+from sb3_marl.benchmark.tables import headline_table, paper_table
 from sb3_marl.files import read_json_object, write_text
 
 #: Names (glob patterns) of the files a report writes into its output folder.
-REPORT_OUTPUTS = ("paper_table.md", "learning_curves_*.png", "final_returns.png", "comfort.png", "cooperative_lane_change.*")
+REPORT_OUTPUTS = ("paper_table.md", "headline.md", "learning_curves_*.png", "final_returns.png", "comfort.png", "cooperative_lane_change.*")
 
 
 def write_report(log_folder: str | Path, out_dir: str | Path = "results", seed: int = 10_000) -> list[Path]:
@@ -62,7 +64,9 @@ def write_report(log_folder: str | Path, out_dir: str | Path = "results", seed: 
     references = reference_summaries(trials, log_folder, seed)
     summaries = curve_summaries(trials)
     write_text(table, paper_table(trials, settings, references, summaries))
-    written = [table, *plot_learning_curves(trials, out_dir)]
+    headline = out_dir / "headline.md"
+    write_text(headline, headline_table(summaries, references))
+    written = [table, headline, *plot_learning_curves(trials, out_dir)]
     for figure in (plot_final_returns(summaries, out_dir, references), plot_comfort(trials, log_folder, out_dir, seed)):
         if figure is not None:
             written.append(figure)

@@ -279,3 +279,68 @@ def _findings(experiment: str, summaries: dict[tuple[str, str, int], dict[str, A
             )
         lines.append(f"- Here, density {density}: {finding}.")
     return lines
+
+
+#: The headline table's learner rows: label -> (algorithm, variant); the paper's four learners first.
+HEADLINE_ROWS: dict[str, tuple[str, str]] = {
+    "MADQN": ("madqn", "default"),
+    "MA2C (the paper's method)": ("ma2c", "default"),
+    "MAACKTR": ("maacktr", "default"),
+    "MAPPO": ("mappo", "default"),
+    "MA2C, separate actor and critic": ("ma2c", "separate-networks"),
+    "MA2C, safety training": ("ma2c", "safety-training"),
+    "MA2C, rule prior": ("ma2c", "rule-prior"),
+}
+
+
+def headline_table(
+    summaries: dict[tuple[str, str, int], dict[str, Any] | None], references: dict[tuple[str, int], dict[str, Any]]
+) -> str:
+    """The markdown of ``headline.md``: the paper's Table 5 beside ours (with the supervisor) and the
+    same episodes without it, for :data:`HEADLINE_ROWS` and IDM/MOBIL; "—" where a curve has no
+    finished trial at a density."""
+
+    def on(algo: str, variant: str, density: int) -> str:
+        summary = summaries.get((algo, variant, density))
+        if summary is None:
+            return "—"
+        paper = PAPER_RETURNS.get((algo, density)) if variant == "default" else None
+        return f"{summary['return_mean']:.2f} ± {summary['return_std']:.2f}" + (f" ({paper[0]:.2f})" if paper else "")
+
+    def alone(summary: dict[str, Any] | None, spread: bool = True) -> str:
+        off = (summary or {}).get("supervisor_off")
+        if not off:
+            return "—"
+        std = f" ± {off['return_std']:.2f}" if spread else ""
+        return f"{off['return_mean']:.2f}{std} / {off['collision_rate']:.2f}"
+
+    header = "| {} | density 1 | density 2 | density 3 |\n|---|---|---|---|"
+    idm = {density: references.get(("idm-mobil", density)) for density in DENSITIES}
+    supervised = [
+        *(f"| {label} | " + " | ".join(on(*curve, d) for d in DENSITIES) + " |" for label, curve in HEADLINE_ROWS.items()),
+        "| IDM/MOBIL (hand-written, same episodes) | "
+        + " | ".join(f"{s['return_mean']:.2f} ± {s['return_std']:.2f}" if s else "—" for s in idm.values())
+        + " |",
+    ]
+    unsupervised = [
+        *(
+            f"| {label} | " + " | ".join(alone(summaries.get((*curve, d))) for d in DENSITIES) + " |"
+            for label, curve in HEADLINE_ROWS.items()
+        ),
+        "| IDM/MOBIL (not learned) | " + " | ".join(alone(s, spread=False) for s in idm.values()) + " |",
+    ]
+    return "\n".join(
+        [
+            "With the safety supervisor (the authors' protocol): final evaluation return, mean ± std over seeds of "
+            "30 seeded episodes each, sampled actions; in parentheses the paper's Table 5 (mean, 2 seeds).",
+            "",
+            header.format("policy"),
+            *supervised,
+            "",
+            "The same episodes without the supervisor (the policy alone): return mean ± std over seeds / collision rate.",
+            "",
+            header.format("policy alone (supervisor off)"),
+            *unsupervised,
+            "",
+        ]
+    )

@@ -1,11 +1,11 @@
 """The PettingZoo ParallelEnv of the scenario: PettingZoo's own API and seed tests, and SuperSuit -> SB3."""
 
 import re
-from pathlib import Path
 
 import numpy as np
 import pytest
 import supersuit as ss
+from documents import code
 from pettingzoo.test import parallel_api_test, parallel_seed_test
 from stable_baselines3 import PPO
 
@@ -94,7 +94,7 @@ def test_supersuit_to_sb3_ppo_learns_on_it():
         num_cpus=0,
         base_class="stable_baselines3",
     )
-    vec.venv.reset(seed=0)  # SuperSuit's SB3 wrapper cannot take SB3's seed (see the README)
+    vec.venv.reset(seed=0)  # SuperSuit's SB3 wrapper cannot take SB3's seed (see the docs' PettingZoo section)
     model = PPO("MlpPolicy", vec, n_steps=64, batch_size=64)
     model.learn(256)
     assert model.num_timesteps == 256 and vec.num_envs == 4
@@ -102,11 +102,10 @@ def test_supersuit_to_sb3_ppo_learns_on_it():
     assert actions.shape == (4,)
 
 
-def test_the_readme_pettingzoo_example_runs_verbatim(capsys):
-    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
-    section = readme.split("\n## PettingZoo: the scenario as a ParallelEnv\n", 1)[1].split("\n## ", 1)[0]
-    code = re.search(r"```python\n(.*?)```", section, re.S).group(1)
-    exec(compile(code, "README.md", "exec"), {})
+def test_the_docs_pettingzoo_example_runs_verbatim(capsys):
+    exec(
+        compile(code("parameter-sharing.md", "PettingZoo: the scenario as a ParallelEnv"), "parameter-sharing.md", "exec"), {}
+    )
     assert re.search(r"MA2C episode return \(local rewards\): -?\d+\.\d\d", capsys.readouterr().out)
 
 

@@ -1,4 +1,4 @@
-"""Other MARL libraries on the PettingZoo env, as their users run them: the README's TorchRL,
+"""Other MARL libraries on the PettingZoo env, as their users run them: the docs' TorchRL,
 RLlib and BenchMARL examples verbatim, TorchRL's spec check at densities 1 and 3, and masked
 actions never taken (TorchRL's masked rollout; RLlib's action-masking module on a recording env)."""
 
@@ -7,21 +7,18 @@ import re
 import subprocess
 import sys
 import types
-from pathlib import Path
 
 import numpy as np
 import pytest
+from documents import code as docs_code
 
 from sb3_marl.envs import parallel_env
 from sb3_marl.envs.parallel import LaneChangeParallelEnv
 
-README = (Path(__file__).resolve().parents[2] / "README.md").read_text()
-
 
 def readme_example(library: str) -> str:
-    section = README.split("\n## Other MARL libraries: TorchRL, RLlib, BenchMARL\n", 1)[1].split("\n## ", 1)[0]
-    body = section.split(f"\n### {library}\n", 1)[1].split("\n### ", 1)[0]
-    return re.search(r"```python\n(.*?)```", body, re.S).group(1)
+    """The example of ``library`` on the docs page of other MARL libraries."""
+    return docs_code("marl-libraries.md", library)
 
 
 def test_the_dev_environment_is_coherent():
@@ -34,7 +31,7 @@ def test_the_torchrl_example_passes_check_env_specs_and_never_takes_a_masked_act
     code = readme_example("TorchRL")
     if density != 3:
         code = code.replace("density=3", f"density={density}").replace("6 AVs", f"{density + 2} AVs")
-    exec(compile(code, "README.md", "exec"), {})
+    exec(compile(code, "marl-libraries.md", "exec"), {})
     out = capsys.readouterr().out
     assert "masked actions taken: 0" in out
     n_avs = {1: 3, 3: 6}[density]
@@ -71,7 +68,7 @@ def ray_shut_down_after():
 
 
 def test_the_rllib_example_trains_two_iterations_of_shared_masked_ppo(capsys, ray_shut_down_after):
-    exec(compile(readme_example("RLlib"), "README.md", "exec"), {})
+    exec(compile(readme_example("RLlib"), "marl-libraries.md", "exec"), {})
     lines = [line.split() for line in capsys.readouterr().out.splitlines() if re.fullmatch(r"[01] \d+(\.\d+)?", line)]
     assert [line[0] for line in lines] == ["0", "1"] and float(lines[1][1]) > float(lines[0][1]) > 0
 
@@ -82,7 +79,7 @@ def test_rllib_with_the_action_masking_module_never_takes_a_masked_action(ray_sh
     # RLlib's env check at build time steps the env with unmasked random actions: count from training on
     code = code.replace("algo = config.build_algo()\n", "algo = config.build_algo()\nRecordingEnv.reset_counts()\n")
     assert "RecordingEnv.reset_counts()" in code
-    exec(compile(code, "README.md", "exec"), {"RecordingEnv": RecordingEnv})
+    exec(compile(code, "marl-libraries.md", "exec"), {"RecordingEnv": RecordingEnv})
     assert RecordingEnv.actions_seen >= 400 and RecordingEnv.masked_taken == []
 
 
@@ -103,5 +100,5 @@ def test_the_benchmarl_example_runs_two_iterations_of_mappo(capsys, tmp_path, mo
     monkeypatch.chdir(tmp_path)
     module = types.ModuleType("benchmarl_readme_example")  # BenchMARL pickles the task class: a real module
     monkeypatch.setitem(sys.modules, module.__name__, module)
-    exec(compile(readme_example("BenchMARL"), "README.md", "exec"), module.__dict__)
+    exec(compile(readme_example("BenchMARL"), "marl-libraries.md", "exec"), module.__dict__)
     assert "BenchMARL MAPPO: 2 iterations" in capsys.readouterr().out

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 import torch as th
 import torch.nn.functional as F
+from documents import code
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.evaluation import evaluate_policy
 from torch import nn
@@ -199,10 +200,11 @@ def test_kfac_needs_statistics_and_valid_settings():
             KFAC(net, **kwargs)
 
 
-def test_acktr_solves_cartpole():
-    env = make_vec_env("CartPole-v1", n_envs=16, seed=0)
-    model = ACKTR("MlpPolicy", env, learning_rate=0.1, n_steps=16, ent_coef=0.0, seed=0, device="cpu")
-    model.learn(80_000)  # about 20 s on 2 cores
+def test_the_docs_example_solves_cartpole():
+    """The Learners page's ACKTR example, run verbatim (about 20 s on 2 cores), then evaluated."""
+    namespace: dict = {}
+    exec(compile(code("learners.md", "ACKTR"), "learners.md", "exec"), namespace)
+    model = namespace["model"]
     eval_env = gym.make("CartPole-v1")
     eval_env.reset(seed=100)
     returns, _ = evaluate_policy(model, eval_env, n_eval_episodes=10, deterministic=True, return_episode_rewards=True)
