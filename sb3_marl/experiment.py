@@ -15,10 +15,10 @@ the final model. This subclass changes only what a multi-agent VecEnv needs:
 
 from __future__ import annotations
 
-import argparse
 import os
 import sys
 from collections import OrderedDict
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 import optuna
@@ -75,54 +75,119 @@ def interrupted_by_user(error: BaseException | None) -> bool:
     return False
 
 
-class MARLExperimentManager(ExperimentManager):
-    """:class:`rl_zoo3.exp_manager.ExperimentManager` on a ParameterSharingVecEnv (see module doc).
+@dataclass
+class RunSpec:
+    """One training run, as ``sb3-marl train`` and a benchmark trial both describe it; what
+    :class:`MARLExperimentManager` takes, saved as the run's ``args.yml``. Fields keep the names of
+    rl-zoo's flags (``train --help``); timesteps and frequencies count AV-steps.
 
-    :param n_copies: scenario copies (``--n-envs``), overriding the config's ``n_copies``
-    :param reward_mode: ``local``, ``global`` or ``individual``, overriding the config's
-    :param vec_env_type: ``dummy`` (in process) or ``subproc`` (one worker process per core)
-    :param run_id: write to ``<env>_<run_id>/`` (an existing folder is continued) instead of the next free id
-    :param monitor_file: name of the training episodes' monitor file in the run folder
-    :param callback_after_eval: called after each evaluation, as SB3's ``EvalCallback(callback_after_eval=...)``
-    :param evaluate_at_end: evaluate the final model too (if the last evaluation was not at the last step)
+    :param n_envs: scenario copies, overriding the config's ``n_copies`` (None: the config's)
+    :param reward_mode: ``local``, ``global`` or ``individual``, overriding the config's (None: the config's)
+    :param vec_env: ``dummy`` (copies in process) or ``subproc`` (one worker process per core)
+    :param tensorboard_log: TensorBoard folder; None: ``<log_folder>/tensorboard``, "": none
     :param trust_remote_code: continue training (``-i``) from a zip that needs unpickling, and load
         a ``replay_buffer.pkl`` beside it (a pickle); off: the zip is read as data
-        (:mod:`sb3_marl.loading`) and only a ``replay_buffer.npz`` beside it (arrays, the
-        benchmark's checkpoints) is loaded
+        (:mod:`sb3_marl.loading`) and only a ``replay_buffer.npz`` beside it is loaded
+    :param run_id: write to ``<env>_<run_id>/`` (an existing folder is continued) instead of the next free id
+    :param monitor_file: name of the training episodes' monitor file in the run folder
+    :param evaluate_at_end: evaluate the final model too (if the last evaluation was not at the last step)
     """
 
-    def __init__(
-        self,
-        args: argparse.Namespace,
-        algo: str,
-        env_id: str,
-        log_folder: str,
-        *,
-        conf_file: str | None = None,
-        n_copies: int | None = None,
-        reward_mode: str | None = None,
-        vec_env_type: str = "dummy",
-        run_id: int | None = None,
-        monitor_file: str = "monitor.csv",
-        callback_after_eval: BaseCallback | None = None,
-        evaluate_at_end: bool = False,
-        trust_remote_code: bool = False,
-        **kwargs: Any,
-    ) -> None:
-        config = conf_file or str(config_file(algo))
-        super().__init__(args, algo, env_id, log_folder, config=config, vec_env_type="dummy", **kwargs)
-        self.vec_backend = vec_env_type
+    algo: str
+    env: str
+    log_folder: str = "logs"
+    seed: int = 0
+    n_timesteps: int = -1
+    eval_freq: int = 10_000
+    eval_episodes: int = 5
+    save_freq: int = -1
+    hyperparams: dict[str, Any] = field(default_factory=dict)
+    trained_agent: str = ""
+    conf_file: str | None = None
+    n_envs: int | None = None
+    reward_mode: str | None = None
+    vec_env: str = "dummy"
+    tensorboard_log: str | None = None
+    log_interval: int = -1
+    verbose: int = 1
+    device: str = "auto"
+    progress: bool = False
+    trust_remote_code: bool = False
+    run_id: int | None = None
+    monitor_file: str = "monitor.csv"
+    evaluate_at_end: bool = False
+    # rl-zoo's -optimize (Optuna)
+    optimize_hyperparameters: bool = False
+    n_trials: int = 500
+    n_jobs: int = 1
+    sampler: str = "tpe"
+    pruner: str = "median"
+    n_startup_trials: int = 10
+    n_evaluations: int | None = None
+    storage: str | None = None
+    study_name: str | None = None
+
+    @classmethod
+    def from_args(cls, args: Any) -> RunSpec:
+        """The run of ``sb3-marl train``'s parsed arguments (the flags this class has fields for)."""
+        return cls(**{f.name: getattr(args, f.name) for f in fields(cls) if hasattr(args, f.name)})
+
+    @property
+    def tensorboard_folder(self) -> str:
+        """Where TensorBoard logs go ("" : nowhere)."""
+        return os.path.join(self.log_folder, "tensorboard") if self.tensorboard_log is None else self.tensorboard_log
+
+
+class MARLExperimentManager(ExperimentManager):
+    """:class:`rl_zoo3.exp_manager.ExperimentManager` on a ParameterSharingVecEnv (see module doc),
+    for the run ``spec``.
+
+    :param callback_after_eval: called after each evaluation, as SB3's ``EvalCallback(callback_after_eval=...)``
+    """
+
+    def __init__(self, spec: RunSpec, callback_after_eval: BaseCallback | None = None) -> None:
+        super().__init__(
+            spec,  # type: ignore[arg-type]  # rl_zoo3 only saves vars(args) as args.yml
+            spec.algo,
+            spec.env,
+            spec.log_folder,
+            config=spec.conf_file or str(config_file(spec.algo)),
+            vec_env_type="dummy",
+            tensorboard_log=spec.tensorboard_folder,
+            n_timesteps=spec.n_timesteps,
+            eval_freq=spec.eval_freq,
+            n_eval_episodes=spec.eval_episodes,
+            save_freq=spec.save_freq,
+            hyperparams=spec.hyperparams,
+            trained_agent=spec.trained_agent,
+            seed=spec.seed,
+            log_interval=spec.log_interval,
+            verbose=spec.verbose,
+            device=spec.device,
+            show_progress=spec.progress,
+            optimize_hyperparameters=spec.optimize_hyperparameters,
+            n_trials=spec.n_trials,
+            n_jobs=spec.n_jobs,
+            sampler=spec.sampler,
+            pruner=spec.pruner,
+            n_startup_trials=spec.n_startup_trials,
+            n_evaluations=spec.n_evaluations,  # type: ignore[arg-type]  # None: hyperparameters_optimization's default
+            storage=spec.storage,
+            study_name=spec.study_name,
+        )
+        self.spec = spec
+        self.vec_backend = spec.vec_env
         self.cli_overrides = {
-            key: value for key, value in (("n_copies", n_copies), ("reward_mode", reward_mode)) if value is not None
+            key: value for key, value in (("n_copies", spec.n_envs), ("reward_mode", spec.reward_mode)) if value is not None
         }
-        self.explicit_run_id = run_id is not None
-        if run_id is not None:
-            self.save_path = os.path.join(self.log_path, f"{self.env_name}_{run_id}")
+        self.explicit_run_id = spec.run_id is not None
+        if spec.run_id is not None:
+            self.save_path = os.path.join(self.log_path, f"{self.env_name}_{spec.run_id}")
             self.params_path = os.path.join(self.save_path, str(self.env_name))
-        self.monitor_file = monitor_file
+        self.monitor_file = spec.monitor_file
         self.callback_after_eval = callback_after_eval
-        self.evaluate_at_end = evaluate_at_end
-        self.trust_remote_code = trust_remote_code
+        self.evaluate_at_end = spec.evaluate_at_end
+        self.trust_remote_code = spec.trust_remote_code
         self.scenario: dict[str, Any] = {}
         self.interrupted = False
         self.best_config_path: str | None = None  # written by hyperparameters_optimization

@@ -34,7 +34,6 @@ and the maskable learners (``ma2c``, ``mappo``, ``maacktr``, ``madqn``) take ``a
 
 from __future__ import annotations
 
-import inspect
 from pathlib import Path
 from typing import Any
 
@@ -42,6 +41,7 @@ import gymnasium as gym
 import yaml
 
 from sb3_marl.algos import get_algo
+from sb3_marl.algos.base import hyperparameters
 from sb3_marl.checks import is_integer, is_number
 from sb3_marl.envs import av_counts, default_config, validate_config
 from sb3_marl.policies import (
@@ -120,8 +120,7 @@ def config_file(algo: str) -> Path:
 
 def algorithm_arguments(algo: str) -> list[str]:
     """Constructor arguments of the algorithm that a config may set."""
-    parameters = inspect.signature(get_algo(algo)).parameters
-    return sorted(name for name in parameters if name not in ("self", *RESERVED_KEYS))
+    return sorted(name for name in hyperparameters(get_algo(algo)) if name not in RESERVED_KEYS)
 
 
 #: Actor-critic learners whose optimizer is SB3's default Adam (A2C's RMSprop and ACKTR's K-FAC
@@ -241,8 +240,8 @@ def validate_hyperparams(algo: str, hyperparams: dict[str, Any], env_id: str | N
     for key, value in hyperparams.items():
         check_value(key, value)
     # keys whose check lives beside the code that uses them (one check each)
-    from sb3_marl.algos.base import check_safety_loss_coef
     from sb3_marl.algos.rule_prior import RulePrior
+    from sb3_marl.algos.teacher import check_safety_loss_coef
 
     prior = {key: value for key, value in hyperparams.items() if key in RulePrior().as_kwargs()}
     if prior:

@@ -251,7 +251,11 @@ def _rebuild(key: str, entry: dict[str, Any], algo_class: Any) -> Any:
         }
     if kind == "stable_baselines3.common.type_aliases.TrainFreq":
         # not readable: the algorithm's default (continuing training passes the run's own value)
-        return inspect.signature(algo_class).parameters["train_freq"].default
+        return next(
+            parameter.default
+            for klass in algo_class.__mro__
+            if (parameter := inspect.signature(klass).parameters.get("train_freq")) is not None
+        )
     if kind in ("abc.ABCMeta", "type"):
         return _known_class(key, entry, algo_class)
     raise ValueError(f"type {kind} is not one sb3-marl rebuilds")

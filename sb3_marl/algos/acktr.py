@@ -44,7 +44,7 @@ from stable_baselines3.common.policies import (
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.utils import explained_variance
 
-from sb3_marl.algos.base import ACTOR_CRITIC_POLICIES, ActionMaskingMixin, _with_action_masking
+from sb3_marl.algos.base import ACTOR_CRITIC_POLICIES, ActionMaskingMixin
 from sb3_marl.algos.kfac import KFAC
 
 SelfACKTR = TypeVar("SelfACKTR", bound="ACKTR")
@@ -264,6 +264,3 @@ class MaskableACKTR(ActionMaskingMixin, ACKTR):  # type: ignore[misc]
             n_envs=self.n_envs,
         )
         self._setup_optimizer()
-
-
-_with_action_masking(MaskableACKTR, ACKTR, teacher=False)  # K-FAC steps only on its own loss

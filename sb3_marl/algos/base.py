@@ -31,9 +31,7 @@ from sb3_contrib import MaskablePPO
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.policies import BasePolicy
 
-from sb3_marl.algos.rule_prior import RulePrior, RulePriorLearner
-from sb3_marl.algos.teacher import SupervisorTeacher
-from sb3_marl.checks import check_number
+from sb3_marl.algos.rule_prior import RulePriorLearner
 from sb3_marl.loading import SafeLoading
 from sb3_marl.policies import CentralisedCriticPolicy
 
@@ -46,37 +44,50 @@ ACTOR_CRITIC_POLICIES: dict[str, type[BasePolicy]] = {
 
 
 class MaskingLearner(SafeLoading):
-    """What every learner of this module takes and saves: the ``action_masking`` switch, the
-    ``safety_loss_coef`` of learning from the safety supervisor (see :class:`SupervisorTeacher`),
-    and its class name (``algorithm_class`` in the zip's data, so that loading a model as another
+    """What every learner of this module takes and saves: the ``action_masking`` switch and its
+    class name (``algorithm_class`` in the zip's data, so that loading a model as another
     algorithm is refused by name: :func:`sb3_marl.runs.check_model_file`). Loading a model
     restores the saved values over these, and never unpickles (:class:`~sb3_marl.loading.SafeLoading`)."""
 
-    def __init__(self, *args: Any, action_masking: bool = True, safety_loss_coef: float = 0.0, **kwargs: Any) -> None:
+    def __init__(self, *args: Any, action_masking: bool = True, **kwargs: Any) -> None:
         self.algorithm_class = type(self).__name__
         self.action_masking = bool(action_masking)
-        self.safety_loss_coef = check_safety_loss_coef(safety_loss_coef)
         super().__init__(*args, **kwargs)
 
 
-def check_safety_loss_coef(coef: Any) -> float:
-    """``safety_loss_coef`` as a float; a ValueError naming it unless a finite number >= 0."""
-    return check_number("safety_loss_coef", coef, 0, expected="a finite number >= 0 (0: off)")
+def hyperparameters(cls: type) -> dict[str, inspect.Parameter]:
+    """The keyword arguments a learner class takes: those of its own ``__init__`` and of each class
+    up its MRO that the arguments are passed on to (``**kwargs``), down to the first that takes no
+    more (SB3's algorithm)."""
+    found: dict[str, inspect.Parameter] = {}
+    for klass in cls.__mro__:
+        if "__init__" not in vars(klass):
+            continue
+        parameters = list(inspect.signature(klass.__init__).parameters.values())[1:]  # type: ignore[misc]
+        skipped = (inspect.Parameter.VAR_POSITIONAL, inspect.Parameter.VAR_KEYWORD)
+        found.update({p.name: p for p in parameters if p.kind not in skipped and p.name not in found})
+        if all(p.kind != inspect.Parameter.VAR_KEYWORD for p in parameters):
+            break
+    return found
 
 
-class ActionMaskingMixin(RulePriorLearner, SupervisorTeacher, MaskingLearner):
+class ActionMaskingMixin(RulePriorLearner, MaskingLearner):
     """``action_masking`` switch of a maskable on-policy learner: sb3-contrib's masked rollouts
-    and ``predict(..., action_masks=...)``, with masks only when ``action_masking`` is True; the
-    supervisor as a teacher (:class:`SupervisorTeacher`) and the rule prior (:class:`RulePriorLearner`)."""
+    and ``predict(..., action_masks=...)``, with masks only when ``action_masking`` is True, and
+    the rule prior (:class:`RulePriorLearner`)."""
 
     action_masking: bool = True
+
+    def rollout_callback(self, callback: Any, n_rollout_steps: int, n_envs: int) -> Any:
+        """The callback of a rollout (the teacher's adds its recorder: :class:`SupervisorTeacher`)."""
+        return callback
 
     def collect_rollouts(
         self, env: Any, callback: Any, rollout_buffer: Any, n_rollout_steps: int, use_masking: bool = True
     ) -> bool:
         """sb3-contrib's masked rollout collection (``MaskablePPO.collect_rollouts``), recording the
         supervisor's interventions for the teacher's loss and the rule driver's labels for the prior's."""
-        callback = self.with_recorder(callback, n_rollout_steps, env.num_envs)
+        callback = self.rollout_callback(callback, n_rollout_steps, env.num_envs)
         return MaskablePPO.collect_rollouts(
             self,  # type: ignore[arg-type]
             self.labelled(env, n_rollout_steps),
@@ -98,22 +109,6 @@ class ActionMaskingMixin(RulePriorLearner, SupervisorTeacher, MaskingLearner):
         (ignored when the model was trained with ``action_masking=False``)."""
         masks = action_masks if self.action_masking else None
         return self.policy.predict(observation, state, episode_start, deterministic, action_masks=masks)  # type: ignore[attr-defined]
-
-
-def _with_action_masking(cls: type, base: type, teacher: bool = True, prior: bool = True) -> None:
-    """Give ``cls`` the constructor signature of ``base`` plus ``action_masking`` (and, with
-    ``teacher``, ``safety_loss_coef``; with ``prior``, the rule prior's keys), so that the zoo
-    configs' validation (which reads constructor signatures) sees every argument."""
-    signature = inspect.signature(base)
-    extra = [inspect.Parameter("action_masking", inspect.Parameter.KEYWORD_ONLY, default=True, annotation=bool)]
-    if teacher:
-        extra.append(inspect.Parameter("safety_loss_coef", inspect.Parameter.KEYWORD_ONLY, default=0.0, annotation=float))
-    if prior:
-        extra += [
-            inspect.Parameter(key, inspect.Parameter.KEYWORD_ONLY, default=value)
-            for key, value in RulePrior().as_kwargs().items()
-        ]
-    cls.__signature__ = signature.replace(parameters=[*signature.parameters.values(), *extra])  # type: ignore[attr-defined]
 
 
 def uses_action_masks(model: BaseAlgorithm) -> bool:

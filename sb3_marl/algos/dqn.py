@@ -11,8 +11,9 @@ from sb3_contrib.common.maskable.utils import get_action_masks
 from stable_baselines3 import DQN
 from stable_baselines3.common.type_aliases import GymEnv
 
-from sb3_marl.algos.base import MaskingLearner, _with_action_masking
+from sb3_marl.algos.base import MaskingLearner
 from sb3_marl.algos.buffers import MaskedReplayBuffer
+from sb3_marl.algos.teacher import check_safety_loss_coef
 
 
 class MaskableDQN(MaskingLearner, DQN):
@@ -47,7 +48,8 @@ class MaskableDQN(MaskingLearner, DQN):
     ):
         if (action_masking or safety_loss_coef) and kwargs.get("replay_buffer_class") is None:
             kwargs["replay_buffer_class"] = MaskedReplayBuffer
-        super().__init__(policy, env, *args, action_masking=action_masking, safety_loss_coef=safety_loss_coef, **kwargs)
+        self.safety_loss_coef = check_safety_loss_coef(safety_loss_coef)
+        super().__init__(policy, env, *args, action_masking=action_masking, **kwargs)
 
     def safety_loss(self, q_values: th.Tensor, executed: th.Tensor) -> th.Tensor:
         """DQfD's large-margin loss averaged over the rows whose ``executed`` action is >= 0
@@ -132,6 +134,3 @@ def _random_available(masks: np.ndarray) -> np.ndarray:
     drawn with numpy's global generator as SB3's DQN exploration (seeded by ``set_random_seed``)."""
     scores = np.random.random_sample(masks.shape)
     return np.where(masks, scores, -1.0).argmax(axis=1)
-
-
-_with_action_masking(MaskableDQN, DQN, prior=False)

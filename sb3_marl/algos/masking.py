@@ -8,14 +8,13 @@ from sb3_marl.algos.base import (
     ACTOR_CRITIC_POLICIES,
     ActionMaskingMixin,
     MaskingLearner,
-    check_safety_loss_coef,
     uses_action_masks,
 )
 from sb3_marl.algos.buffers import MaskedReplayBuffer, PerAgentDictRolloutBuffer, PerAgentRolloutBuffer
 from sb3_marl.algos.dqn import MaskableDQN
 from sb3_marl.algos.ppo import MaskableActorCritic, MaskedPPO
 from sb3_marl.algos.rule_prior import RulePriorLearner
-from sb3_marl.algos.teacher import SupervisorTeacher, executed_labels
+from sb3_marl.algos.teacher import SupervisorTeacher, check_safety_loss_coef, executed_labels
 from sb3_marl.algos.trpo import SafeTRPO
 
 __all__ = [

@@ -16,10 +16,11 @@ from sb3_contrib.common.maskable.buffers import MaskableDictRolloutBuffer, Maska
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.utils import explained_variance
 
-from sb3_marl.algos.base import ACTOR_CRITIC_POLICIES, ActionMaskingMixin, _with_action_masking
+from sb3_marl.algos.base import ACTOR_CRITIC_POLICIES, ActionMaskingMixin
+from sb3_marl.algos.teacher import SupervisorTeacher
 
 
-class MaskableActorCritic(ActionMaskingMixin, MaskablePPO):  # type: ignore[misc]
+class MaskableActorCritic(SupervisorTeacher, ActionMaskingMixin, MaskablePPO):  # type: ignore[misc]
     """sb3-contrib's ``MaskablePPO`` with the ``action_masking`` switch (see the module doc), whose
     update adds the rule prior's term to each minibatch's loss (same loss, same optimiser step),
     then takes the supervisor teacher's step; minibatches are one per AV slot with
@@ -110,6 +111,3 @@ class MaskedPPO(MaskableActorCritic):
     """sb3-contrib's ``MaskablePPO`` with the ``action_masking`` switch (see the module doc)."""
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = ACTOR_CRITIC_POLICIES
-
-
-_with_action_masking(MaskedPPO, MaskablePPO)

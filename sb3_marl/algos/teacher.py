@@ -9,6 +9,8 @@ import numpy as np
 import torch as th
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 
+from sb3_marl.checks import check_number
+
 
 def executed_labels(infos: list[dict[str, Any]]) -> list[int]:
     """Per VecEnv slot of one step: the action the safety supervisor executed where it replaced the
@@ -61,10 +63,14 @@ class SupervisorTeacher:
     safety_loss_coef: float = 0.0
     _recorder: InterventionRecorder | None = None
 
+    def __init__(self, *args: Any, safety_loss_coef: float = 0.0, **kwargs: Any) -> None:
+        self.safety_loss_coef = check_safety_loss_coef(safety_loss_coef)
+        super().__init__(*args, **kwargs)
+
     def _excluded_save_params(self) -> list[str]:
         return [*super()._excluded_save_params(), "_recorder"]  # type: ignore[misc]
 
-    def with_recorder(self, callback: Any, n_rollout_steps: int, n_envs: int) -> Any:
+    def rollout_callback(self, callback: Any, n_rollout_steps: int, n_envs: int) -> Any:
         """``callback`` plus the intervention recorder when the teacher is on."""
         if self.safety_loss_coef <= 0:
             return callback
@@ -106,6 +112,11 @@ class SupervisorTeacher:
         policy.optimizer.step()
         self.logger.record("train/safety_loss", float(loss.item()))  # type: ignore[attr-defined]
         return float(loss.item())
+
+
+def check_safety_loss_coef(coef: Any) -> float:
+    """``safety_loss_coef`` as a float; a ValueError naming it unless a finite number >= 0."""
+    return check_number("safety_loss_coef", coef, 0, expected="a finite number >= 0 (0: off)")
 
 
 def _flat_samples(observations: Any, obs_shape: Any, n: int) -> Any:

@@ -38,7 +38,14 @@ from sb3_marl.benchmark.tables import headline_table, paper_table
 from sb3_marl.files import read_json_object, write_text
 
 #: Names (glob patterns) of the files a report writes into its output folder.
-REPORT_OUTPUTS = ("paper_table.md", "headline.md", "learning_curves_*.png", "final_returns.png", "comfort.png", "cooperative_lane_change.*")
+REPORT_OUTPUTS = (
+    "paper_table.md",
+    "headline.md",
+    "learning_curves_*.png",
+    "final_returns.png",
+    "comfort.png",
+    "cooperative_lane_change.*",
+)
 
 
 def write_report(log_folder: str | Path, out_dir: str | Path = "results", seed: int = 10_000) -> list[Path]:

@@ -19,7 +19,6 @@ on it. Beside them:
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import platform
@@ -128,7 +127,7 @@ def run_trial(config: dict[str, Any]) -> None:
     from ray import tune
 
     from sb3_marl.callbacks import ScenarioEvalCallback
-    from sb3_marl.experiment import MARLExperimentManager
+    from sb3_marl.experiment import MARLExperimentManager, RunSpec
 
     torch.set_num_threads(1)  # one core per trial: Ray schedules trials by CPU
     spec = TrialSpec(**config["spec"])
@@ -167,35 +166,24 @@ def run_trial(config: dict[str, Any]) -> None:
     )
     write_json(folder / TRIAL, info)
 
-    args = argparse.Namespace(
+    run = RunSpec(
         algo=spec.algo,
         env=spec.env_id,
+        log_folder=str(folder),
         seed=spec.seed,
-        trial_id=spec.trial_id,
-        variant=spec.variant,
-        **{key: config[key] for key in SETTINGS},
-    )
-    manager = MARLExperimentManager(
-        args,
-        spec.algo,
-        spec.env_id,
-        str(folder),
-        run_id=RUN_ID,
-        monitor_file="monitor.csv" if not resumed_at else f"resumed_at_{resumed_at}.monitor.csv",
-        callback_after_eval=CheckpointAndReport(folder, spec),
-        evaluate_at_end=True,
-        tensorboard_log=str(folder / "tensorboard"),
         n_timesteps=spec.n_timesteps(config["budget"]),
         eval_freq=spec.eval_freq(config["eval_every_episodes"]),
-        n_eval_episodes=config["eval_episodes"],
-        save_freq=-1,
+        eval_episodes=config["eval_episodes"],
         hyperparams=spec.hyperparams,
         trained_agent=str(checkpoint / "model.zip") if resumed_at else "",
-        seed=spec.seed,
-        log_interval=-1,
+        tensorboard_log=str(folder / "tensorboard"),
         verbose=0,
         device="cpu",
+        run_id=RUN_ID,
+        monitor_file="monitor.csv" if not resumed_at else f"resumed_at_{resumed_at}.monitor.csv",
+        evaluate_at_end=True,
     )
+    manager = MARLExperimentManager(run, callback_after_eval=CheckpointAndReport(folder, spec))
     model, _ = manager.setup_experiment()  # type: ignore[misc]
     evaluation = next(c for c in manager.callbacks if isinstance(c, ScenarioEvalCallback))
     if resumed_at:

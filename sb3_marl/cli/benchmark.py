@@ -150,7 +150,7 @@ def _benchmark_evaluate(args: argparse.Namespace) -> int:
     results = sorted(Path(args.log_folder).glob(f"trials/*/{RESULT}"))
     if not results:
         raise UsageError(f"-f/--log-folder: no finished trial (trials/*/{RESULT}) under {args.log_folder!r}.")
-    set_num_threads(argparse.Namespace(num_threads=1))
+    set_num_threads(1)
     try:
         done = [path.parent.name for path in tqdm(results, desc="trials", unit="trial") if reevaluate_trial(path.parent)]
     except (ValueError, KeyError, TypeError) as error:  # an unreadable or edited result.json, named

@@ -89,11 +89,12 @@ def add_num_threads(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def set_num_threads(args: argparse.Namespace) -> None:
+def set_num_threads(num_threads: int) -> None:
+    """``--num-threads``: torch's intra-op threads (0 or less: torch's default)."""
     import torch
 
-    if args.num_threads > 0:
-        torch.set_num_threads(args.num_threads)
+    if num_threads > 0:
+        torch.set_num_threads(num_threads)
 
 
 def check_device(device: str) -> None:
@@ -227,7 +228,7 @@ def find_run_of(args: argparse.Namespace) -> Any:
 def load_model_of(run: Any, args: argparse.Namespace) -> Any:
     """The run's model on ``--device`` with ``--num-threads``; a usage error naming a bad file."""
     check_device(args.device)
-    set_num_threads(args)
+    set_num_threads(args.num_threads)
     try:
         return run.load_model(args.device, args.trust_remote_code)
     except ValueError as error:

@@ -212,43 +212,13 @@ def _check_trained_agent(args: argparse.Namespace) -> None:
 
 
 def train_command(args: argparse.Namespace) -> int:
-    from sb3_marl.experiment import MARLExperimentManager
+    from sb3_marl.experiment import MARLExperimentManager, RunSpec
 
     _check_train_args(args)
-    set_num_threads(args)
-    tensorboard_log = os.path.join(args.log_folder, "tensorboard") if args.tensorboard_log is None else args.tensorboard_log
-    manager = MARLExperimentManager(
-        args,
-        args.algo,
-        args.env,
-        args.log_folder,
-        conf_file=args.conf_file,
-        n_copies=args.n_envs,
-        reward_mode=args.reward_mode,
-        vec_env_type=args.vec_env,
-        tensorboard_log=tensorboard_log,
-        n_timesteps=args.n_timesteps,
-        eval_freq=args.eval_freq,
-        n_eval_episodes=args.eval_episodes,
-        save_freq=args.save_freq,
-        hyperparams=args.hyperparams,
-        trained_agent=args.trained_agent,
-        seed=args.seed,
-        log_interval=args.log_interval,
-        verbose=args.verbose,
-        device=args.device,
-        show_progress=args.progress,
-        trust_remote_code=args.trust_remote_code,
-        optimize_hyperparameters=args.optimize_hyperparameters,
-        n_trials=args.n_trials,
-        n_jobs=args.n_jobs,
-        sampler=args.sampler,
-        pruner=args.pruner,
-        n_startup_trials=args.n_startup_trials,
-        n_evaluations=args.n_evaluations,
-        storage=args.storage,
-        study_name=args.study_name,
-    )
+    set_num_threads(args.num_threads)
+    spec = RunSpec.from_args(args)
+    tensorboard_log = spec.tensorboard_folder
+    manager = MARLExperimentManager(spec)
     try:
         experiment = manager.setup_experiment()
     except (ValueError, FileNotFoundError) as error:  # bad hyperparameters: nothing has been trained
