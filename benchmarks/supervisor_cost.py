@@ -22,8 +22,8 @@ import gymnasium as gym
 import numpy as np
 
 import sb3_marl  # noqa: F401  (registers our ids)
-import sb3_marl.envs.lane_change_env as lane_change_env
 from sb3_marl.envs import DENSITIES, ENV_IDS
+from sb3_marl.envs.supervisor import Supervisor
 
 
 def measure(density: int, steps: int, supervisor: bool, seed: int = 0) -> dict[str, float]:
@@ -32,7 +32,7 @@ def measure(density: int, steps: int, supervisor: bool, seed: int = 0) -> dict[s
     env = gym.make(
         ENV_IDS[density], config={"n_avs": n_avs, "hdv_count_range": [n_hdvs, n_hdvs], "safety_supervisor": supervisor}
     ).unwrapped
-    supervise, spent = lane_change_env.supervise, [0.0, 0]
+    supervise, spent = Supervisor.__call__, [0.0, 0]
 
     def timed(*args, **kwargs):
         tic = time.perf_counter()
@@ -41,7 +41,7 @@ def measure(density: int, steps: int, supervisor: bool, seed: int = 0) -> dict[s
         spent[1] += 1
         return result
 
-    lane_change_env.supervise = timed
+    Supervisor.__call__ = timed  # every env's supervisor, timed
     try:
         rng = np.random.default_rng(seed)
         env.reset(seed=seed)
@@ -56,7 +56,7 @@ def measure(density: int, steps: int, supervisor: bool, seed: int = 0) -> dict[s
                 episode += 1
                 env.reset(seed=seed + episode)
     finally:
-        lane_change_env.supervise = supervise
+        Supervisor.__call__ = supervise
     return {
         "step": stepping / steps,
         "supervisor": spent[0] / max(spent[1], 1),

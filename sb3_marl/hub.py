@@ -102,65 +102,18 @@ def build_model_folder(
     return folder
 
 
-def model_card(results: dict[str, Any], repo_id: str) -> ModelCard:
-    """A model card whose model-index carries the evaluation of ``results`` (a results.json)."""
-    algo, env_id = results["algo"], results["env_id"]
-    evaluation = {"task_type": "reinforcement-learning", "dataset_type": env_id, "dataset_name": env_id}
-    # huggingface_sb3's conventions: metric type and name "mean_reward", value "mean +/- std"
-    eval_results = [
-        EvalResult(
-            **evaluation,
-            metric_type="mean_reward",
-            metric_name="mean_reward",
-            metric_value=f"{results['return_mean']:.2f} +/- {results['return_std']:.2f}",
-        )
-    ]
-    eval_results += [
-        EvalResult(**evaluation, metric_type=name, metric_name=name, metric_value=round(results[key], 4))
-        for key, name in CARD_METRICS.items()
-    ]
-    alone = results.get("supervisor_off")
-    if alone:  # the policy without the safety supervisor
-        eval_results += [
-            EvalResult(
-                **evaluation,
-                metric_type="mean_reward_supervisor_off",
-                metric_name="mean_reward_supervisor_off",
-                metric_value=f"{alone['return_mean']:.2f} +/- {alone['return_std']:.2f}",
-            ),
-            EvalResult(
-                **evaluation,
-                metric_type="collision_rate_supervisor_off",
-                metric_name="collision_rate_supervisor_off",
-                metric_value=round(alone["collision_rate"], 4),
-            ),
-        ]
-    rows = "\n".join(f"| {title} | {cell(results)} | {cell(alone) if alone else '—'} |" for title, cell in CARD_ROWS)
-    data = ModelCardData(
-        library_name="stable-baselines3",
-        model_name=f"{algo.upper()}-{env_id}",
-        eval_results=eval_results,
-        tags=[
-            env_id,
-            "reinforcement-learning",
-            "deep-reinforcement-learning",
-            "stable-baselines3",
-            "multi-agent-reinforcement-learning",
-            "autonomous-driving",
-            "sb3-marl",
-        ],
-    )
-    body = f"""
-# {algo.upper()} on {env_id}
+#: The model card's text (markdown), filled in by :func:`model_card`.
+CARD_BODY = """
+# {ALGO} on {env_id}
 
 A policy shared by all connected autonomous vehicles (AVs) of the cooperative lane-changing
 scenario of Zhou, Chen et al. (two-lane 520 m highway with human-driven vehicles), trained with
-sb3-marl (`{algo}`: {get_algo(algo).__name__} with one policy shared by all AVs),
-{results["num_timesteps"]} timesteps (AV-steps).
+sb3-marl (`{algo}`: {learner} with one policy shared by all AVs),
+{num_timesteps} timesteps (AV-steps).
 
 ## Evaluation
 
-{results["episodes"]} seeded episodes (seeds {results["seeds"][0]}..{results["seeds"][1]}), {results["protocol"]}:
+{episodes} seeded episodes (seeds {first_seed}..{last_seed}), {protocol}:
 with the priority-based safety supervisor (the authors' protocol) and without it (the policy alone),
 on the same episodes.
 
@@ -191,8 +144,8 @@ from huggingface_hub import hf_hub_download
 from sb3_marl.algos import get_algo
 from sb3_marl.evaluation import model_policy, run_episodes
 
-model = get_algo("{algo}").load(hf_hub_download(repo_id="{repo_id}", filename="{model_file_name(algo, env_id)}"))
-env = gym.make("{env_id}", config={dict(results.get("env_config") or {})!r}).unwrapped
+model = get_algo("{algo}").load(hf_hub_download(repo_id="{repo_id}", filename="{model_file}"))
+env = gym.make("{env_id}", config={env_config}).unwrapped
 records = run_episodes(env, model_policy(model), n_episodes=3, seed=10_000)
 print("episode returns:", [round(record.episode_return, 2) for record in records])
 ```
@@ -202,9 +155,68 @@ Hyperparameters: `config.yml`. Evaluation: `results.json`. Replay: `replay.mp4`.
 ## Citation
 
 ```bibtex
-{CITATION}
+{citation}
 ```
 """
+
+#: The model card's tags (the Hub's search).
+CARD_TAGS = (
+    "reinforcement-learning",
+    "deep-reinforcement-learning",
+    "stable-baselines3",
+    "multi-agent-reinforcement-learning",
+    "autonomous-driving",
+    "sb3-marl",
+)
+
+
+def _eval_results(results: dict[str, Any]) -> list[EvalResult]:
+    """The model-index entries of ``results`` (a results.json), with the policy alone's where evaluated."""
+    env_id = results["env_id"]
+    evaluation = {"task_type": "reinforcement-learning", "dataset_type": env_id, "dataset_name": env_id}
+
+    def metric(name: str, value: Any) -> EvalResult:
+        return EvalResult(**evaluation, metric_type=name, metric_name=name, metric_value=value)
+
+    # huggingface_sb3's conventions: metric type and name "mean_reward", value "mean +/- std"
+    entries = [metric("mean_reward", f"{results['return_mean']:.2f} +/- {results['return_std']:.2f}")]
+    entries += [metric(name, round(results[key], 4)) for key, name in CARD_METRICS.items()]
+    alone = results.get("supervisor_off")
+    if alone:  # the policy without the safety supervisor
+        entries += [
+            metric("mean_reward_supervisor_off", f"{alone['return_mean']:.2f} +/- {alone['return_std']:.2f}"),
+            metric("collision_rate_supervisor_off", round(alone["collision_rate"], 4)),
+        ]
+    return entries
+
+
+def model_card(results: dict[str, Any], repo_id: str) -> ModelCard:
+    """A model card whose model-index carries the evaluation of ``results`` (a results.json)."""
+    algo, env_id = results["algo"], results["env_id"]
+    alone = results.get("supervisor_off")
+    rows = "\n".join(f"| {title} | {cell(results)} | {cell(alone) if alone else '—'} |" for title, cell in CARD_ROWS)
+    data = ModelCardData(
+        library_name="stable-baselines3",
+        model_name=f"{algo.upper()}-{env_id}",
+        eval_results=_eval_results(results),
+        tags=[env_id, *CARD_TAGS],
+    )
+    body = CARD_BODY.format(
+        ALGO=algo.upper(),
+        algo=algo,
+        env_id=env_id,
+        learner=get_algo(algo).__name__,
+        num_timesteps=results["num_timesteps"],
+        episodes=results["episodes"],
+        first_seed=results["seeds"][0],
+        last_seed=results["seeds"][1],
+        protocol=results["protocol"],
+        rows=rows,
+        repo_id=repo_id,
+        model_file=model_file_name(algo, env_id),
+        env_config=repr(dict(results.get("env_config") or {})),
+        citation=CITATION,
+    )
     return ModelCard(f"---\n{data.to_yaml()}\n---\n{body}")
 
 

@@ -28,7 +28,7 @@ from sb3_marl.benchmark.grid import (
     make_grid,
 )
 from sb3_marl.benchmark.trial import CHECKPOINT, RESULT, checkpoint_timesteps, final_evaluation, run_trial, trial_folder
-from sb3_marl.checks import is_number
+from sb3_marl.checks import check_integer, check_number, is_number
 from sb3_marl.envs import DENSITIES
 from sb3_marl.files import read_json_object, write_text
 
@@ -90,23 +90,17 @@ def run_benchmark(
     """
     trials = make_grid(grid, tuple(densities), seeds)
     check_budget(budget)
-    if not eval_every_episodes > 0:
-        raise ValueError(f"Invalid eval_every_episodes={eval_every_episodes!r}: expected a number of training episodes > 0.")
-    if not (isinstance(eval_episodes, int) and eval_episodes >= 1):
-        raise ValueError(f"Invalid eval_episodes={eval_episodes!r}: expected an integer >= 1.")
-    if max_concurrent is not None and max_concurrent < 1:
-        raise ValueError(f"Invalid max_concurrent={max_concurrent!r}: expected an integer >= 1.")
+    check_number("eval_every_episodes", eval_every_episodes, 0, low_open=True, expected="a number of training episodes > 0")
+    check_integer("eval_episodes", eval_episodes, 1)
+    if max_concurrent is not None:
+        check_integer("max_concurrent", max_concurrent, 1)
     log_folder = Path(log_folder).resolve()
     settings = {"budget": float(budget), "eval_every_episodes": eval_every_episodes, "eval_episodes": eval_episodes}
     check_settings(log_folder, settings)
 
     outcome = BenchmarkRun()
-    todo: list[TrialSpec] = []
-    for spec in trials:
-        if (trial_folder(log_folder, spec) / RESULT).is_file():
-            outcome.skipped.append(spec.trial_id)
-        else:
-            todo.append(spec)
+    todo = [spec for spec in trials if not (trial_folder(log_folder, spec) / RESULT).is_file()]
+    outcome.skipped = [spec.trial_id for spec in trials if spec not in todo]
     if verbose:
         print(
             f"Benchmark grid {grid!r}: {len(trials)} trials, {len(outcome.skipped)} finished before, {len(todo)} to run "
@@ -115,21 +109,47 @@ def run_benchmark(
         )
     if not todo:
         return outcome
+    ray = _import_ray()
+    log_folder.mkdir(parents=True, exist_ok=True)
+    write_text(log_folder / SETTINGS_FILE, json.dumps(settings, indent=2) + "\n")
+    started_ray = _start_ray(ray, address, verbose)
+    start = time.perf_counter()
+    try:
+        tuner = _tuner(grid, todo, log_folder, settings, max_concurrent, max_failures, verbose)
+        results = tuner.fit()
+    finally:
+        if started_ray:
+            ray.shutdown()
+    outcome.wall_time_s = time.perf_counter() - start
+    errors = {TrialSpec(**r.config["spec"]).trial_id: r.error for r in results if r.error is not None}
+    for spec in todo:
+        if (trial_folder(log_folder, spec) / RESULT).is_file():
+            outcome.completed.append(spec.trial_id)
+        elif spec.trial_id in errors:
+            outcome.failed[spec.trial_id] = f"{type(errors[spec.trial_id]).__name__}: {errors[spec.trial_id]}"
+        else:  # stopped before the end (Ctrl-C): continues from its checkpoint next time
+            outcome.unfinished.append(spec.trial_id)
+    return outcome
 
+
+def _import_ray() -> Any:
+    """The ``ray`` module, or an error saying how to install it."""
     # short trials checkpoint often; Ray's advice to checkpoint less is noise here
     os.environ.setdefault("TUNE_WARN_EXCESSIVE_EXPERIMENT_CHECKPOINT_SYNC_THRESHOLD_S", "0")
     try:
         import ray
-        from ray import tune
+        import ray.tune
     except ImportError as error:
         raise ModuleNotFoundError(
             f"The benchmark runs on Ray Tune, which is not installed ({error}): pip install 'sb3-marl[ray]' (ray[tune] 2.60)."
         ) from None
+    return ray
 
-    log_folder.mkdir(parents=True, exist_ok=True)
-    write_text(log_folder / SETTINGS_FILE, json.dumps(settings, indent=2) + "\n")
-    started_ray = not ray.is_initialized()
-    if started_ray:
+
+def _start_ray(ray: Any, address: str | None, verbose: int) -> bool:
+    """Start (or attach to ``address``) Ray unless it runs already; returns whether it was started here."""
+    started = not ray.is_initialized()
+    if started:
         ray.init(
             address=address,
             num_cpus=None if address else os.cpu_count(),
@@ -140,42 +160,35 @@ def run_benchmark(
     if verbose:
         cpus = ray.cluster_resources().get("CPU", 0)
         print(f"Ray cluster at {ray.get_runtime_context().gcs_address}: {cpus:g} CPUs, one per trial")
-    start = time.perf_counter()
-    try:
-        tuner = tune.Tuner(
-            tune.with_resources(run_trial, {"cpu": 1}),
-            param_space={
-                "spec": tune.grid_search([spec.to_dict() for spec in todo]),
-                "log_folder": str(log_folder),
-                **settings,
-            },
-            tune_config=tune.TuneConfig(
-                max_concurrent_trials=max_concurrent,
-                trial_name_creator=_trial_id,
-                trial_dirname_creator=_trial_id,
-            ),
-            run_config=tune.RunConfig(
-                name=f"{grid}-{time.strftime('%Y%m%d-%H%M%S')}",
-                storage_path=str(log_folder / "ray"),
-                failure_config=tune.FailureConfig(max_failures=max_failures),
-                checkpoint_config=tune.CheckpointConfig(num_to_keep=1),
-                verbose=min(verbose, 1),
-            ),
-        )
-        results = tuner.fit()
-    finally:
-        if started_ray:
-            ray.shutdown()
-    outcome.wall_time_s = time.perf_counter() - start
-    errors = {TrialSpec(**r.config["spec"]).trial_id: r.error for r in results if r.error is not None}  # type: ignore[attr-defined]
-    for spec in todo:
-        if (trial_folder(log_folder, spec) / RESULT).is_file():
-            outcome.completed.append(spec.trial_id)
-        elif spec.trial_id in errors:
-            outcome.failed[spec.trial_id] = f"{type(errors[spec.trial_id]).__name__}: {errors[spec.trial_id]}"
-        else:  # stopped before the end (Ctrl-C): continues from its checkpoint next time
-            outcome.unfinished.append(spec.trial_id)
-    return outcome
+    return started
+
+
+def _tuner(
+    grid: str,
+    todo: list[TrialSpec],
+    log_folder: Path,
+    settings: dict[str, Any],
+    max_concurrent: int | None,
+    max_failures: int,
+    verbose: int,
+) -> Any:
+    """Ray Tune's Tuner of the trials ``todo``: one CPU each, Ray's state under ``<log_folder>/ray``."""
+    from ray import tune
+
+    return tune.Tuner(
+        tune.with_resources(run_trial, {"cpu": 1}),
+        param_space={"spec": tune.grid_search([spec.to_dict() for spec in todo]), "log_folder": str(log_folder), **settings},
+        tune_config=tune.TuneConfig(
+            max_concurrent_trials=max_concurrent, trial_name_creator=_trial_id, trial_dirname_creator=_trial_id
+        ),
+        run_config=tune.RunConfig(
+            name=f"{grid}-{time.strftime('%Y%m%d-%H%M%S')}",
+            storage_path=str(log_folder / "ray"),
+            failure_config=tune.FailureConfig(max_failures=max_failures),
+            checkpoint_config=tune.CheckpointConfig(num_to_keep=1),
+            verbose=min(verbose, 1),
+        ),
+    )
 
 
 @dataclass

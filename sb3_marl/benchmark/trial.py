@@ -133,39 +133,9 @@ def run_trial(config: dict[str, Any]) -> None:
     spec = TrialSpec(**config["spec"])
     folder = trial_folder(config["log_folder"], spec)
     folder.mkdir(parents=True, exist_ok=True)
-    ray_checkpoint = tune.get_checkpoint()
-    if ray_checkpoint is not None:  # Ray restarted the trial: its checkpoint is the latest
-        with ray_checkpoint.as_directory() as directory:
-            if Path(directory).resolve() != (folder / CHECKPOINT).resolve():
-                shutil.rmtree(folder / CHECKPOINT, ignore_errors=True)
-                shutil.copytree(directory, folder / CHECKPOINT)
     checkpoint = folder / CHECKPOINT
-    if not checkpoint.is_dir() and (folder / PREVIOUS_CHECKPOINT).is_dir():  # killed between the two renames
-        (folder / PREVIOUS_CHECKPOINT).rename(checkpoint)
-    resumed_at = checkpoint_timesteps(checkpoint) if checkpoint.is_dir() else 0
-
-    info = (
-        read_json_object(folder / TRIAL)
-        if (folder / TRIAL).is_file()
-        else {
-            "trial": spec.to_dict(),
-            "trial_id": spec.trial_id,
-            "env_id": spec.env_id,
-            "hyperparams": spec.hyperparams,
-            **{key: config[key] for key in SETTINGS},
-            "attempts": [],
-        }
-    )
-    info["attempts"].append(
-        {
-            "started": time.strftime("%Y-%m-%dT%H:%M:%S"),
-            "host": socket.gethostname(),
-            "pid": os.getpid(),
-            "resumed_at_timesteps": resumed_at,
-        }
-    )
-    write_json(folder / TRIAL, info)
-
+    resumed_at = _restore_checkpoint(folder, tune.get_checkpoint())
+    info = _record_attempt(folder, spec, config, resumed_at)
     run = RunSpec(
         algo=spec.algo,
         env=spec.env_id,
@@ -205,6 +175,40 @@ def run_trial(config: dict[str, Any]) -> None:
         "machine": f"{platform.node()} ({os.cpu_count()} cores)",
     }
     write_json(folder / RESULT, result)
+
+
+def _restore_checkpoint(folder: Path, ray_checkpoint: Any) -> int:
+    """Put the trial's latest checkpoint in ``<folder>/checkpoint`` (Ray's, when Ray restarted the
+    trial; the previous one, when a kill came between its two renames); its AV-steps (0: none)."""
+    checkpoint = folder / CHECKPOINT
+    if ray_checkpoint is not None:
+        with ray_checkpoint.as_directory() as directory:
+            if Path(directory).resolve() != checkpoint.resolve():
+                shutil.rmtree(checkpoint, ignore_errors=True)
+                shutil.copytree(directory, checkpoint)
+    if not checkpoint.is_dir() and (folder / PREVIOUS_CHECKPOINT).is_dir():
+        (folder / PREVIOUS_CHECKPOINT).rename(checkpoint)
+    return checkpoint_timesteps(checkpoint) if checkpoint.is_dir() else 0
+
+
+def _record_attempt(folder: Path, spec: TrialSpec, config: dict[str, Any], resumed_at: int) -> dict[str, Any]:
+    """``trial.json`` with this attempt (time, host, process, AV-steps it resumes at) added; returned."""
+    info = (
+        read_json_object(folder / TRIAL)
+        if (folder / TRIAL).is_file()
+        else {
+            "trial": spec.to_dict(),
+            "trial_id": spec.trial_id,
+            "env_id": spec.env_id,
+            "hyperparams": spec.hyperparams,
+            **{key: config[key] for key in SETTINGS},
+            "attempts": [],
+        }
+    )
+    attempt = {"started": time.strftime("%Y-%m-%dT%H:%M:%S"), "host": socket.gethostname(), "pid": os.getpid()}
+    info["attempts"].append({**attempt, "resumed_at_timesteps": resumed_at})
+    write_json(folder / TRIAL, info)
+    return info
 
 
 def paper_evaluation(model: Any, env_id: str, config: dict[str, Any] | None) -> dict[str, Any]:

@@ -88,7 +88,12 @@ def add_parsers(commands: Any) -> None:
         choices=[0, 1, 2],
         help="0: quiet; 1 (default): set-up, progress and evaluation lines; 2: also SB3's logger tables",
     )
-    search = train.add_argument_group("hyperparameter search (rl-zoo's -optimize, Optuna)")
+    _add_search_flags(train.add_argument_group("hyperparameter search (rl-zoo's -optimize, Optuna)"))
+    train.set_defaults(handler=train_command)
+
+
+def _add_search_flags(search: Any) -> None:
+    """rl-zoo's ``-optimize`` flags, on the argument group ``search``."""
     search.add_argument(
         "-optimize",
         "--optimize-hyperparameters",
@@ -119,8 +124,6 @@ def add_parsers(commands: Any) -> None:
         "--storage", default=None, help="database URL (sqlite:///study.db) or .log journal file; a study is resumed from it"
     )
     search.add_argument("--study-name", default=None, help="study name in --storage (required with it)")
-
-    train.set_defaults(handler=train_command)
 
 
 class _StopTraining:

@@ -20,7 +20,7 @@ from sb3_marl.envs.observation import observation_space, observe
 from sb3_marl.envs.reward import neighbour_matrix, reward_terms, total_reward
 from sb3_marl.envs.road import make_road, spawn, vehicle_state
 from sb3_marl.envs.simulator import COMPILED, SIMULATORS, STOCK, capture, vehicle_objects
-from sb3_marl.envs.supervisor import supervise
+from sb3_marl.envs.supervisor import Horizon, Supervisor
 from sb3_marl.envs.traffic import TrafficSnapshot
 
 #: Meta-action index -> label, highway-env's ``DiscreteMetaAction`` numbering.
@@ -94,6 +94,12 @@ class LaneChangeEnv(AbstractEnv):
         merged = {**self.config, **(config or {})}
         cfg.validate_config(merged)
         super().configure(config)
+        self._derive()
+
+    def _derive(self) -> None:
+        """What the steps read from the config: the road and time grid, the safety supervisor."""
+        self.horizon = Horizon.from_config(self.config)
+        self.supervisor = Supervisor.from_config(self.config)
 
     @property
     def n_avs(self) -> int:
@@ -121,6 +127,7 @@ class LaneChangeEnv(AbstractEnv):
         if self.simulator not in SIMULATORS:
             raise ValueError(f"Invalid simulator={self.simulator!r}: expected one of {SIMULATORS}.")
         self.update_metadata()
+        self._derive()  # a config changed in place since (highway-env's env.config[...] = ...)
         self.define_spaces()
         self.time = self.steps = 0
         self.done = False
@@ -192,7 +199,7 @@ class LaneChangeEnv(AbstractEnv):
         proposed = self._check_actions(action)
         actions = proposed
         if self.config["safety_supervisor"]:
-            actions, _ = supervise(self.state, n, proposed, self.action_masks(), self.config)
+            actions, _ = self.supervisor(self.state, n, proposed, self.action_masks())
         speed_before = self.state[:n, kernel.SPEED].copy()
         lanes_before = self.state[:n, kernel.TARGET_LANE].copy()
 
@@ -217,16 +224,14 @@ class LaneChangeEnv(AbstractEnv):
         """Apply the executed meta-actions and simulate the frames of one policy step: compiled on
         the state array, or with highway-env's ``Road.act`` / ``Road.step`` frame by frame (the
         frames in between drawn), captured into the state array after."""
-        config = self.config
-        frames = config["simulation_frequency"] // config["policy_frequency"]
-        dt = 1.0 / config["simulation_frequency"]
+        frames, dt = self.horizon.frames_per_step, self.horizon.dt
         if not self._uses_objects():
             self.state = kernel.policy_step(
-                self.state, actions, frames, dt, *self._geometry(), float(config["speed_limit"]), self._ladder()
+                self.state, actions, frames, dt, *self._geometry(), self.horizon.speed_limit, self.horizon.ladder
             )
             self.steps += frames
             return
-        road, road_length = self.road, float(config["road_length"])
+        road, road_length = self.road, self.horizon.road_length
         for frame in range(frames):
             if frame == 0:
                 for av, a in zip(self.avs, actions):
@@ -245,12 +250,7 @@ class LaneChangeEnv(AbstractEnv):
 
     def _geometry(self) -> tuple[int, float, float]:
         """(lanes, lane width [m], road length [m]) of the config, as the kernel takes them."""
-        config = self.config
-        return int(config["lanes_count"]), float(config["lane_width"]), float(config["road_length"])
-
-    def _ladder(self) -> np.ndarray:
-        """[m/s] the AVs' target speeds (FASTER / SLOWER move along it)."""
-        return np.asarray(self.config["target_speeds"], dtype=np.float64)
+        return self.horizon.n_lanes, self.horizon.lane_width, self.horizon.road_length
 
     def render(self) -> np.ndarray | None:
         """Render with highway-env's viewer; ``rgb_array`` frames are drawn offscreen, headless.
@@ -266,7 +266,7 @@ class LaneChangeEnv(AbstractEnv):
     @property
     def steps_done(self) -> int:
         """Policy steps taken in the current episode."""
-        return self.steps // (self.config["simulation_frequency"] // self.config["policy_frequency"])
+        return self.steps // self.horizon.frames_per_step
 
     def action_masks(self) -> np.ndarray:
         """(n_avs, 5) bool: which meta-actions are available to each AV.
@@ -275,7 +275,7 @@ class LaneChangeEnv(AbstractEnv):
         a lane change only towards an existing lane reachable from the AV's position; FASTER /
         SLOWER unless the AV already tracks the highest / lowest target speed.
         """
-        return kernel.available_actions(self.state, self.n_avs, *self._geometry(), self._ladder())
+        return kernel.available_actions(self.state, self.n_avs, *self._geometry(), self.horizon.ladder)
 
     def rule_actions(self) -> np.ndarray:
         """(n_avs,) int: the meta-action the scenario's human driver (IDM + MOBIL, the config's MOBIL
@@ -288,7 +288,7 @@ class LaneChangeEnv(AbstractEnv):
             self.n_avs,
             *self._geometry(),
             float(config["speed_limit"]),
-            self._ladder(),
+            self.horizon.ladder,
             float(config["hdv_politeness"]),
             float(config["hdv_b_safe"]),
             float(config["hdv_lane_change_threshold"]),

@@ -37,6 +37,7 @@ pays the compile time only once.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import numba
@@ -87,6 +88,20 @@ class Horizon(NamedTuple):
     frames: int  # frames predicted
     frames_per_step: int  # frames of one policy step
     ladder: np.ndarray  # [m/s] the AVs' target speeds (MDPVehicle.target_speeds)
+
+    @classmethod
+    def from_config(cls, config: dict[str, Any]) -> Horizon:
+        """The road and time grid of a scenario config (lanes, frequencies [Hz], ``supervisor_horizon`` [s])."""
+        return cls(
+            n_lanes=int(config["lanes_count"]),
+            lane_width=float(config["lane_width"]),
+            road_length=float(config["road_length"]),
+            speed_limit=float(config["speed_limit"]),
+            dt=1.0 / config["simulation_frequency"],
+            frames=max(int(round(config["supervisor_horizon"] * config["simulation_frequency"])), 1),
+            frames_per_step=max(config["simulation_frequency"] // config["policy_frequency"], 1),
+            ladder=np.asarray(config["target_speeds"], dtype=np.float64),
+        )
 
 
 @numba.njit(cache=True)
@@ -284,40 +299,57 @@ def supervise_arrays(
     return executed, rooms
 
 
-def supervise(
-    state: np.ndarray, n_avs: int, proposed: np.ndarray, available: np.ndarray, config: dict[str, Any]
-) -> tuple[np.ndarray, np.ndarray]:
-    """Executed meta-actions (n_avs,) and each AV's predicted room [m] (see the module doc).
+@dataclass(frozen=True)
+class Supervisor:
+    """The supervisor of one scenario config (see the module doc); the env builds it at each reset.
 
-    :param state: the road's state array (:mod:`~sb3_marl.envs.kernel` layout), the ``n_avs`` AVs
-        first; not modified
-    :param proposed: (n_avs,) the policy's meta-actions
-    :param available: (n_avs, 5) bool action mask
-    :param config: the scenario config (lanes, frequencies, ``supervisor_horizon`` [s],
-        ``supervisor_min_gap`` [m], ``headway_time`` [s])
+    :param horizon: the road and the prediction's time grid
+    :param headway_time: [s] of the priority's headway margin (``headway_time``)
+    :param min_gap: [m] the smallest predicted room an action may leave (``supervisor_min_gap``)
+    :param repeat_actions: every AV repeats its action at each policy step of the horizon
+        (``supervisor_repeat_actions``)
+    :param rear_avs: protect each AV from the AVs behind it too (``supervisor_rear_avs``)
     """
-    horizon = Horizon(
-        n_lanes=int(config["lanes_count"]),
-        lane_width=float(config["lane_width"]),
-        road_length=float(config["road_length"]),
-        speed_limit=float(config["speed_limit"]),
-        dt=1.0 / config["simulation_frequency"],
-        frames=max(int(round(config["supervisor_horizon"] * config["simulation_frequency"])), 1),
-        frames_per_step=max(config["simulation_frequency"] // config["policy_frequency"], 1),
-        ladder=np.asarray(config["target_speeds"], dtype=np.float64),
-    )
-    candidate_lane, candidate_speed = meta_action_targets(
-        state, n_avs, horizon.n_lanes, horizon.lane_width, horizon.road_length, horizon.ladder
-    )
-    return supervise_arrays(
-        state,
-        candidate_lane,
-        candidate_speed,
-        np.asarray(available, dtype=np.bool_),
-        np.asarray(proposed, dtype=np.int64),
-        horizon,
-        float(config["headway_time"]),
-        float(config["supervisor_min_gap"]),
-        bool(config["supervisor_repeat_actions"]),
-        bool(config["supervisor_rear_avs"]),
-    )
+
+    horizon: Horizon
+    headway_time: float
+    min_gap: float
+    repeat_actions: bool
+    rear_avs: bool
+
+    @classmethod
+    def from_config(cls, config: dict[str, Any]) -> Supervisor:
+        return cls(
+            Horizon.from_config(config),
+            float(config["headway_time"]),
+            float(config["supervisor_min_gap"]),
+            bool(config["supervisor_repeat_actions"]),
+            bool(config["supervisor_rear_avs"]),
+        )
+
+    def __call__(
+        self, state: np.ndarray, n_avs: int, proposed: np.ndarray, available: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Executed meta-actions (n_avs,) and each AV's predicted room [m].
+
+        :param state: the road's state array (:mod:`~sb3_marl.envs.kernel` layout), the ``n_avs`` AVs
+            first; not modified
+        :param proposed: (n_avs,) the policy's meta-actions
+        :param available: (n_avs, 5) bool action mask
+        """
+        horizon = self.horizon
+        candidate_lane, candidate_speed = meta_action_targets(
+            state, n_avs, horizon.n_lanes, horizon.lane_width, horizon.road_length, horizon.ladder
+        )
+        return supervise_arrays(
+            state,
+            candidate_lane,
+            candidate_speed,
+            np.asarray(available, dtype=np.bool_),
+            np.asarray(proposed, dtype=np.int64),
+            horizon,
+            self.headway_time,
+            self.min_gap,
+            self.repeat_actions,
+            self.rear_avs,
+        )

@@ -6,7 +6,7 @@ from helpers import make
 
 from sb3_marl.envs.kernel import HEADING, LANE, SPEED, TARGET_SPEED, X, Y, speed_index
 from sb3_marl.envs.lane_change_env import ACTION_INDEX
-from sb3_marl.envs.supervisor import supervise
+from sb3_marl.envs.supervisor import Supervisor
 
 FASTER, IDLE, SLOWER = ACTION_INDEX["FASTER"], ACTION_INDEX["IDLE"], ACTION_INDEX["SLOWER"]
 
@@ -21,9 +21,11 @@ def test_faster_just_behind_a_slow_hdv_is_replaced():
     env = supervised_env()
     env.place(avs=[(100.0, 0, 25.0)], hdvs=[(115.0, 0, 15.0)])
     proposed = np.array([FASTER])
-    executed, rooms = supervise(env.state, 1, proposed, env.action_masks(), env.config)
+    executed, rooms = Supervisor.from_config(env.config)(env.state, 1, proposed, env.action_masks())
     assert executed[0] != FASTER and env.action_masks()[0, executed[0]]
-    unsafe_room = supervise(env.state, 1, proposed, env.action_masks(), {**env.config, "supervisor_min_gap": -1e9})[1]
+    unsafe_room = Supervisor.from_config({**env.config, "supervisor_min_gap": -1e9})(
+        env.state, 1, proposed, env.action_masks()
+    )[1]
     assert rooms[0] > unsafe_room[0] and unsafe_room[0] < 0  # FASTER was predicted to collide
     _, _, terminated, _, info = env.step(proposed)
     assert info["proposed_action"].tolist() == [FASTER] and info["executed_action"].tolist() == executed.tolist()
@@ -115,7 +117,7 @@ def test_conflicting_lane_changes_keep_their_lanes_together():
             state[k, TARGET_SPEED] = ladder[speed_index(speed, ladder)]
     env.state = state
     proposed = np.array([FASTER, ACTION_INDEX["LANE_RIGHT"], IDLE, FASTER, IDLE])
-    executed, rooms = supervise(env.state, 5, proposed, env.action_masks(), env.config)
+    executed, rooms = Supervisor.from_config(env.config)(env.state, 5, proposed, env.action_masks())
     assert executed[:2].tolist() == [IDLE, IDLE] and (rooms >= env.config["supervisor_min_gap"]).all()
     for _ in range(10):
         _, _, terminated, _, _ = env.step(np.array([IDLE] * 5))
@@ -130,8 +132,8 @@ def test_repeated_slower_is_predicted_to_brake_in_time():
     env.place(avs=[(100.0, 0, 30.0)], hdvs=[(126.0, 0, 12.0)])
     mask = env.action_masks()
     mask[0, [ACTION_INDEX["LANE_LEFT"], ACTION_INDEX["LANE_RIGHT"]]] = False
-    held = supervise(env.state, 1, np.array([SLOWER]), mask, {**env.config, "supervisor_repeat_actions": False})
-    repeated = supervise(env.state, 1, np.array([SLOWER]), mask, env.config)
+    held = Supervisor.from_config({**env.config, "supervisor_repeat_actions": False})(env.state, 1, np.array([SLOWER]), mask)
+    repeated = Supervisor.from_config(env.config)(env.state, 1, np.array([SLOWER]), mask)
     assert held[1][0] < 0 < repeated[1][0]
     for _ in range(15):
         _, _, terminated, _, _ = env.step(np.array([SLOWER]))
