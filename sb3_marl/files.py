@@ -1,4 +1,5 @@
-"""Files written so that a crash or an interrupt never leaves a half-written one."""
+"""The project's files: written so that a crash or an interrupt never leaves a half-written one,
+and read as data (JSON objects, replay-buffer arrays, run-folder YAML: never unpickled, never run)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 
 
 @contextmanager
@@ -103,3 +105,36 @@ def read_replay_buffer(buffer: Any, path: str | Path) -> None:
     for key in expected:
         setattr(buffer, key, arrays[key])
     buffer.pos, buffer.full = int(pos), bool(full)
+
+
+class RunFileLoader(yaml.SafeLoader):
+    """yaml's SafeLoader plus rl-zoo's ``!!python/object/apply:collections.OrderedDict`` (a list of
+    [key, value] pairs, read as a dict); every other Python tag is refused."""
+
+
+def _ordered_dict(loader: yaml.SafeLoader, node: yaml.Node) -> dict:
+    (pairs,) = loader.construct_sequence(node, deep=True)
+    return dict(pairs)
+
+
+RunFileLoader.add_constructor("tag:yaml.org,2002:python/object/apply:collections.OrderedDict", _ordered_dict)
+RunFileLoader.add_constructor(
+    "tag:yaml.org,2002:python/tuple", lambda loader, node: tuple(loader.construct_sequence(node, deep=True))
+)
+
+
+def read_run_yaml(path: str | Path) -> dict[str, Any]:
+    """A run folder's ``config.yml`` / ``args.yml`` as a dict; a ValueError naming the file for
+    YAML that is not plain data (e.g. a ``!!python/object/apply:os.system`` tag) or not a mapping."""
+    try:
+        data = yaml.load(Path(path).read_text(), Loader=RunFileLoader)
+    except yaml.YAMLError as error:
+        raise ValueError(
+            f"{path} is not a plain-data YAML file of a run ({str(error).splitlines()[0]}); "
+            "it is not read (it could run code)."
+        ) from None
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise ValueError(f"{path} must be a mapping of keys to values, got a {type(data).__name__}.")
+    return data

@@ -200,14 +200,14 @@ def _number_or_none(text: str) -> float | str:
 
 
 #: Keys whose value rl-zoo accepts as a Python string (``policy_kwargs: "dict(net_arch=[64])"``):
-#: parsed as literals here (:func:`sb3_marl.loading.parse_literal`), never evaluated.
+#: parsed as literals here (:func:`sb3_marl.literals.parse_literal`), never evaluated.
 LITERAL_KEYS = ("policy_kwargs", "replay_buffer_kwargs", "rollout_buffer_kwargs", "env_config")
 
 
 def parse_string_values(hyperparams: dict[str, Any]) -> dict[str, Any]:
     """``hyperparams`` with the strings of :data:`LITERAL_KEYS` parsed as literals; a ValueError
     naming the key for code or for a value that is not a mapping."""
-    from sb3_marl.loading import parse_literal
+    from sb3_marl.literals import parse_literal
 
     parsed = dict(hyperparams)
     for key in LITERAL_KEYS:

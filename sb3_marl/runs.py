@@ -18,7 +18,8 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 
 from sb3_marl.algos import get_algo
 from sb3_marl.evaluation import evaluate_protocols, model_policy, protocol_label
-from sb3_marl.loading import UnsafeModelError, read_model_data, read_run_yaml, saved_policy_class
+from sb3_marl.files import read_run_yaml
+from sb3_marl.loading import UnsafeModelError, read_model_data, saved_policy_class
 
 
 def check_observation_shape(model: BaseAlgorithm, path: str | Path, env_id: str, config: dict[str, Any]) -> None:

@@ -183,8 +183,9 @@ def _check_trained_agent(args: argparse.Namespace) -> None:
     """The ``-i`` model loads (its tensors readable) and observes what ``--env`` with the run's
     hyperparameters shows each AV: a ValueError naming the file otherwise."""
     from sb3_marl.algos import get_algo
+    from sb3_marl.files import read_run_yaml
     from sb3_marl.hyperparams import load_hyperparams, merge_hyperparams
-    from sb3_marl.loading import UnsafeModelError, read_run_yaml
+    from sb3_marl.loading import UnsafeModelError
     from sb3_marl.runs import check_observation_shape
 
     try:

@@ -21,7 +21,9 @@ import pytest
 
 from sb3_marl.algos import get_algo
 from sb3_marl.cli import main
-from sb3_marl.loading import UnsafeModelError, parse_literal, read_run_yaml
+from sb3_marl.files import read_run_yaml
+from sb3_marl.literals import parse_literal
+from sb3_marl.loading import UnsafeModelError
 
 ENV = "sb3_marl/LaneChange-density1-v0"
 ENV_NAME = "sb3_marl-LaneChange-density1-v0"
