@@ -15,7 +15,7 @@ from highway_env.road.road import Road
 from highway_env.vehicle.controller import MDPVehicle
 
 from sb3_marl.envs import config as cfg
-from sb3_marl.envs import kernel
+from sb3_marl.envs import drivers, dynamics, kernel, meta_actions
 from sb3_marl.envs.observation import observation_space, observe
 from sb3_marl.envs.reward import neighbour_matrix, reward_terms, total_reward
 from sb3_marl.envs.road import make_road, spawn, vehicle_state
@@ -226,7 +226,7 @@ class LaneChangeEnv(AbstractEnv):
         frames in between drawn), captured into the state array after."""
         frames, dt = self.horizon.frames_per_step, self.horizon.dt
         if not self._uses_objects():
-            self.state = kernel.policy_step(
+            self.state = dynamics.policy_step(
                 self.state, actions, frames, dt, *self._geometry(), self.horizon.speed_limit, self.horizon.ladder
             )
             self.steps += frames
@@ -275,15 +275,15 @@ class LaneChangeEnv(AbstractEnv):
         a lane change only towards an existing lane reachable from the AV's position; FASTER /
         SLOWER unless the AV already tracks the highest / lowest target speed.
         """
-        return kernel.available_actions(self.state, self.n_avs, *self._geometry(), self.horizon.ladder)
+        return meta_actions.available_actions(self.state, self.n_avs, *self._geometry(), self.horizon.ladder)
 
     def rule_actions(self) -> np.ndarray:
         """(n_avs,) int: the meta-action the scenario's human driver (IDM + MOBIL, the config's MOBIL
         parameters, aiming at ``speed_limit``) would pick in each AV's place now
-        (:func:`~sb3_marl.envs.kernel.rule_actions`; the ``idm-mobil`` reference policy and the
+        (:func:`~sb3_marl.envs.drivers.rule_actions`; the ``idm-mobil`` reference policy and the
         learners' rule prior)."""
         config = self.config
-        return kernel.rule_actions(
+        return drivers.rule_actions(
             self.state,
             self.n_avs,
             *self._geometry(),

@@ -14,7 +14,7 @@ from highway_env.road.lane import LineType, StraightLane
 from highway_env.road.road import Road, RoadNetwork
 from highway_env.vehicle.behavior import IDMVehicle
 
-from sb3_marl.envs import kernel
+from sb3_marl.envs import kernel, meta_actions
 from sb3_marl.envs.simulator import SEGMENT
 
 
@@ -108,7 +108,7 @@ def _vehicle_state(
         state[k, kernel.LANE] = state[k, kernel.TARGET_LANE] = lane[k]
         state[k, kernel.COLLIDABLE] = state[k, kernel.PRESENT] = 1.0
         if k < n_avs:
-            state[k, kernel.TARGET_SPEED] = ladder[kernel.speed_index(speed[k], ladder)]
+            state[k, kernel.TARGET_SPEED] = ladder[meta_actions.speed_index(speed[k], ladder)]
         else:
             state[k, kernel.TARGET_SPEED] = speed[k]
             state[k, kernel.IS_HDV] = 1.0

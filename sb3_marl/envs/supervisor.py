@@ -6,7 +6,7 @@ speed [m/s] × ``headway_time`` [s]; equal margins: the lower AV index first, so
 reproducible without drawing random numbers). For the AV being served it predicts the next
 ``supervisor_horizon`` s of the whole road, frame by frame at ``simulation_frequency`` Hz:
 
-- every vehicle with the road's own equations (:func:`sb3_marl.envs.kernel.drive`: highway-env's
+- every vehicle with the road's own equations (:func:`sb3_marl.envs.dynamics.drive`: highway-env's
   controllers, the HDVs' IDM and MOBIL lane changes with their timers and abort rule, the
   kinematic bicycle model and the lane update), on a copy of the road's state array (the kernel's
   layout): the prediction is exact for the HDVs as
@@ -43,6 +43,8 @@ from typing import Any, NamedTuple
 import numba
 import numpy as np
 
+from sb3_marl.envs.drivers import lane_occupancy, leader
+from sb3_marl.envs.dynamics import drive
 from sb3_marl.envs.kernel import (
     COLLIDABLE,
     HEADING,
@@ -55,13 +57,9 @@ from sb3_marl.envs.kernel import (
     X,
     Y,
     cos,
-    drive,
-    lane_occupancy,
-    leader,
-    meta_action_targets,
     sin,
-    speed_index,
 )
+from sb3_marl.envs.meta_actions import meta_action_targets, speed_index
 
 #: Version of the supervisor's decisions; evaluations record it, and ``sb3-marl benchmark evaluate``
 #: re-evaluates trials evaluated under another (history in CHANGELOG.md; 3: the road's own equations).

@@ -106,7 +106,7 @@ def compare(reference: str, candidate: str, density: int, seeds: range, policy: 
 
 def stock_rule_actions(env, acceleration_threshold: float = 1.0) -> np.ndarray:
     """The rule driver with highway-env's own objects (the parity reference of
-    :func:`sb3_marl.envs.kernel.rule_actions`): for each AV, an ``IDMVehicle`` with the AV's state
+    :func:`sb3_marl.envs.drivers.rule_actions`): for each AV, an ``IDMVehicle`` with the AV's state
     and the config's MOBIL parameters, aiming at ``speed_limit``, takes the AV's place on the road;
     a lane change MOBIL accepts becomes LANE_LEFT / LANE_RIGHT, else the IDM acceleration gives
     FASTER / SLOWER beyond +- ``acceleration_threshold`` [m/s²], else IDLE."""
