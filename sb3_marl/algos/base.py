@@ -71,7 +71,7 @@ def hyperparameters(cls: type) -> dict[str, inspect.Parameter]:
     return found
 
 
-class ActionMaskingMixin(RulePriorLearner, MaskingLearner):
+class ActionMaskingMixin(RulePriorLearner, MaskingLearner):  # type: ignore[misc]  # SafeLoading.load: SB3's plus trust_remote_code
     """``action_masking`` switch of a maskable on-policy learner: sb3-contrib's masked rollouts
     and ``predict(..., action_masks=...)``, with masks only when ``action_masking`` is True, and
     the rule prior (:class:`RulePriorLearner`)."""
@@ -97,7 +97,7 @@ class ActionMaskingMixin(RulePriorLearner, MaskingLearner):
             use_masking=use_masking and self.action_masking,
         )
 
-    def predict(
+    def predict(  # type: ignore[override]  # plus sb3-contrib's action_masks
         self,
         observation: np.ndarray,
         state: tuple[np.ndarray, ...] | None = None,
@@ -108,7 +108,7 @@ class ActionMaskingMixin(RulePriorLearner, MaskingLearner):
         """The policy's action; ``action_masks`` (batch, 5) bool restricts it to available actions
         (ignored when the model was trained with ``action_masking=False``)."""
         masks = action_masks if self.action_masking else None
-        return self.policy.predict(observation, state, episode_start, deterministic, action_masks=masks)  # type: ignore[attr-defined]
+        return self.policy.predict(observation, state, episode_start, deterministic, action_masks=masks)  # type: ignore[call-arg]  # a maskable policy
 
 
 def uses_action_masks(model: BaseAlgorithm) -> bool:

@@ -25,7 +25,7 @@ start's included.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch as th
@@ -35,6 +35,11 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnvStepReturn
 
 from sb3_marl.algos.teacher import select_rows
 from sb3_marl.checks import check_integer, check_number, invalid
+
+if TYPE_CHECKING:  # the host the learner mixin is written for (at run time: its own MRO)
+    from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm as _OnPolicyHost
+else:
+    _OnPolicyHost = object
 
 #: Rule drivers a learner can start from: the scenario's IDM/MOBIL decision.
 PRIORS = ("idm-mobil",)
@@ -280,7 +285,7 @@ def _fit(
     return float(np.mean(prior_losses)), float(np.mean(value_losses))
 
 
-class RulePriorLearner:
+class RulePriorLearner(_OnPolicyHost):
     """The rule prior of an on-policy actor-critic (``prior``, ``prior_warm_start``, ``prior_coef``,
     ``prior_coef_final``, ``prior_decay_steps``, ``prior_smoothing``; :mod:`sb3_marl.algos.rule_prior`):
     the DAgger warm start when learning starts, the rule driver's labels of each rollout, and the
@@ -315,20 +320,20 @@ class RulePriorLearner:
         return RulePrior.from_kwargs({key: getattr(self, key) for key in RulePrior().as_kwargs()})
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_rule_labels"]  # type: ignore[misc]
+        return [*super()._excluded_save_params(), "_rule_labels"]
 
     def _setup_learn(self, *args: Any, **kwargs: Any) -> Any:
         """SB3's set-up, then the DAgger warm start where the budget's first ``prior_warm_start``
         AV-steps are still ahead."""
-        result = super()._setup_learn(*args, **kwargs)  # type: ignore[misc]
+        result = super()._setup_learn(*args, **kwargs)
         prior = self.rule_prior
-        if prior.active and self.num_timesteps < prior.warm_start:  # type: ignore[attr-defined]
-            dagger(self, prior.warm_start - self.num_timesteps, prior)  # type: ignore[attr-defined]
+        if prior.active and self.num_timesteps < prior.warm_start:
+            dagger(self, prior.warm_start - self.num_timesteps, prior)
         return result
 
     def labelled(self, env: Any, n_rollout_steps: int) -> Any:
         """``env`` recording the rule driver's labels of the rollout (when the prior's weight is on)."""
-        if self.rule_prior.weight(self.num_timesteps) <= 0:  # type: ignore[attr-defined]
+        if self.rule_prior.weight(self.num_timesteps) <= 0:
             self._rule_labels = None
             return env
         labelled = RuleLabels(env, n_rollout_steps)
@@ -338,10 +343,10 @@ class RulePriorLearner:
     def prior_term(self, observations: Any, action_masks: Any, indices: np.ndarray, logs: dict[str, list]) -> Any:
         """``w · prior_loss`` of the rollout's samples at ``indices`` (of the flattened, slot-major
         buffer), 0 without labels; logs the loss, its KL and the weight."""
-        weight = self.rule_prior.weight(self.num_timesteps)  # type: ignore[attr-defined]
+        weight = self.rule_prior.weight(self.num_timesteps)
         if self._rule_labels is None or weight <= 0:
             return 0.0
-        policy: Any = self.policy  # type: ignore[attr-defined]
+        policy: Any = self.policy
         labels = th.as_tensor(self._rule_labels.swapaxes(0, 1).reshape(-1)[indices], device=policy.device)
         loss, kl = prior_loss(masked_logits(policy, observations, action_masks), labels, self.prior_smoothing, action_masks)
         logs["prior_loss"].append(loss.item())

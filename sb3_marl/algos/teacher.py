@@ -3,13 +3,18 @@ its interventions, their recording during rollouts, and the actor-critics' auxil
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch as th
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 
 from sb3_marl.checks import check_number
+
+if TYPE_CHECKING:  # the host the mixins below are written for (at run time: their own MRO)
+    from sb3_contrib import MaskablePPO as _OnPolicyHost
+else:
+    _OnPolicyHost = object
 
 
 def executed_labels(infos: list[dict[str, Any]]) -> list[int]:
@@ -49,7 +54,7 @@ class _InitialisedCallbacks(CallbackList):
         pass
 
 
-class SupervisorTeacher:
+class SupervisorTeacher(_OnPolicyHost):
     """The safety supervisor as a teacher of an on-policy maskable learner (``safety_loss_coef`` > 0).
 
     After each update, one more optimiser step on the auxiliary loss
@@ -61,6 +66,7 @@ class SupervisorTeacher:
     """
 
     safety_loss_coef: float = 0.0
+    action_masking: bool  # the host's (MaskingLearner)
     _recorder: InterventionRecorder | None = None
 
     def __init__(self, *args: Any, safety_loss_coef: float = 0.0, **kwargs: Any) -> None:
@@ -68,7 +74,7 @@ class SupervisorTeacher:
         super().__init__(*args, **kwargs)
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_recorder"]  # type: ignore[misc]
+        return [*super()._excluded_save_params(), "_recorder"]
 
     def rollout_callback(self, callback: Any, n_rollout_steps: int, n_envs: int) -> Any:
         """``callback`` plus the intervention recorder when the teacher is on."""
@@ -76,30 +82,32 @@ class SupervisorTeacher:
             return callback
         if self._recorder is None or self._recorder.executed.shape != (n_rollout_steps, n_envs):
             self._recorder = InterventionRecorder(n_rollout_steps, n_envs)
-            self._recorder.init_callback(self)  # type: ignore[arg-type]
+            self._recorder.init_callback(self)
         together = _InitialisedCallbacks([callback, self._recorder])
-        together.init_callback(self)  # type: ignore[arg-type]
+        together.init_callback(self)
         return together
 
-    def safety_loss(self, observations: th.Tensor, action_masks: np.ndarray | None, executed: th.Tensor) -> th.Tensor:
+    def safety_loss(
+        self, observations: th.Tensor | dict[str, th.Tensor], action_masks: np.ndarray | None, executed: th.Tensor
+    ) -> th.Tensor:
         """``-log π(executed | s)`` averaged over the given (intervened) samples."""
-        distribution = self.policy.get_distribution(observations, action_masks=action_masks)  # type: ignore[attr-defined]
+        distribution = self.policy.get_distribution(observations, action_masks=action_masks)
         return -distribution.log_prob(executed).mean()
 
     def safety_step(self, executed: np.ndarray) -> float:
         """One optimiser step on the auxiliary loss over the rollout buffer's samples whose entry
         of ``executed`` ((n_steps, n_envs), -1: no intervention) names the supervisor's action;
         returns the loss before the step (0 without intervened samples)."""
-        buffer = self.rollout_buffer  # type: ignore[attr-defined]
+        buffer = self.rollout_buffer
         labels = executed.swapaxes(0, 1).reshape(-1) if buffer.generator_ready else executed.reshape(-1)
         observations = _flat_samples(buffer.observations, buffer.obs_shape, len(labels))
-        masks = buffer.action_masks.reshape(len(labels), -1) if self.action_masking else None  # type: ignore[attr-defined]
+        masks = buffer.action_masks.reshape(len(labels), -1) if self.action_masking else None
         chosen = np.flatnonzero(labels >= 0)
-        self.logger.record("train/intervened_share", chosen.size / max(len(labels), 1))  # type: ignore[attr-defined]
+        self.logger.record("train/intervened_share", chosen.size / max(len(labels), 1))
         if chosen.size == 0:
-            self.logger.record("train/safety_loss", 0.0)  # type: ignore[attr-defined]
+            self.logger.record("train/safety_loss", 0.0)
             return 0.0
-        policy = self.policy  # type: ignore[attr-defined]
+        policy = self.policy
         policy.set_training_mode(True)
         loss = self.safety_loss(
             policy.obs_to_tensor(select_rows(observations, chosen))[0],
@@ -108,9 +116,9 @@ class SupervisorTeacher:
         )
         policy.optimizer.zero_grad()
         (self.safety_loss_coef * loss).backward()
-        th.nn.utils.clip_grad_norm_(policy.parameters(), self.max_grad_norm)  # type: ignore[attr-defined]
+        th.nn.utils.clip_grad_norm_(policy.parameters(), self.max_grad_norm)
         policy.optimizer.step()
-        self.logger.record("train/safety_loss", float(loss.item()))  # type: ignore[attr-defined]
+        self.logger.record("train/safety_loss", float(loss.item()))
         return float(loss.item())
 
 
