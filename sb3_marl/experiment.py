@@ -18,7 +18,6 @@ from __future__ import annotations
 import os
 import sys
 from collections import OrderedDict
-from dataclasses import dataclass, field, fields
 from typing import Any
 
 import optuna
@@ -50,7 +49,7 @@ from sb3_marl.hyperparams import (
     validate_hyperparams,
 )
 from sb3_marl.policies import unchecked_distributions
-from sb3_marl.runs import run_id
+from sb3_marl.runs import RunSpec, run_id
 from sb3_marl.training import make_venv
 from sb3_marl.tuning import SAMPLERS, TrialPruningCallback, best_hyperparams_yaml, config_trial, merge_sampled
 
@@ -73,69 +72,6 @@ def interrupted_by_user(error: BaseException | None) -> bool:
         seen.add(id(error))
         error = error.__cause__ or error.__context__
     return False
-
-
-@dataclass
-class RunSpec:
-    """One training run, as ``sb3-marl train`` and a benchmark trial both describe it; what
-    :class:`MARLExperimentManager` takes, saved as the run's ``args.yml``. Fields keep the names of
-    rl-zoo's flags (``train --help``); timesteps and frequencies count AV-steps.
-
-    :param n_envs: scenario copies, overriding the config's ``n_copies`` (None: the config's)
-    :param reward_mode: ``local``, ``global`` or ``individual``, overriding the config's (None: the config's)
-    :param vec_env: ``dummy`` (copies in process) or ``subproc`` (one worker process per core)
-    :param tensorboard_log: TensorBoard folder; None: ``<log_folder>/tensorboard``, "": none
-    :param trust_remote_code: continue training (``-i``) from a zip that needs unpickling, and load
-        a ``replay_buffer.pkl`` beside it (a pickle); off: the zip is read as data
-        (:mod:`sb3_marl.loading`) and only a ``replay_buffer.npz`` beside it is loaded
-    :param run_id: write to ``<env>_<run_id>/`` (an existing folder is continued) instead of the next free id
-    :param monitor_file: name of the training episodes' monitor file in the run folder
-    :param evaluate_at_end: evaluate the final model too (if the last evaluation was not at the last step)
-    """
-
-    algo: str
-    env: str
-    log_folder: str = "logs"
-    seed: int = 0
-    n_timesteps: int = -1
-    eval_freq: int = 10_000
-    eval_episodes: int = 5
-    save_freq: int = -1
-    hyperparams: dict[str, Any] = field(default_factory=dict)
-    trained_agent: str = ""
-    conf_file: str | None = None
-    n_envs: int | None = None
-    reward_mode: str | None = None
-    vec_env: str = "dummy"
-    tensorboard_log: str | None = None
-    log_interval: int = -1
-    verbose: int = 1
-    device: str = "auto"
-    progress: bool = False
-    trust_remote_code: bool = False
-    run_id: int | None = None
-    monitor_file: str = "monitor.csv"
-    evaluate_at_end: bool = False
-    # rl-zoo's -optimize (Optuna)
-    optimize_hyperparameters: bool = False
-    n_trials: int = 500
-    n_jobs: int = 1
-    sampler: str = "tpe"
-    pruner: str = "median"
-    n_startup_trials: int = 10
-    n_evaluations: int | None = None
-    storage: str | None = None
-    study_name: str | None = None
-
-    @classmethod
-    def from_args(cls, args: Any) -> RunSpec:
-        """The run of ``sb3-marl train``'s parsed arguments (the flags this class has fields for)."""
-        return cls(**{f.name: getattr(args, f.name) for f in fields(cls) if hasattr(args, f.name)})
-
-    @property
-    def tensorboard_folder(self) -> str:
-        """Where TensorBoard logs go ("" : nowhere)."""
-        return os.path.join(self.log_folder, "tensorboard") if self.tensorboard_log is None else self.tensorboard_log
 
 
 class MARLExperimentManager(ExperimentManager):

@@ -1,4 +1,5 @@
-"""Trained runs in rl-zoo's log layout: ``<folder>/<algo>/<env name>_<exp id>/``.
+"""Runs: what one training run is (:class:`RunSpec`), and trained runs in rl-zoo's log layout,
+``<folder>/<algo>/<env name>_<exp id>/``.
 
 A run folder holds the final model ``<env name>.zip``, ``best_model.zip``, checkpoints
 ``rl_model_<steps>_steps.zip``, ``evaluations.npz``, ``monitor.csv`` and ``<env name>/config.yml``
@@ -9,7 +10,7 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +21,69 @@ from sb3_marl.algos import get_algo
 from sb3_marl.evaluation import evaluate_protocols, model_policy, protocol_label
 from sb3_marl.files import read_run_yaml
 from sb3_marl.loading import UnsafeModelError, read_model_data, saved_policy_class
+
+
+@dataclass
+class RunSpec:
+    """One training run, as ``sb3-marl train`` and a benchmark trial both describe it; what
+    :class:`MARLExperimentManager` takes, saved as the run's ``args.yml``. Fields keep the names of
+    rl-zoo's flags (``train --help``); timesteps and frequencies count AV-steps.
+
+    :param n_envs: scenario copies, overriding the config's ``n_copies`` (None: the config's)
+    :param reward_mode: ``local``, ``global`` or ``individual``, overriding the config's (None: the config's)
+    :param vec_env: ``dummy`` (copies in process) or ``subproc`` (one worker process per core)
+    :param tensorboard_log: TensorBoard folder; None: ``<log_folder>/tensorboard``, "": none
+    :param trust_remote_code: continue training (``-i``) from a zip that needs unpickling, and load
+        a ``replay_buffer.pkl`` beside it (a pickle); off: the zip is read as data
+        (:mod:`sb3_marl.loading`) and only a ``replay_buffer.npz`` beside it is loaded
+    :param run_id: write to ``<env>_<run_id>/`` (an existing folder is continued) instead of the next free id
+    :param monitor_file: name of the training episodes' monitor file in the run folder
+    :param evaluate_at_end: evaluate the final model too (if the last evaluation was not at the last step)
+    """
+
+    algo: str
+    env: str
+    log_folder: str = "logs"
+    seed: int = 0
+    n_timesteps: int = -1
+    eval_freq: int = 10_000
+    eval_episodes: int = 5
+    save_freq: int = -1
+    hyperparams: dict[str, Any] = field(default_factory=dict)
+    trained_agent: str = ""
+    conf_file: str | None = None
+    n_envs: int | None = None
+    reward_mode: str | None = None
+    vec_env: str = "dummy"
+    tensorboard_log: str | None = None
+    log_interval: int = -1
+    verbose: int = 1
+    device: str = "auto"
+    progress: bool = False
+    trust_remote_code: bool = False
+    run_id: int | None = None
+    monitor_file: str = "monitor.csv"
+    evaluate_at_end: bool = False
+    # rl-zoo's -optimize (Optuna)
+    optimize_hyperparameters: bool = False
+    n_trials: int = 500
+    n_jobs: int = 1
+    sampler: str = "tpe"
+    pruner: str = "median"
+    n_startup_trials: int = 10
+    n_evaluations: int | None = None
+    storage: str | None = None
+    study_name: str | None = None
+
+    @classmethod
+    def from_args(cls, args: Any) -> RunSpec:
+        """The run of ``sb3-marl train``'s parsed arguments (the flags this class has fields for)."""
+        return cls(**{f.name: getattr(args, f.name) for f in fields(cls) if hasattr(args, f.name)})
+
+    @property
+    def tensorboard_folder(self) -> str:
+        """Where TensorBoard logs go ("" : nowhere)."""
+        return os.path.join(self.log_folder, "tensorboard") if self.tensorboard_log is None else self.tensorboard_log
 
 
 def check_observation_shape(model: BaseAlgorithm, path: str | Path, env_id: str, config: dict[str, Any]) -> None:
@@ -249,6 +313,7 @@ def check_model_file(path: str | Path, algo: str, trust_remote_code: bool = Fals
 
 __all__ = [
     "Run",
+    "RunSpec",
     "check_model_file",
     "find_run",
     "latest_checkpoint",

@@ -127,7 +127,8 @@ def run_trial(config: dict[str, Any]) -> None:
     from ray import tune
 
     from sb3_marl.callbacks import ScenarioEvalCallback
-    from sb3_marl.experiment import MARLExperimentManager, RunSpec
+    from sb3_marl.experiment import MARLExperimentManager
+    from sb3_marl.runs import RunSpec
 
     torch.set_num_threads(1)  # one core per trial: Ray schedules trials by CPU
     spec = TrialSpec(**config["spec"])

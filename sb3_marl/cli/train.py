@@ -216,7 +216,8 @@ def _check_trained_agent(args: argparse.Namespace) -> None:
 
 
 def train_command(args: argparse.Namespace) -> int:
-    from sb3_marl.experiment import MARLExperimentManager, RunSpec
+    from sb3_marl.experiment import MARLExperimentManager
+    from sb3_marl.runs import RunSpec
 
     _check_train_args(args)
     set_num_threads(args.num_threads)
