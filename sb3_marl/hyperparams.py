@@ -52,7 +52,8 @@ from sb3_marl.policies import (
     ma2c_policy_kwargs,
     ma2c_q_policy_kwargs,
 )
-from wrappers.parameter_sharing import check_penalty, check_reward_scale, check_sharing_options, check_supervisor_dropout
+from wrappers.parameter_sharing import check_sharing_options, check_supervisor_dropout
+from wrappers.reward_scale import check_penalty, check_reward_scale
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "zoo_configs"
 #: Algorithms registered under two names share one file: ``acktr`` reads ``maacktr.yml``.

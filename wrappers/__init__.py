@@ -5,7 +5,7 @@ from wrappers.parameter_sharing import (
     REWARD_MODES,
     VEC_BACKENDS,
     ParameterSharingVecEnv,
-    VecRewardScale,
 )
+from wrappers.reward_scale import VecRewardScale
 
 __all__ = ["REWARD_MODES", "VEC_BACKENDS", "ParameterSharingVecEnv", "VecCentralisedState", "VecRewardScale"]
