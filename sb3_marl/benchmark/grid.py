@@ -50,6 +50,9 @@ VARIANTS: dict[str, dict[str, Any]] = {
 }
 # the same without the entropy bonus: a sharper policy, whose sampled actions stray less from its argmax
 VARIANTS["rule-prior-sharp"] = {**VARIANTS["rule-prior"], "ent_coef": 0.0}
+# the same with half the training episodes without the safety supervisor: the sampled policy meets
+# the cost of its own mistakes while the prior keeps it near the rule driver
+VARIANTS["rule-prior-dropout"] = {**VARIANTS["rule-prior"], "supervisor_dropout": 0.5}
 
 #: Experiment -> its curves: label -> (algorithm, variant). In the order of the paper's sections.
 EXPERIMENTS: dict[str, dict[str, tuple[str, str]]] = {
@@ -78,6 +81,7 @@ EXPERIMENTS: dict[str, dict[str, tuple[str, str]]] = {
         "MA2C, rule prior": ("ma2c", "rule-prior"),
         "MAPPO, rule prior": ("mappo", "rule-prior"),
         "MA2C, rule prior, no entropy bonus": ("ma2c", "rule-prior-sharp"),
+        "MA2C, rule prior, supervisor dropout": ("ma2c", "rule-prior-dropout"),
     },
     # beyond the paper: CTDE, a critic that sees every AV of the copy (same networks otherwise)
     "ctde": {
