@@ -78,6 +78,14 @@ def test_the_hyperparameter_search_section_runs_verbatim(tmp_path):
     assert (tmp_path / "logs/ma2c/sb3_marl-LaneChange-density1-v0_1/sb3_marl-LaneChange-density1-v0.zip").is_file()
 
 
+def test_the_quick_start_table_is_the_committed_run():
+    """Every row of the README's Quick start table is a row of results/quick-start/evaluation.md (the
+    main job as run on the development VM; the reference rows are also the test suite's run's)."""
+    rows = [line for line in section("README.md", "Quick start").splitlines() if line.startswith("| ")]
+    committed = (REPO / "results" / "quick-start" / "evaluation.md").read_text().splitlines()
+    assert len(rows) == 9 and all(row in committed for row in rows), rows  # the header and 8 rows
+
+
 @pytest.mark.parametrize(
     "page, title",
     [
