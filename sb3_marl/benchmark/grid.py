@@ -53,6 +53,8 @@ VARIANTS["rule-prior-sharp"] = {**VARIANTS["rule-prior"], "ent_coef": 0.0}
 # the same with half the training episodes without the safety supervisor: the sampled policy meets
 # the cost of its own mistakes while the prior keeps it near the rule driver
 VARIANTS["rule-prior-dropout"] = {**VARIANTS["rule-prior"], "supervisor_dropout": 0.5}
+# the prior's weight kept at 1 and no entropy bonus: a policy that stays sharp and close to the rule driver
+VARIANTS["rule-prior-strong"] = {**VARIANTS["rule-prior"], "prior_coef_final": 1.0, "ent_coef": 0.0}
 
 #: Experiment -> its curves: label -> (algorithm, variant). In the order of the paper's sections.
 EXPERIMENTS: dict[str, dict[str, tuple[str, str]]] = {
@@ -82,6 +84,7 @@ EXPERIMENTS: dict[str, dict[str, tuple[str, str]]] = {
         "MAPPO, rule prior": ("mappo", "rule-prior"),
         "MA2C, rule prior, no entropy bonus": ("ma2c", "rule-prior-sharp"),
         "MA2C, rule prior, supervisor dropout": ("ma2c", "rule-prior-dropout"),
+        "MA2C, rule prior kept strong": ("ma2c", "rule-prior-strong"),
     },
     # beyond the paper: CTDE, a critic that sees every AV of the copy (same networks otherwise)
     "ctde": {

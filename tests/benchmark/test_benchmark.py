@@ -69,6 +69,7 @@ def test_grids_hold_each_trial_once():
         ("mappo", "rule-prior"),
         ("ma2c", "rule-prior-sharp"),
         ("ma2c", "rule-prior-dropout"),
+        ("ma2c", "rule-prior-strong"),
     }
     safety = make_grid("safety", seeds=1)
     assert [spec.variant for spec in safety] == ["default"] * 3 + ["safety-training"] * 3
