@@ -112,18 +112,13 @@ class MARLExperimentManager(ExperimentManager):
             study_name=spec.study_name,
         )
         self.spec = spec
-        self.vec_backend = spec.vec_env
         self.cli_overrides = {
             key: value for key, value in (("n_copies", spec.n_envs), ("reward_mode", spec.reward_mode)) if value is not None
         }
-        self.explicit_run_id = spec.run_id is not None
         if spec.run_id is not None:
             self.save_path = os.path.join(self.log_path, f"{self.env_name}_{spec.run_id}")
             self.params_path = os.path.join(self.save_path, str(self.env_name))
-        self.monitor_file = spec.monitor_file
         self.callback_after_eval = callback_after_eval
-        self.evaluate_at_end = spec.evaluate_at_end
-        self.trust_remote_code = spec.trust_remote_code
         self.scenario: dict[str, Any] = {}
         self.interrupted = False
         self.best_config_path: str | None = None  # written by hyperparameters_optimization
@@ -177,7 +172,7 @@ class MARLExperimentManager(ExperimentManager):
             tensorboard_log=self.tensorboard_log,
             verbose=self.verbose,
             device=self.device,
-            trust_remote_code=self.trust_remote_code,
+            trust_remote_code=self.spec.trust_remote_code,
             **hyperparams,
         )
         folder = os.path.dirname(self.trained_agent)
@@ -185,7 +180,7 @@ class MARLExperimentManager(ExperimentManager):
         if os.path.exists(arrays) and getattr(model, "replay_buffer", None) is not None:
             read_replay_buffer(model.replay_buffer, arrays)
         elif os.path.exists(replay_buffer) and hasattr(model, "load_replay_buffer"):
-            if self.trust_remote_code:
+            if self.spec.trust_remote_code:
                 model.load_replay_buffer(replay_buffer)
             else:
                 print(
@@ -199,7 +194,7 @@ class MARLExperimentManager(ExperimentManager):
         (two ``train`` started together), the next free id (a given ``run_id`` is continued)."""
         if self.optimize_hyperparameters:  # a search writes its report, not a run folder
             return
-        if not self.explicit_run_id:
+        if self.spec.run_id is None:
             os.makedirs(self.log_path, exist_ok=True)
             while True:
                 try:
@@ -216,9 +211,9 @@ class MARLExperimentManager(ExperimentManager):
             self.env_name.gym_id,
             self.scenario,
             self.seed,
-            self.vec_backend,
+            self.spec.vec_env,
             monitor_dir=monitor_dir,
-            monitor_file=self.monitor_file,
+            monitor_file=self.spec.monitor_file,
         )
 
     def create_callbacks(self) -> None:
@@ -241,7 +236,7 @@ class MARLExperimentManager(ExperimentManager):
                     log_path=self.save_path,
                     best_model_save_path=self.save_path,
                     callback_after_eval=self.callback_after_eval,
-                    evaluate_at_end=self.evaluate_at_end,
+                    evaluate_at_end=self.spec.evaluate_at_end,
                     verbose=self.verbose,
                 )
             )

@@ -20,7 +20,7 @@ from sb3_marl.envs.observation import observation_space, observe
 from sb3_marl.envs.reward import neighbour_matrix, reward_terms, total_reward
 from sb3_marl.envs.road import make_road, spawn, vehicle_state
 from sb3_marl.envs.simulator import COMPILED, SIMULATORS, STOCK, capture, vehicle_objects
-from sb3_marl.envs.supervisor import Horizon, Supervisor
+from sb3_marl.envs.supervisor import Supervisor
 from sb3_marl.envs.traffic import TrafficSnapshot
 
 #: Meta-action index -> label, highway-env's ``DiscreteMetaAction`` numbering.
@@ -98,8 +98,8 @@ class LaneChangeEnv(AbstractEnv):
 
     def _derive(self) -> None:
         """What the steps read from the config: the road and time grid, the safety supervisor."""
-        self.horizon = Horizon.from_config(self.config)
         self.supervisor = Supervisor.from_config(self.config)
+        self.horizon = self.supervisor.horizon
 
     @property
     def n_avs(self) -> int:
