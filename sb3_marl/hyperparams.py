@@ -153,7 +153,8 @@ VALUE_RANGES: dict[str, tuple[str, float | None, float | None, tuple]] = {
     "learning_rate": ("float", 0, None, ()),
     "gamma": ("float", 0, 1, ()),
     "gae_lambda": ("float", 0, 1, ()),
-    "ent_coef": ("float", 0, None, ()),
+    # a negative entropy coefficient penalises entropy: a sharper policy
+    "ent_coef": ("float", None, None, ()),
     "vf_coef": ("float", 0, None, ()),
     "max_grad_norm": ("float", 0, None, ()),
     "rms_prop_eps": ("float", 0, None, ()),

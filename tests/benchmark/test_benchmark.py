@@ -70,6 +70,7 @@ def test_grids_hold_each_trial_once():
         ("ma2c", "rule-prior-sharp"),
         ("ma2c", "rule-prior-dropout"),
         ("ma2c", "rule-prior-strong"),
+        ("ma2c", "rule-prior-sharpen"),
     }
     safety = make_grid("safety", seeds=1)
     assert [spec.variant for spec in safety] == ["default"] * 3 + ["safety-training"] * 3
