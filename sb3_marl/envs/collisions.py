@@ -15,7 +15,11 @@ from sb3_marl.envs.kernel import (
     HEADING,
     IMPACT_X,
     IMPACT_Y,
+    IS_OBSTACLE,
     LENGTH,
+    OBSTACLE_DIAGONAL,
+    OBSTACLE_LENGTH,
+    OBSTACLE_WIDTH,
     SPEED,
     WIDTH,
     X,
@@ -30,7 +34,10 @@ def _polygon(state: np.ndarray, k: int) -> np.ndarray:
     """``RoadObject.polygon``: (5, 2) corners [m], the first repeated."""
     c, s = cos(state[k, HEADING]), sin(state[k, HEADING])
     points = np.empty((5, 2))
-    half_l, half_w = LENGTH / 2, WIDTH / 2
+    if state[k, IS_OBSTACLE]:
+        half_l, half_w = OBSTACLE_LENGTH / 2, OBSTACLE_WIDTH / 2
+    else:
+        half_l, half_w = LENGTH / 2, WIDTH / 2
     for i, (px, py) in enumerate(((-half_l, -half_w), (-half_l, half_w), (half_l, half_w), (half_l, -half_w))):
         points[i, 0] = c * px + -s * py + state[k, X]
         points[i, 1] = s * px + c * py + state[k, Y]
@@ -54,11 +61,14 @@ def _interval_distance(min_a: float, max_a: float, min_b: float, max_b: float) -
 
 @numba.njit(cache=True)
 def handle_collision(state: np.ndarray, i: int, j: int, dt: float) -> None:
-    """``RoadObject.handle_collisions(i, j)``: crash flags and the impact of the next frame."""
-    if not (state[i, COLLIDABLE] and state[j, COLLIDABLE]):
+    """``RoadObject.handle_collisions(i, j)``: crash flags and the impact of the next frame (an
+    obstacle takes no impact: the vehicle takes all of it). Obstacles do not collide with each other."""
+    if not (state[i, COLLIDABLE] and state[j, COLLIDABLE]) or (state[i, IS_OBSTACLE] and state[j, IS_OBSTACLE]):
         return
     dx, dy = state[j, X] - state[i, X], state[j, Y] - state[i, Y]
-    if np.sqrt(dx * dx + dy * dy) > (DIAGONAL + DIAGONAL) / 2 + state[i, SPEED] * dt:
+    diagonal_i = OBSTACLE_DIAGONAL if state[i, IS_OBSTACLE] else DIAGONAL
+    diagonal_j = OBSTACLE_DIAGONAL if state[j, IS_OBSTACLE] else DIAGONAL
+    if np.sqrt(dx * dx + dy * dy) > (diagonal_i + diagonal_j) / 2 + state[i, SPEED] * dt:
         return
     a, b = _polygon(state, i), _polygon(state, j)
     # displacement_a - displacement_b, each velocity (speed × direction) × dt
@@ -97,7 +107,12 @@ def handle_collision(state: np.ndarray, i: int, j: int, dt: float) -> None:
             break
     if will_intersect:
         tx, ty = min_distance * axis_x, min_distance * axis_y
-        state[i, IMPACT_X], state[i, IMPACT_Y], state[i, HAS_IMPACT] = tx / 2, ty / 2, 1.0
-        state[j, IMPACT_X], state[j, IMPACT_Y], state[j, HAS_IMPACT] = -tx / 2, -ty / 2, 1.0
+        if state[j, IS_OBSTACLE]:
+            state[i, IMPACT_X], state[i, IMPACT_Y], state[i, HAS_IMPACT] = tx, ty, 1.0
+        elif state[i, IS_OBSTACLE]:
+            state[j, IMPACT_X], state[j, IMPACT_Y], state[j, HAS_IMPACT] = tx, ty, 1.0
+        else:
+            state[i, IMPACT_X], state[i, IMPACT_Y], state[i, HAS_IMPACT] = tx / 2, ty / 2, 1.0
+            state[j, IMPACT_X], state[j, IMPACT_Y], state[j, HAS_IMPACT] = -tx / 2, -ty / 2, 1.0
     if intersecting:
         state[i, CRASHED] = state[j, CRASHED] = 1.0

@@ -20,6 +20,7 @@ from sb3_marl.envs.kernel import (
     IMPACT_X,
     IMPACT_Y,
     IS_HDV,
+    IS_OBSTACLE,
     LANE,
     LENGTH,
     MAX_SPEED,
@@ -36,29 +37,16 @@ from sb3_marl.envs.kernel import (
     cos,
     sin,
     tan,
-    wrap_to_pi,
 )
+from sb3_marl.envs.lanes import closest_lane
 from sb3_marl.envs.meta_actions import meta_action_targets
 
 
 @numba.njit(cache=True)
-def _closest_lane(x: float, y: float, heading: float, n_lanes: int, lane_width: float, road_length: float) -> int:
-    """``RoadNetwork.get_closest_lane_index`` (first minimum of ``distance_with_heading``)."""
-    best, best_distance = 0, np.inf
-    angle = abs(wrap_to_pi(heading - 0.0))
-    for lane in range(n_lanes):
-        lateral = y - lane * lane_width
-        distance = abs(lateral) + max(x - road_length, 0.0) + max(0 - x, 0.0) + 1.0 * angle
-        if lane == 0 or distance < best_distance:
-            best, best_distance = lane, distance
-    return best
-
-
-@numba.njit(cache=True)
-def _move(state: np.ndarray, dt: float, n_lanes: int, lane_width: float, road_length: float) -> None:
-    """``Vehicle.step`` of every vehicle (``IDMVehicle`` also advances its timer)."""
+def _move(state: np.ndarray, dt: float, lanes: np.ndarray) -> None:
+    """``Vehicle.step`` of every vehicle (``IDMVehicle`` also advances its timer); obstacles stay."""
     for k in range(state.shape[0]):
-        if not state[k, PRESENT]:
+        if not state[k, PRESENT] or state[k, IS_OBSTACLE]:
             continue
         if state[k, IS_HDV]:
             state[k, TIMER] += dt
@@ -80,16 +68,16 @@ def _move(state: np.ndarray, dt: float, n_lanes: int, lane_width: float, road_le
             state[k, HAS_IMPACT] = 0.0
         state[k, HEADING] = heading + speed * sin(beta) / (LENGTH / 2) * dt
         state[k, SPEED] = speed + state[k, ACCELERATION] * dt
-        state[k, LANE] = _closest_lane(state[k, X], state[k, Y], state[k, HEADING], n_lanes, lane_width, road_length)
+        state[k, LANE] = closest_lane(lanes, state[k, X], state[k, Y], state[k, HEADING])
 
 
 @numba.njit(cache=True)
-def drive(state: np.ndarray, dt: float, n_lanes: int, lane_width: float, road_length: float, speed_limit: float) -> None:
+def drive(state: np.ndarray, dt: float, lanes: np.ndarray, speed_limit: float) -> None:
     """One frame of the road's driving (``Road.act``, then ``Vehicle.step`` of every vehicle) on
     ``state`` in place, without the collision test and the road end: the safety supervisor's
     prediction, with the same equations as :func:`policy_step`."""
-    act(state, n_lanes, lane_width, road_length, speed_limit)
-    _move(state, dt, n_lanes, lane_width, road_length)
+    act(state, lanes, speed_limit)
+    _move(state, dt, lanes)
 
 
 @numba.njit(cache=True)
@@ -98,37 +86,35 @@ def policy_step(
     actions: np.ndarray,
     frames: int,
     dt: float,
-    n_lanes: int,
-    lane_width: float,
-    road_length: float,
+    lanes: np.ndarray,
+    road_end: float,
     speed_limit: float,
     ladder: np.ndarray,
 ) -> np.ndarray:
     """One policy step of the scenario on a copy of ``state``: the first ``actions.size`` rows (the
     AVs) take their meta-actions (:func:`meta_action_targets`), then ``frames`` frames of ``dt`` s
-    run (``Road.act``, ``Road.step``); after each, vehicles past the road end leave: HDVs are
-    removed, AVs stop colliding. Returns the new state without the removed vehicles.
+    run (``Road.act``, ``Road.step``); after each, vehicles whose x passes ``road_end`` [m] leave:
+    HDVs are removed, AVs stop colliding. Returns the new state without the removed vehicles.
 
-    :param state: (n, :data:`COLUMNS`) one row per vehicle, the AVs first
-    :param n_lanes: lanes along +x, lane k centred at y = k × ``lane_width`` [m]
-    :param road_length: [m] length of the lanes
+    :param state: (n, :data:`COLUMNS`) one row per vehicle, the AVs first, obstacles last
+    :param lanes: the road's lane table (:mod:`sb3_marl.envs.lanes`)
     :param speed_limit: [m/s] the lanes' speed limit (caps IDM's desired speed)
     :param ladder: [m/s] the AVs' target speeds
     """
     state = state.copy()
     n, n_avs = state.shape[0], actions.size
-    target_lane, target_speed = meta_action_targets(state, n_avs, n_lanes, lane_width, road_length, ladder)
+    target_lane, target_speed = meta_action_targets(state, n_avs, lanes, ladder)
     for i in range(n_avs):
         state[i, TARGET_LANE], state[i, TARGET_SPEED] = target_lane[i, actions[i]], target_speed[i, actions[i]]
     for _ in range(frames):
-        drive(state, dt, n_lanes, lane_width, road_length, speed_limit)
+        drive(state, dt, lanes, speed_limit)
         for i in range(n):
             if state[i, PRESENT]:
                 for j in range(i + 1, n):
                     if state[j, PRESENT]:
                         handle_collision(state, i, j, dt)
         for k in range(n):
-            if state[k, PRESENT] and state[k, X] > road_length:
+            if state[k, PRESENT] and state[k, X] > road_end:
                 if state[k, IS_HDV]:
                     state[k, PRESENT] = 0.0
                 else:

@@ -3,8 +3,10 @@ row per vehicle in ``road.vehicles`` order, the columns named below), highway-en
 controller and IDM parameters (read once from its classes), and the elementary functions that
 round as numpy's.
 
-The road on this array is highway-env's for the scenario (straight lanes along +x from x = 0,
-lane k centred at y = k × lane width, one road segment), in highway-env's order of operations:
+The road's lanes are data (:mod:`sb3_marl.envs.lanes`: a table read from a highway-env
+``RoadNetwork``); static obstacles (highway-env's ``Obstacle``, e.g. the end of a merging lane) are
+rows of the array after the vehicles, flagged ``IS_OBSTACLE``: they neither act nor move, but are
+seen as leaders and collide as highway-env's objects do. In highway-env's order of operations:
 :mod:`sb3_marl.envs.dynamics` steps it (:func:`~sb3_marl.envs.dynamics.policy_step`), with
 :mod:`sb3_marl.envs.drivers` (IDM, MOBIL, steering, every vehicle's decision; the rule driver),
 :mod:`sb3_marl.envs.collisions` (highway-env's collision test) and :mod:`sb3_marl.envs.meta_actions`
@@ -32,6 +34,7 @@ from highway_env.road.lane import AbstractLane
 from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.controller import ControlledVehicle
 from highway_env.vehicle.kinematics import Vehicle
+from highway_env.vehicle.objects import Obstacle
 
 # highway-env's parameters, read once (numba freezes module globals at compile time)
 LENGTH = float(Vehicle.LENGTH)  # [m]
@@ -53,6 +56,9 @@ DELTA = float(IDMVehicle.DELTA)  # IDM exponent
 LANE_CHANGE_DELAY = float(IDMVehicle.LANE_CHANGE_DELAY)  # [s]
 LANE_VEHICLE_LENGTH = float(AbstractLane.VEHICLE_LENGTH)  # [m], lanes' end margin
 ON_LANE_MARGIN = 1.0  # [m], highway-env's margin of "on the lane" in its neighbour search
+OBSTACLE_LENGTH = float(Obstacle.LENGTH)  # [m]
+OBSTACLE_WIDTH = float(Obstacle.WIDTH)  # [m]
+OBSTACLE_DIAGONAL = float(np.sqrt(OBSTACLE_LENGTH**2 + OBSTACLE_WIDTH**2))  # [m]
 
 #: Columns of the state array, one row per vehicle in ``road.vehicles`` order.
 (
@@ -76,8 +82,9 @@ ON_LANE_MARGIN = 1.0  # [m], highway-env's margin of "on the lane" in its neighb
     POLITENESS,
     MAX_BRAKING_IMPOSED,
     MIN_ACC_GAIN,
-) = range(20)
-COLUMNS = 20
+    IS_OBSTACLE,
+) = range(21)
+COLUMNS = 21
 
 
 @numba.njit(cache=True)

@@ -227,11 +227,18 @@ class LaneChangeEnv(AbstractEnv):
         frames, dt = self.horizon.frames_per_step, self.horizon.dt
         if not self._uses_objects():
             self.state = dynamics.policy_step(
-                self.state, actions, frames, dt, *self._geometry(), self.horizon.speed_limit, self.horizon.ladder
+                self.state,
+                actions,
+                frames,
+                dt,
+                self.horizon.lanes,
+                self.horizon.road_end,
+                self.horizon.speed_limit,
+                self.horizon.ladder,
             )
             self.steps += frames
             return
-        road, road_length = self.road, self.horizon.road_length
+        road, road_length = self.road, self.horizon.road_end
         for frame in range(frames):
             if frame == 0:
                 for av, a in zip(self.avs, actions):
@@ -245,12 +252,8 @@ class LaneChangeEnv(AbstractEnv):
             if frame < frames - 1:
                 self._automatic_rendering()
         self.enable_auto_render = False
-        self.state = capture(road.vehicles)
+        self.state = capture(road.vehicles, road.network, road.objects)
         self._road_current = True  # the objects stepped are the state
-
-    def _geometry(self) -> tuple[int, float, float]:
-        """(lanes, lane width [m], road length [m]) of the config, as the kernel takes them."""
-        return self.horizon.n_lanes, self.horizon.lane_width, self.horizon.road_length
 
     def render(self) -> np.ndarray | None:
         """Render with highway-env's viewer; ``rgb_array`` frames are drawn offscreen, headless.
@@ -275,7 +278,7 @@ class LaneChangeEnv(AbstractEnv):
         a lane change only towards an existing lane reachable from the AV's position; FASTER /
         SLOWER unless the AV already tracks the highest / lowest target speed.
         """
-        return meta_actions.available_actions(self.state, self.n_avs, *self._geometry(), self.horizon.ladder)
+        return meta_actions.available_actions(self.state, self.n_avs, self.horizon.lanes, self.horizon.ladder)
 
     def rule_actions(self) -> np.ndarray:
         """(n_avs,) int: the meta-action the scenario's human driver (IDM + MOBIL, the config's MOBIL
@@ -286,7 +289,7 @@ class LaneChangeEnv(AbstractEnv):
         return drivers.rule_actions(
             self.state,
             self.n_avs,
-            *self._geometry(),
+            self.horizon.lanes,
             float(config["speed_limit"]),
             self.horizon.ladder,
             float(config["hdv_politeness"]),

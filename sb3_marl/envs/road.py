@@ -6,6 +6,7 @@ lane 0 is at y = 0 and lane k at y = k * lane_width.
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import numba
@@ -15,30 +16,47 @@ from highway_env.road.road import Road, RoadNetwork
 from highway_env.vehicle.behavior import IDMVehicle
 
 from sb3_marl.envs import kernel, meta_actions
+from sb3_marl.envs.lanes import lane_table
 from sb3_marl.envs.simulator import SEGMENT
 
 
 def make_road(config: dict[str, Any], np_random: np.random.Generator) -> Road:
-    """highway-env's one-way highway of ``lanes_count`` straight lanes of ``road_length`` m, without
-    vehicles (see :func:`~sb3_marl.envs.simulator.vehicle_objects`).
+    """highway-env's road of the config (:func:`highway_network`), without vehicles (see
+    :func:`~sb3_marl.envs.simulator.vehicle_objects`).
 
     :param config: the scenario config
     :param np_random: the env's random generator, shared with the vehicles' behaviour
     """
+    network = highway_network(config["lanes_count"], config["lane_width"], config["road_length"], config["speed_limit"])
+    return Road(network=network, np_random=np_random, record_history=config["show_trajectories"])
+
+
+def highway_network(lanes: int, width: float, length: float, speed_limit: float) -> RoadNetwork:
+    """highway-env's one-way highway: ``lanes`` straight lanes of ``length`` m along +x from x = 0,
+    lane k centred at y = k × ``width`` [m], one road segment."""
     network = RoadNetwork()
-    lanes = config["lanes_count"]
-    width = config["lane_width"]
     for lane in range(lanes):
         y = lane * width
         line_types = (
             LineType.CONTINUOUS_LINE if lane == 0 else LineType.STRIPED,
             LineType.CONTINUOUS_LINE if lane == lanes - 1 else LineType.NONE,
         )
-        lane_object = StraightLane(
-            [0.0, y], [config["road_length"], y], width=width, line_types=line_types, speed_limit=config["speed_limit"]
+        network.add_lane(
+            *SEGMENT, StraightLane([0.0, y], [length, y], width=width, line_types=line_types, speed_limit=speed_limit)
         )
-        network.add_lane(*SEGMENT, lane_object)
-    return Road(network=network, np_random=np_random, record_history=config["show_trajectories"])
+    return network
+
+
+def highway_lanes(config: dict[str, Any]) -> np.ndarray:
+    """The lane table (:func:`~sb3_marl.envs.lanes.lane_table`) of the config's highway; read-only, shared."""
+    return _highway_lanes(
+        int(config["lanes_count"]), float(config["lane_width"]), float(config["road_length"]), float(config["speed_limit"])
+    )
+
+
+@functools.lru_cache(maxsize=32)
+def _highway_lanes(lanes: int, width: float, length: float, speed_limit: float) -> np.ndarray:
+    return lane_table(highway_network(lanes, width, length, speed_limit))
 
 
 def configure_hdv(vehicle: IDMVehicle, config: dict[str, Any]) -> None:

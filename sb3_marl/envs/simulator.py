@@ -12,13 +12,15 @@ Units: positions in m, speeds in m/s, angles in rad, time in s.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-from highway_env.road.road import Road
+from highway_env.road.road import Road, RoadNetwork
 from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.controller import MDPVehicle
 from highway_env.vehicle.kinematics import Vehicle
+from highway_env.vehicle.objects import RoadObject
 
 from sb3_marl.envs import kernel
 
@@ -29,20 +31,38 @@ SIMULATORS = (COMPILED, STOCK)
 SEGMENT = ("start", "end")  # the highway's one road segment (RoadNetwork node names)
 
 
-def capture(vehicles: list[Vehicle]) -> np.ndarray:
-    """The state array (n, :data:`~sb3_marl.envs.kernel.COLUMNS`) of highway-env vehicles, in order."""
-    return np.array([_row(v) for v in vehicles], dtype=np.float64).reshape(-1, kernel.COLUMNS)
+def capture(vehicles: list[Vehicle], network: RoadNetwork, objects: Sequence[RoadObject] = ()) -> np.ndarray:
+    """The state array (n, :data:`~sb3_marl.envs.kernel.COLUMNS`) of highway-env vehicles, in order,
+    then of the ``objects`` (obstacles); lanes numbered as ``network.lanes_list()``."""
+    numbers = {index: number for number, index in enumerate(lane_indices(network))}
+    rows = [_row(v, numbers) for v in vehicles] + [_obstacle_row(o) for o in objects]
+    return np.array(rows, dtype=np.float64).reshape(-1, kernel.COLUMNS)
 
 
-def _row(v: Vehicle) -> tuple:
+def lane_indices(network: RoadNetwork) -> list[tuple[str, str, int]]:
+    """highway-env's lane indices (from, to, id) in the order of ``network.lanes_list()``: lane
+    number k of the kernel is ``lane_indices(network)[k]``."""
+    return [(start, end, i) for start, ends in network.graph.items() for end, lanes in ends.items() for i in range(len(lanes))]
+
+
+def _obstacle_row(o: RoadObject) -> tuple:
+    row = [0.0] * kernel.COLUMNS
+    row[kernel.X], row[kernel.Y] = o.position.tolist()
+    row[kernel.HEADING], row[kernel.SPEED] = o.heading, o.speed
+    row[kernel.LANE] = row[kernel.TARGET_LANE] = -1
+    row[kernel.CRASHED], row[kernel.COLLIDABLE], row[kernel.PRESENT], row[kernel.IS_OBSTACLE] = o.crashed, o.collidable, 1, 1
+    return tuple(row)
+
+
+def _row(v: Vehicle, numbers: dict) -> tuple:
     hdv = isinstance(v, IDMVehicle)
     impact = v.impact
     return (
         *v.position.tolist(),
         v.heading,
         v.speed,
-        v.lane_index[2],
-        v.target_lane_index[2],
+        numbers[v.lane_index],
+        numbers[v.target_lane_index],
         v.target_speed,
         hdv,
         v.timer if hdv else 0.0,
@@ -54,17 +74,21 @@ def _row(v: Vehicle) -> tuple:
         v.action["steering"],
         v.action["acceleration"],
         *((v.POLITENESS, v.LANE_CHANGE_MAX_BRAKING_IMPOSED, v.LANE_CHANGE_MIN_ACC_GAIN) if hdv else (0.0, 0.0, 0.0)),
+        False,
     )
 
 
 def vehicle_objects(road: Road, state: np.ndarray, config: dict[str, Any]) -> list[Vehicle]:
-    """highway-env vehicles on ``road`` with the rows of ``state``: ``IDMVehicle`` for the HDV rows,
-    ``MDPVehicle`` (on the config's ``target_speeds``) for the others; :func:`capture` of the
-    result gives ``state`` back exactly."""
-    lanes = road.network.lanes_list()
+    """highway-env vehicles on ``road`` with the vehicle rows of ``state``: ``IDMVehicle`` for the HDV
+    rows, ``MDPVehicle`` (on the config's ``target_speeds``) for the others; obstacle rows are the
+    road's own ``objects``. :func:`capture` of the result and the road's objects gives ``state``
+    back exactly."""
+    lanes, indices = road.network.lanes_list(), lane_indices(road.network)
     vehicles: list[Vehicle] = []
     for row in state.tolist():
-        lane, target = (*SEGMENT, int(row[kernel.LANE])), (*SEGMENT, int(row[kernel.TARGET_LANE]))
+        if row[kernel.IS_OBSTACLE]:
+            continue
+        lane, target = indices[int(row[kernel.LANE])], indices[int(row[kernel.TARGET_LANE])]
         position, heading, speed = [row[kernel.X], row[kernel.Y]], row[kernel.HEADING], row[kernel.SPEED]
         v: Vehicle
         if row[kernel.IS_HDV]:
@@ -77,7 +101,7 @@ def vehicle_objects(road: Road, state: np.ndarray, config: dict[str, Any]) -> li
             v = MDPVehicle(road, position, heading, speed, target_lane_index=target, target_speeds=config["target_speeds"])
             v.speed_index = v.speed_to_index(row[kernel.TARGET_SPEED])
         v.target_speed = row[kernel.TARGET_SPEED]
-        v.lane_index, v.lane = lane, lanes[lane[2]]
+        v.lane_index, v.lane = lane, lanes[int(row[kernel.LANE])]
         v.crashed, v.collidable = bool(row[kernel.CRASHED]), bool(row[kernel.COLLIDABLE])
         v.impact = np.array([row[kernel.IMPACT_X], row[kernel.IMPACT_Y]]) if row[kernel.HAS_IMPACT] else None
         v.action = {"steering": row[kernel.STEERING], "acceleration": row[kernel.ACCELERATION]}

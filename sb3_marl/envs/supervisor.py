@@ -43,7 +43,7 @@ from typing import Any, NamedTuple
 import numba
 import numpy as np
 
-from sb3_marl.envs.drivers import lane_occupancy, leader
+from sb3_marl.envs.drivers import lane_distance, lane_occupancy, leader
 from sb3_marl.envs.dynamics import drive
 from sb3_marl.envs.kernel import (
     COLLIDABLE,
@@ -60,6 +60,7 @@ from sb3_marl.envs.kernel import (
     sin,
 )
 from sb3_marl.envs.meta_actions import meta_action_targets, speed_index
+from sb3_marl.envs.road import highway_lanes
 
 #: Version of the supervisor's decisions; evaluations record it, and ``sb3-marl benchmark evaluate``
 #: re-evaluates trials evaluated under another (history in CHANGELOG.md; 3: the road's own equations).
@@ -78,9 +79,8 @@ PASSES = 2
 class Horizon(NamedTuple):
     """The road and the prediction's time grid (compiled code takes it as one argument)."""
 
-    n_lanes: int
-    lane_width: float  # [m]
-    road_length: float  # [m]
+    lanes: np.ndarray  # the road's lane table (sb3_marl.envs.lanes)
+    road_end: float  # [m] x past which vehicles leave the road
     speed_limit: float  # [m/s]
     dt: float  # [s] one frame
     frames: int  # frames predicted
@@ -88,12 +88,13 @@ class Horizon(NamedTuple):
     ladder: np.ndarray  # [m/s] the AVs' target speeds (MDPVehicle.target_speeds)
 
     @classmethod
-    def from_config(cls, config: dict[str, Any]) -> Horizon:
-        """The road and time grid of a scenario config (lanes, frequencies [Hz], ``supervisor_horizon`` [s])."""
+    def from_config(cls, config: dict[str, Any], lanes: np.ndarray | None = None, road_end: float | None = None) -> Horizon:
+        """The road and time grid of a scenario config (frequencies [Hz], ``supervisor_horizon`` [s]);
+        the road is ``lanes`` and ``road_end`` [m], by default the lane-change highway of the config
+        (:func:`~sb3_marl.envs.road.highway_lanes`, ``road_length``)."""
         return cls(
-            n_lanes=int(config["lanes_count"]),
-            lane_width=float(config["lane_width"]),
-            road_length=float(config["road_length"]),
+            lanes=highway_lanes(config) if lanes is None else lanes,
+            road_end=float(config["road_length"] if road_end is None else road_end),
             speed_limit=float(config["speed_limit"]),
             dt=1.0 / config["simulation_frequency"],
             frames=max(int(round(config["supervisor_horizon"] * config["simulation_frequency"])), 1),
@@ -126,7 +127,7 @@ def _predict(
                 if speed_step[k] != 0:
                     index = min(max(speed_index(state[k, SPEED], ladder) + speed_step[k], 0), top)
                     state[k, TARGET_SPEED] = ladder[index]
-        drive(state, horizon.dt, horizon.n_lanes, horizon.lane_width, horizon.road_length, horizon.speed_limit)
+        drive(state, horizon.dt, horizon.lanes, horizon.speed_limit)
         path[frame, 0], path[frame, 1] = state[:, X], state[:, Y]
         path[frame, 2], path[frame, 3] = state[:, HEADING], state[:, SPEED]
         if ego >= 0:
@@ -237,12 +238,12 @@ def supervise_arrays(
     collidable = state[:, COLLIDABLE] > 0
     dt = horizon.dt
     speed_step = np.zeros(n_avs, dtype=np.int64)
-    on_lane = lane_occupancy(state, horizon.n_lanes, horizon.lane_width, horizon.road_length)
+    occupancy = lane_occupancy(state, horizon.lanes)
     margin = np.empty(n_avs)
     for i in range(n_avs):
         _set_action(state, i, proposed[i], speed_step, candidate_lane, candidate_speed, repeat_actions)
-        front = leader(state, on_lane, i)
-        gap = state[front, X] - state[i, X] if front >= 0 else NO_LEADER_GAP
+        front = leader(state, horizon.lanes, occupancy, i)
+        gap = lane_distance(state, horizon.lanes, i, front) if front >= 0 else NO_LEADER_GAP
         margin[i] = gap - state[i, SPEED] * headway_time
     order = np.argsort(margin, kind="mergesort")
     # the road predicted under the AVs' current actions, shared by every AV's room until one changes
@@ -316,9 +317,10 @@ class Supervisor:
     rear_avs: bool
 
     @classmethod
-    def from_config(cls, config: dict[str, Any]) -> Supervisor:
+    def from_config(cls, config: dict[str, Any], lanes: np.ndarray | None = None, road_end: float | None = None) -> Supervisor:
+        """The supervisor of ``config`` on the road ``lanes`` (see :meth:`Horizon.from_config`)."""
         return cls(
-            Horizon.from_config(config),
+            Horizon.from_config(config, lanes, road_end),
             float(config["headway_time"]),
             float(config["supervisor_min_gap"]),
             bool(config["supervisor_repeat_actions"]),
@@ -336,9 +338,7 @@ class Supervisor:
         :param available: (n_avs, 5) bool action mask
         """
         horizon = self.horizon
-        candidate_lane, candidate_speed = meta_action_targets(
-            state, n_avs, horizon.n_lanes, horizon.lane_width, horizon.road_length, horizon.ladder
-        )
+        candidate_lane, candidate_speed = meta_action_targets(state, n_avs, horizon.lanes, horizon.ladder)
         return supervise_arrays(
             state,
             candidate_lane,

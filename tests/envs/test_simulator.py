@@ -35,7 +35,7 @@ def test_spawned_state_is_what_highway_env_constructors_give(density):
         env.reset(seed=seed)
         state = env.state
         x, lane, speed = state[:, 0], state[:, 4], state[:, 3]
-        np.testing.assert_array_equal(capture(highway_env_vehicles(env, x, lane, speed)), state)
+        np.testing.assert_array_equal(capture(highway_env_vehicles(env, x, lane, speed), env.road.network), state)
         np.testing.assert_array_equal(vehicle_state(env.config, x, lane, speed, env.n_avs), state)
 
 
@@ -48,13 +48,15 @@ def test_objects_built_from_the_state_capture_back_to_it(density):
         env.reset(seed=seed)
         for _ in range(40):
             vehicles = vehicle_objects(env.road, env.state, env.config)
-            np.testing.assert_array_equal(capture(vehicles), env.state)
+            np.testing.assert_array_equal(capture(vehicles, env.road.network), env.state)
             checked["crashed"] += int(env.state[:, 9].any())
             checked["turned"] += int((env.state[:, 2] != 0).any())
             checked["changing_lane"] += int((env.state[:, 4] != env.state[:, 5]).any())
             *_, terminated, truncated, _ = env.step(rng.choice(5, env.n_avs, p=[0.1, 0.6, 0.1, 0.1, 0.1]))
             if terminated or truncated:
-                np.testing.assert_array_equal(capture(vehicle_objects(env.road, env.state, env.config)), env.state)
+                np.testing.assert_array_equal(
+                    capture(vehicle_objects(env.road, env.state, env.config), env.road.network), env.state
+                )
                 checked["crashed"] += int(env.state[:, 9].any())
                 break
     assert all(count > 0 for count in checked.values()), checked
@@ -67,7 +69,7 @@ def test_the_road_shows_the_state_as_highway_env_objects():
     assert all(type(av) is MDPVehicle for av in env.avs)
     assert all(type(hdv) is IDMVehicle for hdv in env.road.vehicles[env.n_avs :])
     env.step(np.ones(env.n_avs, dtype=int))
-    np.testing.assert_array_equal(capture(env.road.vehicles), env.state)  # rebuilt after the step
+    np.testing.assert_array_equal(capture(env.road.vehicles, env.road.network), env.state)  # rebuilt after the step
 
 
 def test_an_unknown_simulator_is_refused():
