@@ -20,7 +20,7 @@ from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-from sb3_marl.envs import DENSITIES
+from sb3_marl.envs import DENSITIES, ENV_IDS
 from sb3_marl.envs.simulator import COMPILED, STOCK
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "envs"))  # the parity helpers (test support)
@@ -37,7 +37,7 @@ def main() -> None:
     for density in args.densities:
         for name, (policy, config) in MIXES.items():
             start = time.perf_counter()
-            result = compare(STOCK, COMPILED, density, range(args.episodes), policy, **config)
+            result = compare(STOCK, COMPILED, ENV_IDS[density], range(args.episodes), policy, **config)
             tag = f"density{density}_{name}"
             print(f"{tag}_episodes: {result.episodes}")
             print(f"{tag}_different_outcomes: {len(result.different_outcomes)} {result.different_outcomes[:10]}")

@@ -1,24 +1,45 @@
-"""The lane-change scenario; importing this module registers its gymnasium ids."""
+"""The scenarios (the lane change, the on-ramp merge); importing this module registers their gymnasium ids."""
 
 from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 from gymnasium.envs.registration import register, registry
 
-from sb3_marl.envs.config import DENSITIES, default_config, validate_config
+from sb3_marl.envs.config import DENSITIES, LANE_CHANGE, MERGE, SCENARIO_DENSITIES, default_config, validate_config
 
 if TYPE_CHECKING:
     from sb3_marl.envs.lane_change_env import LaneChangeEnv
 
 ENV_IDS = {density: f"sb3_marl/LaneChange-density{density}-v0" for density in DENSITIES}
+MERGE_ENV_IDS = {density: f"sb3_marl/Merge-density{density}-v0" for density in SCENARIO_DENSITIES[MERGE]}
+#: The scenario of each registered entry point.
+ENTRY_POINTS = {
+    "sb3_marl.envs.lane_change_env:LaneChangeEnv": LANE_CHANGE,
+    "sb3_marl.envs.merge_env:MergeEnv": MERGE,
+}
 
-for _density, _env_id in ENV_IDS.items():
-    if _env_id not in registry:
-        register(
-            id=_env_id,
-            entry_point="sb3_marl.envs.lane_change_env:LaneChangeEnv",
-            kwargs={"density": _density},
+for _entry_point, _ids in zip(ENTRY_POINTS, (ENV_IDS, MERGE_ENV_IDS)):
+    for _density, _env_id in _ids.items():
+        if _env_id not in registry:
+            register(id=_env_id, entry_point=_entry_point, kwargs={"density": _density})
+
+
+def scenario_of(env_id: str) -> str:
+    """The scenario (:data:`~sb3_marl.envs.config.LANE_CHANGE` or ``MERGE``) of a registered id.
+
+    :raises ValueError: if ``env_id`` is not registered or is not one of the scenarios
+    """
+    try:
+        spec = gym.spec(env_id)
+    except gym.error.Error as error:
+        raise ValueError(f"Invalid env {env_id!r}: not a registered gymnasium id ({error}).") from None
+    scenario = ENTRY_POINTS.get(str(spec.entry_point))
+    if scenario is None:
+        raise ValueError(
+            f"Invalid env {env_id!r}: not a multi-agent scenario of sb3-marl; use one of "
+            f"{sorted([*ENV_IDS.values(), *MERGE_ENV_IDS.values()])} or a factory."
         )
+    return scenario
 
 
 def make_scenario(env_id: str, config: dict[str, Any] | None = None, render_mode: str | None = None) -> "LaneChangeEnv":
@@ -55,17 +76,11 @@ def av_counts(env_id: str, config: dict[str, Any] | None = None) -> list[int]:
     config = config or {}
     if config.get("n_avs") is not None:
         return [int(config["n_avs"])]
-    try:
-        spec = gym.spec(env_id)
-    except gym.error.Error as error:
-        raise ValueError(f"Invalid env {env_id!r}: not a registered gymnasium id ({error}).") from None
-    density = config.get("density", (spec.kwargs or {}).get("density"))
-    if density not in DENSITIES:
-        raise ValueError(
-            f"Invalid env {env_id!r}: not a multi-agent lane-change scenario (no traffic density); "
-            "use one of the sb3_marl/LaneChange-density{1,2,3}-v0 ids or a factory."
-        )
-    lo, hi = DENSITIES[density]["avs"]
+    densities = SCENARIO_DENSITIES[scenario_of(env_id)]
+    density = config.get("density", (gym.spec(env_id).kwargs or {}).get("density"))
+    if density not in densities:
+        raise ValueError(f"Invalid config['density'] = {density!r} for {env_id!r}: expected one of {sorted(densities)}.")
+    lo, hi = densities[density]["avs"]
     return list(range(lo, hi + 1))
 
 
@@ -88,6 +103,7 @@ __all__ = [
     "ACTIONS",
     "DENSITIES",
     "ENV_IDS",
+    "MERGE_ENV_IDS",
     "LaneChangeEnv",
     "LaneChangeParallelEnv",
     "av_counts",
@@ -96,5 +112,6 @@ __all__ = [
     "default_config",
     "make_scenario",
     "parallel_env",
+    "scenario_of",
     "validate_config",
 ]

@@ -1,4 +1,5 @@
-"""Configuration of the lane-change scenario: defaults, traffic densities and validation.
+"""Configuration of the scenarios (the lane change, :data:`LANE_CHANGE`, and the on-ramp merge,
+:data:`MERGE`): defaults, traffic densities and validation.
 
 Every key is in SI units (m, m/s, m/s², s, Hz) and named after its unit where it helps.
 A user's config is a plain dict merged over :func:`default_config`; :func:`validate_config`
@@ -20,6 +21,17 @@ DENSITIES: dict[int, dict[str, tuple[int, int]]] = {
     2: {"avs": (2, 4), "hdvs": (2, 4)},
     3: {"avs": (4, 6), "hdvs": (4, 6)},
 }
+#: Traffic densities of the merging paper (Chen et al. 2021; MARL_CAVs' ``merge_env_v1``).
+MERGE_DENSITIES: dict[int, dict[str, tuple[int, int]]] = {
+    1: {"avs": (1, 3), "hdvs": (1, 3)},
+    2: {"avs": (2, 4), "hdvs": (2, 4)},
+    3: {"avs": (4, 6), "hdvs": (3, 5)},
+}
+#: The scenarios and their densities.
+LANE_CHANGE, MERGE = "lane-change", "merge"
+SCENARIO_DENSITIES = {LANE_CHANGE: DENSITIES, MERGE: MERGE_DENSITIES}
+#: Keys of the lane-change highway's road and spawn grid (the merge road is fixed: sb3_marl/envs/merge_road.py).
+HIGHWAY_KEYS = ("road_length", "lanes_count", "lane_width", "spawn_start", "spawn_spacing", "spawn_slots_per_lane")
 
 #: Highway-env's rendering keys that the scenario keeps (used by ``EnvViewer``).
 RENDER_DEFAULTS: dict[str, Any] = {
@@ -95,6 +107,21 @@ def default_config() -> dict[str, Any]:
         "rule_acceleration_threshold": 1.0,  # [m/s²]
         **RENDER_DEFAULTS,
     }
+
+
+def merge_default_config() -> dict[str, Any]:
+    """The on-ramp merging scenario of MARL_CAVs' ``merge_env_v1`` (Chen et al. 2021): the lane
+    change's keys without the highway's road and spawn grid, plus the merging-lane cost."""
+    config = {key: value for key, value in default_config().items() if key not in HIGHWAY_KEYS}
+    config.update(
+        {
+            "spawn_speed_range": [25.0, 27.0],  # [m/s]
+            "comfort": False,  # the merging paper's reward has no comfort term
+            # weight of the merging-lane cost -exp(-(x - merge end)² / (10 × merging lane length))
+            "merging_lane_weight": 4.0,
+        }
+    )
+    return config
 
 
 Check = Callable[[Any], bool]
@@ -190,6 +217,7 @@ _SCHEMA: dict[str, tuple[Check, str]] = {
     "reward_speed_range": _pair(0),
     "harsh_acceleration_threshold": _POSITIVE,
     "rule_acceleration_threshold": _POSITIVE,
+    "merging_lane_weight": _NON_NEGATIVE,
     "safety_supervisor": _boolean(),
     "supervisor_horizon": _number(0, 60, strict_lo=True),
     "supervisor_min_gap": _number(0, 100),
@@ -211,23 +239,32 @@ def _fail(key: str, value: Any, allowed: str) -> ValueError:
     return ValueError(f"Invalid config['{key}'] = {value!r}: expected {allowed}.")
 
 
-def validate_config(config: dict[str, Any]) -> None:
+def _keys(scenario: str) -> list[str]:
+    if scenario == MERGE:
+        return [key for key in _SCHEMA if key not in HIGHWAY_KEYS]
+    return [key for key in _SCHEMA if key != "merging_lane_weight"]
+
+
+def validate_config(config: dict[str, Any], scenario: str = LANE_CHANGE) -> None:
     """Check a merged config; raise one ``ValueError`` naming the key, the value and what is allowed.
 
     :param config: a full scenario config (defaults merged with overrides)
+    :param scenario: :data:`LANE_CHANGE` or :data:`MERGE`
     :raises ValueError: on an unknown key, a wrong type, a value out of range, or inconsistent keys
     """
-    unknown = sorted(set(config) - set(_SCHEMA))
+    keys = _keys(scenario)
+    unknown = sorted(set(config) - set(keys))
     if unknown:
-        raise ValueError(f"Unknown config key(s) {unknown}: allowed keys are {sorted(_SCHEMA)}.")
-    for key, (check, allowed) in _SCHEMA.items():
+        raise ValueError(f"Unknown config key(s) {unknown} for the {scenario} scenario: allowed keys are {sorted(keys)}.")
+    for key in keys:
+        check, allowed = _SCHEMA[key]
         value = config[key]
         if key in ("n_avs", "hdv_count_range") and value is None:
             continue
         if not check(value):
             raise _fail(key, value, allowed)
 
-    avs_lo, avs_hi = DENSITIES[config["density"]]["avs"]
+    avs_lo, avs_hi = SCENARIO_DENSITIES[scenario][config["density"]]["avs"]
     if config["n_avs"] is not None and not avs_lo <= config["n_avs"] <= avs_hi:
         raise _fail(
             "n_avs",
@@ -244,6 +281,13 @@ def validate_config(config: dict[str, Any]) -> None:
     lo, hi = config["reward_speed_range"]
     if lo == hi:
         raise _fail("reward_speed_range", config["reward_speed_range"], "a pair with min < max")
+    if scenario == MERGE:
+        _check_merge_spawn(config)
+    else:
+        _check_highway(config)
+
+
+def _check_highway(config: dict[str, Any]) -> None:
     road_width = (config["lanes_count"] - 1) * config["lane_width"]
     if road_width > config["obs_y_range"]:
         most_lanes = int(config["obs_y_range"] // config["lane_width"]) + 1
@@ -273,16 +317,36 @@ def validate_config(config: dict[str, Any]) -> None:
         )
 
 
-def resolved_n_avs(config: dict[str, Any]) -> int:
+def _check_merge_spawn(config: dict[str, Any]) -> None:
+    from sb3_marl.envs.merge_road import RAMP_SPAWN, SPAWN_SPACING
+
+    n_avs, most = resolved_n_avs(config, MERGE), resolved_hdv_range(config, MERGE)[1]
+    if -(-n_avs // 2) + -(-most // 2) > len(RAMP_SPAWN):  # half the vehicles (rounded up) start on the ramp
+        raise _fail(
+            "hdv_count_range",
+            config["hdv_count_range"],
+            f"a range whose maximum fits the ramp's {len(RAMP_SPAWN)} spawn points with {n_avs} AVs "
+            f"(at most {2 * (len(RAMP_SPAWN) - -(-n_avs // 2))} HDVs)",
+        )
+    if 5.0 + 2 * config["spawn_position_noise"] + 1e-9 > SPAWN_SPACING:
+        raise _fail(
+            "spawn_position_noise",
+            config["spawn_position_noise"],
+            f"at most (the {SPAWN_SPACING} m spawn spacing - 5 m vehicle length) / 2 = {(SPAWN_SPACING - 5.0) / 2} m "
+            "so that spawned vehicles never overlap",
+        )
+
+
+def resolved_n_avs(config: dict[str, Any], scenario: str = LANE_CHANGE) -> int:
     """Number of AVs of an instance: ``n_avs`` or, when unset, the density's maximum."""
     if config["n_avs"] is not None:
         return int(config["n_avs"])
-    return DENSITIES[config["density"]]["avs"][1]
+    return SCENARIO_DENSITIES[scenario][config["density"]]["avs"][1]
 
 
-def resolved_hdv_range(config: dict[str, Any]) -> tuple[int, int]:
+def resolved_hdv_range(config: dict[str, Any], scenario: str = LANE_CHANGE) -> tuple[int, int]:
     """Inclusive range of HDV counts sampled at each reset."""
     if config["hdv_count_range"] is not None:
         lo, hi = config["hdv_count_range"]
         return int(lo), int(hi)
-    return DENSITIES[config["density"]]["hdvs"]
+    return SCENARIO_DENSITIES[scenario][config["density"]]["hdvs"]

@@ -15,10 +15,10 @@ from highway_env.road.road import Road
 from highway_env.vehicle.controller import MDPVehicle
 
 from sb3_marl.envs import config as cfg
-from sb3_marl.envs import drivers, dynamics, kernel, meta_actions
+from sb3_marl.envs import drivers, dynamics, kernel, lanes, meta_actions
 from sb3_marl.envs.observation import observation_space, observe
 from sb3_marl.envs.reward import neighbour_matrix, reward_terms, total_reward
-from sb3_marl.envs.road import make_road, spawn, vehicle_state
+from sb3_marl.envs.road import highway_lanes, make_road, spawn, vehicle_state
 from sb3_marl.envs.simulator import COMPILED, SIMULATORS, STOCK, capture, vehicle_objects
 from sb3_marl.envs.supervisor import Supervisor
 from sb3_marl.envs.traffic import TrafficSnapshot
@@ -61,6 +61,8 @@ class LaneChangeEnv(AbstractEnv):
     viewer: EnvViewer | None  # highway-env's renderer (AbstractEnv sets it)
 
     metadata = {"render_modes": ["human", "rgb_array"]}
+    #: the config's scenario (:mod:`~sb3_marl.envs.config`: keys, densities)
+    scenario: str = cfg.LANE_CHANGE
     #: ``"compiled"`` (default) or ``"stock"`` (see :mod:`~sb3_marl.envs.simulator`)
     simulator: str = COMPILED
     _state: np.ndarray = np.zeros((0, kernel.COLUMNS))  # AbstractEnv.__init__ resets the env
@@ -92,19 +94,40 @@ class LaneChangeEnv(AbstractEnv):
     def configure(self, config: dict[str, Any] | None) -> None:
         """Merge ``config`` over the current config after validating the result."""
         merged = {**self.config, **(config or {})}
-        cfg.validate_config(merged)
+        cfg.validate_config(merged, self.scenario)
         super().configure(config)
         self._derive()
 
     def _derive(self) -> None:
         """What the steps read from the config: the road and time grid, the safety supervisor."""
-        self.supervisor = Supervisor.from_config(self.config)
+        self.supervisor = Supervisor.from_config(self.config, *self._road_data())
         self.horizon = self.supervisor.horizon
+
+    def _road_data(self) -> tuple[np.ndarray, float]:
+        """The road as the kernel reads it: (lane table, road end [m])."""
+        return highway_lanes(self.config), float(self.config["road_length"])
+
+    def _make_road(self) -> Road:
+        """highway-env's road of the config, without vehicles."""
+        return make_road(self.config, self.np_random)
+
+    def _spawn(self) -> np.ndarray:
+        """The state array of a new episode of ``n_avs`` AVs and ``n_hdvs`` HDVs."""
+        return spawn(self.config, self.n_avs, self.n_hdvs, self.np_random)
+
+    def _obstacles(self) -> np.ndarray:
+        """The road's obstacle rows (none on the highway)."""
+        return np.zeros((0, kernel.COLUMNS))
+
+    @property
+    def road_length(self) -> float:
+        """[m] the length the observation normalises the ego's x by."""
+        return float(self.config["road_length"])
 
     @property
     def n_avs(self) -> int:
         """Number of AVs controlled by this instance."""
-        return cfg.resolved_n_avs(self.config)
+        return cfg.resolved_n_avs(self.config, self.scenario)
 
     @property
     def max_steps(self) -> int:
@@ -131,9 +154,9 @@ class LaneChangeEnv(AbstractEnv):
         self.define_spaces()
         self.time = self.steps = 0
         self.done = False
-        lo, hi = cfg.resolved_hdv_range(self.config)
+        lo, hi = cfg.resolved_hdv_range(self.config, self.scenario)
         self.n_hdvs = int(self.np_random.integers(lo, hi + 1))
-        self.state = spawn(self.config, self.n_avs, self.n_hdvs, self.np_random)
+        self.state = self._spawn()
         self._road = None
         obs, info = self._observe_start()
         if self.render_mode == "human":
@@ -144,13 +167,18 @@ class LaneChangeEnv(AbstractEnv):
         self, avs: Sequence[tuple[float, int, float]], hdvs: Sequence[tuple[float, int, float]] = ()
     ) -> tuple[np.ndarray, dict]:
         """Replace the traffic of a reset env by ``n_avs`` AVs and any HDVs at (x [m], lane, speed
-        [m/s]), on their lane's centre, as a new episode's spawn would place them; returns the new
-        observation and info. For hand-made situations (tests, figures)."""
+        [m/s]), on their lane's centre (lane: the road's lane number), as a new episode's spawn
+        would place them; returns the new observation and info. For hand-made situations (tests,
+        figures)."""
         if len(avs) != self.n_avs:
             raise ValueError(f"Invalid avs: expected {self.n_avs} (x, lane, speed) tuples, got {len(avs)}.")
         x, lane, speed = np.array([*avs, *hdvs], dtype=np.float64).reshape(-1, 3).T
+        table = self.horizon.lanes
+        if not all(0 <= number < len(table) for number in lane.tolist()):
+            raise ValueError(f"Invalid lane in {lane.tolist()}: expected lane numbers 0..{len(table) - 1}.")
+        y = [lanes.position(table, int(k), s - table[int(k), lanes.START_X], 0.0)[1] for k, s in zip(lane, x)]
         self.n_hdvs = len(hdvs)
-        self.state = vehicle_state(self.config, x, lane, speed, self.n_avs)
+        self.state = np.concatenate([vehicle_state(self.config, x, lane, speed, self.n_avs, y=np.array(y)), self._obstacles()])
         return self._observe_start()
 
     @property
@@ -166,7 +194,7 @@ class LaneChangeEnv(AbstractEnv):
     def road(self) -> Road:
         """highway-env's road with :attr:`state`'s vehicles as objects, the AVs first."""
         if self._road is None:
-            self._road = make_road(self.config, self.np_random)
+            self._road = self._make_road()
         if not self._road_current:
             self._road.vehicles = vehicle_objects(self._road, self.state, self.config)
             self._road_current = True
@@ -201,14 +229,19 @@ class LaneChangeEnv(AbstractEnv):
         if self.config["safety_supervisor"]:
             actions, _ = self.supervisor(self.state, n, proposed, self.action_masks())
         speed_before = self.state[:n, kernel.SPEED].copy()
-        lanes_before = self.state[:n, kernel.TARGET_LANE].copy()
+        targets_before = self.state[:n, kernel.TARGET_LANE].copy()
 
         self._simulate(actions)
         self.time += 1.0 / self.config["policy_frequency"]
 
         state = self.state
         acceleration = (state[:n, kernel.SPEED] - speed_before) * self.config["policy_frequency"]
-        obs, info = self._observe(acceleration, state[:n, kernel.TARGET_LANE] != lanes_before, proposed, actions)
+        # a lane change: a new target lane other than the road's own continuation of the old one
+        followed = [
+            lanes.follow(self.horizon.lanes, int(t), x, y)
+            for t, x, y in zip(targets_before, state[:n, kernel.X], state[:n, kernel.Y])
+        ]
+        obs, info = self._observe(acceleration, state[:n, kernel.TARGET_LANE] != followed, proposed, actions)
         terminated = bool(info["crashed"].any())
         truncated = not terminated and (self.steps_done >= self.max_steps or bool(info["exited"].all()))
         self.done = terminated or truncated
@@ -331,16 +364,16 @@ class LaneChangeEnv(AbstractEnv):
         and the scalars ``n_avs``, ``n_hdvs``, ``step``.
         """
         state, n = self.state, self.n_avs
-        snapshot = TrafficSnapshot.capture(state, n, self.config["road_length"])
+        snapshot = TrafficSnapshot.capture(state, n, self.horizon.road_end)
         crashed = state[:n, kernel.CRASHED] > 0
-        terms = reward_terms(snapshot, crashed, acceleration, lane_change, self.config)
+        terms = self._reward_terms(snapshot, crashed, acceleration, lane_change)
         headway = terms.pop("headway_distance")
         proposed = np.asarray(proposed, dtype=np.int64)
         executed = proposed if executed is None else np.asarray(executed, dtype=np.int64)
         info = {
-            "rewards": total_reward(terms, self.config),
+            "rewards": self._total_reward(terms),
             "reward_terms": terms,
-            "neighbours": neighbour_matrix(snapshot),
+            "neighbours": self._neighbour_sets(snapshot),
             "crashed": crashed,
             "speed": state[:n, kernel.SPEED].copy(),
             "headway": headway,
@@ -357,4 +390,18 @@ class LaneChangeEnv(AbstractEnv):
             "step": self.steps_done,
         }
         target_speeds = state[:n, kernel.TARGET_SPEED].copy() if self.config["obs_target_speed"] else None
-        return observe(snapshot, self.config, target_speeds), info
+        return observe(snapshot, self.config, self.road_length, target_speeds), info
+
+    def _reward_terms(
+        self, snapshot: TrafficSnapshot, crashed: np.ndarray, acceleration: np.ndarray, lane_change: np.ndarray
+    ) -> dict[str, np.ndarray]:
+        """Unweighted reward terms per AV (:func:`~sb3_marl.envs.reward.reward_terms`)."""
+        return reward_terms(snapshot, crashed, acceleration, lane_change, self.config)
+
+    def _total_reward(self, terms: dict[str, np.ndarray]) -> np.ndarray:
+        """(n_avs,) the weighted reward of each AV."""
+        return total_reward(terms, self.config)
+
+    def _neighbour_sets(self, snapshot: TrafficSnapshot) -> np.ndarray:
+        """(n_avs, n_avs) bool: the local reward's neighbour sets (:func:`~sb3_marl.envs.reward.neighbour_matrix`)."""
+        return neighbour_matrix(snapshot)

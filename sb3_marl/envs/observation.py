@@ -42,9 +42,12 @@ def observation_space(n_avs: int, config: dict[str, Any]) -> spaces.Box:
     return spaces.Box(low=-1.0, high=1.0, shape=shape, dtype=np.float32)
 
 
-def observe(snapshot: TrafficSnapshot, config: dict[str, Any], target_speeds: np.ndarray | None = None) -> np.ndarray:
+def observe(
+    snapshot: TrafficSnapshot, config: dict[str, Any], road_length: float, target_speeds: np.ndarray | None = None
+) -> np.ndarray:
     """Observations of all AVs, shape (n_avs, obs_vehicles_count, features), float32.
 
+    :param road_length: [m] the length the ego's x is normalised by
     :param target_speeds: [m/s] the AVs' target speeds, needed with ``obs_target_speed``
     """
     obs = _observe(
@@ -55,7 +58,7 @@ def observe(snapshot: TrafficSnapshot, config: dict[str, Any], target_speeds: np
         snapshot.visible,
         snapshot.n_avs,
         config["obs_vehicles_count"],
-        float(config["road_length"]),
+        float(road_length),
         float(config["obs_x_range"]),
         float(config["obs_y_range"]),
         float(config["obs_speed_range"]),

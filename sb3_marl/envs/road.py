@@ -88,18 +88,22 @@ def spawn(config: dict[str, Any], n_avs: int, n_hdvs: int, np_random: np.random.
     return vehicle_state(config, x, slots // per_lane, speeds, n_avs)
 
 
-def vehicle_state(config: dict[str, Any], x: np.ndarray, lane: np.ndarray, speed: np.ndarray, n_avs: int) -> np.ndarray:
-    """The state array of vehicles placed at ``x`` [m] on the centre of ``lane``, heading along the
-    road at ``speed`` [m/s], the first ``n_avs`` AVs, the others HDVs: the state highway-env's
-    ``MDPVehicle`` and ``IDMVehicle`` constructors give them (an AV's target speed is the ladder
-    step nearest its speed, an HDV's its speed; the HDV's lane-change timer starts at
+def vehicle_state(
+    config: dict[str, Any], x: np.ndarray, lane: np.ndarray, speed: np.ndarray, n_avs: int, y: np.ndarray | None = None
+) -> np.ndarray:
+    """The state array of vehicles placed at (``x``, ``y``) [m] on ``lane`` (lane numbers of the
+    road's table; ``y`` by default the lane's centre on the config's highway, lane × ``lane_width``),
+    heading along +x at ``speed`` [m/s], the first ``n_avs`` AVs, the others HDVs: the state
+    highway-env's ``MDPVehicle`` and ``IDMVehicle`` constructors give them (an AV's target speed is
+    the ladder step nearest its speed, an HDV's its speed; the HDV's lane-change timer starts at
     ``(x + y) π mod LANE_CHANGE_DELAY``; the config's MOBIL parameters)."""
+    lane = np.asarray(lane, dtype=np.float64).reshape(-1)
     return _vehicle_state(
         np.asarray(x, dtype=np.float64).reshape(-1),
-        np.asarray(lane, dtype=np.float64).reshape(-1),
+        lane * float(config["lane_width"]) if y is None else np.asarray(y, dtype=np.float64).reshape(-1),
+        lane,
         np.asarray(speed, dtype=np.float64).reshape(-1),
         n_avs,
-        float(config["lane_width"]),
         np.asarray(config["target_speeds"], dtype=np.float64),
         float(config["hdv_politeness"]),
         float(config["hdv_b_safe"]),
@@ -110,10 +114,10 @@ def vehicle_state(config: dict[str, Any], x: np.ndarray, lane: np.ndarray, speed
 @numba.njit(cache=True)
 def _vehicle_state(
     x: np.ndarray,
+    y: np.ndarray,
     lane: np.ndarray,
     speed: np.ndarray,
     n_avs: int,
-    lane_width: float,
     ladder: np.ndarray,
     politeness: float,
     max_braking_imposed: float,
@@ -121,8 +125,7 @@ def _vehicle_state(
 ) -> np.ndarray:
     state = np.zeros((x.size, kernel.COLUMNS))
     for k in range(x.size):
-        y = lane[k] * lane_width
-        state[k, kernel.X], state[k, kernel.Y], state[k, kernel.SPEED] = x[k], y, speed[k]
+        state[k, kernel.X], state[k, kernel.Y], state[k, kernel.SPEED] = x[k], y[k], speed[k]
         state[k, kernel.LANE] = state[k, kernel.TARGET_LANE] = lane[k]
         state[k, kernel.COLLIDABLE] = state[k, kernel.PRESENT] = 1.0
         if k < n_avs:
@@ -130,7 +133,7 @@ def _vehicle_state(
         else:
             state[k, kernel.TARGET_SPEED] = speed[k]
             state[k, kernel.IS_HDV] = 1.0
-            state[k, kernel.TIMER] = (x[k] + y) * np.pi % kernel.LANE_CHANGE_DELAY
+            state[k, kernel.TIMER] = (x[k] + y[k]) * np.pi % kernel.LANE_CHANGE_DELAY
             state[k, kernel.POLITENESS] = politeness
             state[k, kernel.MAX_BRAKING_IMPOSED] = max_braking_imposed
             state[k, kernel.MIN_ACC_GAIN] = min_acc_gain

@@ -19,7 +19,7 @@ class TrafficSnapshot:
     :param vy: lateral velocity [m/s]
     :param speed: speed along the heading [m/s]
     :param lane: index of the lane the vehicle is on (0 = y 0)
-    :param visible: False for vehicles past the road end, which are ignored
+    :param visible: False for vehicles past the road end, which are ignored, and for obstacles
     :param n_avs: number of AVs (the first entries)
     """
 
@@ -33,10 +33,10 @@ class TrafficSnapshot:
     n_avs: int
 
     @classmethod
-    def capture(cls, state: np.ndarray, n_avs: int, road_length: float) -> TrafficSnapshot:
+    def capture(cls, state: np.ndarray, n_avs: int, road_end: float) -> TrafficSnapshot:
         """The snapshot of the road's state array (:mod:`~sb3_marl.envs.kernel` layout, AVs first).
 
-        :param road_length: [m] vehicles whose centre is past it are not visible
+        :param road_end: [m] vehicles whose centre is past it are not visible
         """
         x, speed, heading = state[:, kernel.X], state[:, kernel.SPEED], state[:, kernel.HEADING]
         return cls(
@@ -46,6 +46,6 @@ class TrafficSnapshot:
             vy=speed * np.sin(heading),
             speed=speed,
             lane=state[:, kernel.LANE].astype(np.int64),
-            visible=x <= road_length,
+            visible=(x <= road_end) & (state[:, kernel.IS_OBSTACLE] == 0),
             n_avs=n_avs,
         )

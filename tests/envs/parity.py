@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sb3_marl.envs import ENV_IDS, make_scenario
+from sb3_marl.envs import make_scenario
 from sb3_marl.envs.kernel import ACCELERATION, CRASHED, HEADING, LANE, SPEED, STEERING, TARGET_LANE, X, Y
 
 #: Meta-action probabilities (LANE_LEFT, IDLE, LANE_RIGHT, FASTER, SLOWER). Uniform random actions
@@ -48,10 +48,10 @@ class Episode:
         return len(self.events), bool(self.events[-1][0]), sum(sum(e[3]) for e in self.events)
 
 
-def run_episode(simulator: str, density: int, seed: int, policy: str, **config) -> Episode:
-    """An episode of ``density`` from ``reset(seed=seed)`` under ``simulator``, the AVs' actions
-    drawn from :data:`ACTION_PROBABILITIES` ``[policy]`` by a generator seeded with ``seed``."""
-    env = make_scenario(ENV_IDS[density], config)
+def run_episode(simulator: str, env_id: str, seed: int, policy: str, **config) -> Episode:
+    """An episode of the scenario ``env_id`` from ``reset(seed=seed)`` under ``simulator``, the AVs'
+    actions drawn from :data:`ACTION_PROBABILITIES` ``[policy]`` by a generator seeded with ``seed``."""
+    env = make_scenario(env_id, config)
     env.simulator = simulator
     rng = np.random.default_rng(seed)
     obs, _ = env.reset(seed=seed)
@@ -80,13 +80,13 @@ class Comparison:
     hdv_lane_changes: int = 0
 
 
-def compare(reference: str, candidate: str, density: int, seeds: range, policy: str, **config) -> Comparison:
+def compare(reference: str, candidate: str, env_id: str, seeds: range, policy: str, **config) -> Comparison:
     """Run each seed under both simulators (scenario ``config`` overrides) and compare states,
     observations and events."""
     result = Comparison()
     for seed in seeds:
-        a = run_episode(reference, density, seed, policy, **config)
-        b = run_episode(candidate, density, seed, policy, **config)
+        a = run_episode(reference, env_id, seed, policy, **config)
+        b = run_episode(candidate, env_id, seed, policy, **config)
         result.episodes += 1
         result.crashes += a.outcome[1]
         result.hdv_lane_changes += sum(x != y for e, f in zip(a.events, a.events[1:]) for x, y in zip(e[4], f[4]))

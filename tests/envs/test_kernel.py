@@ -11,6 +11,7 @@ import pytest
 from helpers import make
 from parity import compare, run_episode
 
+from sb3_marl.envs import ENV_IDS
 from sb3_marl.envs.simulator import COMPILED, STOCK
 
 #: [m, rad, m/s, m/s²] largest state difference accepted: numpy's SIMD arcsin / arctan / tan /
@@ -21,7 +22,7 @@ TOLERANCE = 1e-9
 @pytest.mark.parametrize("density", [1, 2, 3])
 @pytest.mark.parametrize(("policy", "config"), [("uniform", {}), ("cruise", {}), ("cruise", {"safety_supervisor": True})])
 def test_compiled_kernel_matches_highway_env(density, policy, config):
-    result = compare(STOCK, COMPILED, density, range(15), policy, **config)
+    result = compare(STOCK, COMPILED, ENV_IDS[density], range(15), policy, **config)
     assert result.different_outcomes == []
     assert result.max_state_difference < TOLERANCE
     assert result.max_observation_difference < TOLERANCE
@@ -39,7 +40,7 @@ def test_compiled_kernel_is_the_default():
 
 def test_rendered_episodes_match_unrendered_ones():
     """With a viewer the frames run one by one (drawn in between), without it compiled: same episode."""
-    plain = run_episode(COMPILED, 2, seed=4, policy="cruise")
+    plain = run_episode(COMPILED, ENV_IDS[2], seed=4, policy="cruise")
     env = make(2)
     env.render_mode = "rgb_array"
     env.reset(seed=4)

@@ -1,0 +1,148 @@
+"""The multi-agent on-ramp merging scenario of Chen et al. (2021, arXiv 2105.05701; MARL_CAVs'
+``merge_env_v1``) on the lane-change scenario's machinery: the same kernel, meta-actions, masks,
+observation, supervisor and info, on the merging road (:mod:`sb3_marl.envs.merge_road`)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numba
+import numpy as np
+from highway_env.road.road import Road
+
+from sb3_marl.envs import config as cfg
+from sb3_marl.envs import kernel
+from sb3_marl.envs.lane_change_env import LaneChangeEnv
+from sb3_marl.envs.merge_road import (
+    CONVERGING,
+    ENDS,
+    MAIN_AFTER,
+    MAIN_BEFORE,
+    MAIN_BESIDE,
+    MERGE_END,
+    MERGING_LANE,
+    RAMP,
+    ROAD_LENGTH,
+    make_merge_road,
+    merge_lanes,
+    merge_spawn,
+    obstacle_rows,
+)
+from sb3_marl.envs.reward import total_reward
+from sb3_marl.envs.traffic import TrafficSnapshot
+
+#: Lanes whose vehicles ``surrounding_vehicles`` searches on each lane (MARL_CAVs' road.py): the
+#: lane and its neighbours along the route.
+ROUTE = np.zeros((6, 6), dtype=np.bool_)
+for _lane, _route in {
+    MAIN_BEFORE: (MAIN_BEFORE, MAIN_BESIDE),
+    MAIN_BESIDE: (MAIN_BEFORE, MAIN_BESIDE, MAIN_AFTER),
+    MAIN_AFTER: (MAIN_BESIDE, MAIN_AFTER),
+    RAMP: (RAMP, CONVERGING),
+    CONVERGING: (RAMP, CONVERGING, MERGING_LANE),
+    MERGING_LANE: (CONVERGING, MERGING_LANE),
+}.items():
+    ROUTE[_lane, list(_route)] = True
+#: The other lane a vehicle's regional reward looks at (MARL_CAVs' ``_regional_reward``: the side
+#: lane beside the merging lane, the ramp and main road seen across from each other; -1: none),
+#: and the x [m] the vehicle must have passed for it.
+ACROSS = np.array([CONVERGING, MERGING_LANE, MAIN_BESIDE, -1, -1, MAIN_BEFORE])
+ACROSS_FROM = np.array([ENDS[0], -np.inf, -np.inf, np.inf, np.inf, -np.inf])
+
+
+class MergeEnv(LaneChangeEnv):
+    """On-ramp merging: AVs on the main road and on the ramp, among IDM/MOBIL HDVs; the ramp's AVs
+    and HDVs must change to the main road before the merging lane's obstacle.
+
+    Everything of :class:`~sb3_marl.envs.lane_change_env.LaneChangeEnv` holds (actions, masks,
+    observation, supervisor, info, ``place`` with the road's lane numbers), with the merging
+    paper's differences: the spawn (:func:`~sb3_marl.envs.merge_road.merge_spawn`), its densities
+    (:data:`~sb3_marl.envs.config.MERGE_DENSITIES`), no road end (vehicles drive on past the road,
+    as in MARL_CAVs), the reward ``200·safety + 4·headway + 1·speed + 4·merging-lane cost`` (no
+    comfort term by default) and the regional neighbour sets of MARL_CAVs' ``_regional_reward``.
+    """
+
+    scenario = cfg.MERGE
+
+    @classmethod
+    def default_config(cls) -> dict[str, Any]:
+        return cfg.merge_default_config()
+
+    def _road_data(self) -> tuple[np.ndarray, float]:
+        return merge_lanes(float(self.config["speed_limit"])), np.inf
+
+    def _make_road(self) -> Road:
+        return make_merge_road(self.config, self.np_random)
+
+    def _spawn(self) -> np.ndarray:
+        return merge_spawn(self.config, self.n_avs, self.n_hdvs, self.np_random)
+
+    def _obstacles(self) -> np.ndarray:
+        return obstacle_rows()
+
+    @property
+    def road_length(self) -> float:
+        return ROAD_LENGTH
+
+    def _reward_terms(
+        self, snapshot: TrafficSnapshot, crashed: np.ndarray, acceleration: np.ndarray, lane_change: np.ndarray
+    ) -> dict[str, np.ndarray]:
+        """The lane change's terms plus ``merging_lane``: -exp(-(x - merge end)² / (10 × merging
+        lane length)) for an AV on the merging lane, else 0 (MARL_CAVs' ``Merging_lane_cost``)."""
+        terms = super()._reward_terms(snapshot, crashed, acceleration, lane_change)
+        n = snapshot.n_avs
+        on_merging_lane = snapshot.lane[:n] == MERGING_LANE
+        cost = -np.exp(-((snapshot.x[:n] - MERGE_END) ** 2) / (10 * ENDS[2]))
+        terms["merging_lane"] = np.where(on_merging_lane, cost, 0.0)
+        return terms
+
+    def _total_reward(self, terms: dict[str, np.ndarray]) -> np.ndarray:
+        return total_reward(terms, self.config) + self.config["merging_lane_weight"] * terms["merging_lane"]
+
+    def _neighbour_sets(self, snapshot: TrafficSnapshot) -> np.ndarray:
+        return regional_neighbours(self.state, self.n_avs)
+
+
+def regional_neighbours(state: np.ndarray, n_avs: int) -> np.ndarray:
+    """(n_avs, n_avs) bool: MARL_CAVs' regional reward sets on the merging road: AV i, and the AVs
+    among the vehicles just ahead of and behind it (``surrounding_vehicles``: by x, among the
+    vehicles on its lane's route, :data:`ROUTE`) on its own lane and on the lane across
+    (:data:`ACROSS`)."""
+    return _regional_neighbours(state, n_avs, ROUTE, ACROSS, ACROSS_FROM)
+
+
+@numba.njit(cache=True)
+def _surrounding(state: np.ndarray, k: int, lane: int, route: np.ndarray) -> tuple[int, int]:
+    """MARL_CAVs' ``Road.surrounding_vehicles``: (front, rear) of vehicle k among the vehicles on
+    ``lane``'s route, by x (-1: none; obstacles left out)."""
+    s = state[k, kernel.X]
+    front = rear = -1
+    s_front = s_rear = 0.0
+    for j in range(state.shape[0]):
+        if j == k or state[j, kernel.IS_OBSTACLE] or not route[lane, int(state[j, kernel.LANE])]:
+            continue
+        s_v = state[j, kernel.X]
+        if s <= s_v and (front < 0 or s_v <= s_front):
+            front, s_front = j, s_v
+        if s_v < s and (rear < 0 or s_v > s_rear):
+            rear, s_rear = j, s_v
+    return front, rear
+
+
+@numba.njit(cache=True)
+def _regional_neighbours(
+    state: np.ndarray, n_avs: int, route: np.ndarray, across: np.ndarray, across_from: np.ndarray
+) -> np.ndarray:
+    neighbours = np.eye(n_avs, dtype=np.bool_)
+    for i in range(n_avs):
+        lane = int(state[i, kernel.LANE])
+        found = _surrounding(state, i, lane, route)
+        for j in found:
+            if 0 <= j < n_avs:
+                neighbours[i, j] = True
+        other = across[lane]
+        if other >= 0 and state[i, kernel.X] > across_from[lane]:
+            for j in _surrounding(state, i, other, route):
+                if 0 <= j < n_avs:
+                    neighbours[i, j] = True
+    return neighbours
