@@ -262,7 +262,7 @@ def load_from_hub(repo_id: str, log_folder: str | Path, token: str | None = None
 def _place_run(repo_id: str, snapshot: Path, log_folder: Path) -> Path:
     """Copy a downloaded model folder into a new run folder of the log layout."""
     from sb3_marl.algos import ALGO_NAMES
-    from sb3_marl.envs import ENV_IDS
+    from sb3_marl.envs import SCENARIO_IDS
 
     results_path = snapshot / "results.json"
     if not results_path.is_file():
@@ -274,8 +274,8 @@ def _place_run(repo_id: str, snapshot: Path, log_folder: Path) -> Path:
     algo, env_id = (results.get(key) if isinstance(results, dict) else None for key in ("algo", "env_id"))
     if algo not in ALGO_NAMES:
         raise HubError(f"{repo_id}: its results.json names the algorithm {algo!r}, not one of {list(ALGO_NAMES)}.")
-    if env_id not in ENV_IDS.values():
-        raise HubError(f"{repo_id}: its results.json names the env {env_id!r}, not one of {list(ENV_IDS.values())}.")
+    if env_id not in SCENARIO_IDS:
+        raise HubError(f"{repo_id}: its results.json names the env {env_id!r}, not one of {SCENARIO_IDS}.")
     model_path = snapshot / model_file_name(algo, str(env_id))
     if not model_path.is_file():
         raise HubError(f"{repo_id} has no model file {model_path.name}.")

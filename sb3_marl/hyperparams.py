@@ -43,7 +43,8 @@ import yaml
 from sb3_marl.algos import get_algo
 from sb3_marl.algos.base import hyperparameters
 from sb3_marl.checks import is_integer, is_number
-from sb3_marl.envs import av_counts, default_config, validate_config
+from sb3_marl.envs import av_counts, scenario_of, validate_config
+from sb3_marl.envs.config import scenario_default_config
 from sb3_marl.policies import (
     ACTOR_CRITIC_FUSED_ADAM,
     ARCHITECTURES,
@@ -326,7 +327,8 @@ def check_policy_kwargs(algo: str, hyperparams: dict[str, Any], env_id: str) -> 
     if kwargs is not None and not isinstance(kwargs, dict):
         raise ValueError(f"Invalid policy_kwargs={kwargs!r}: expected a mapping, e.g. dict(net_arch=[64, 64]).")
     density = (gym.spec(env_id).kwargs or {}).get("density", 1)
-    config = {**default_config(), "density": density, **(hyperparams.get("env_config") or {}), "n_avs": 1}
+    defaults = scenario_default_config(scenario_of(env_id))
+    config = {**defaults, "density": density, **(hyperparams.get("env_config") or {}), "n_avs": 1}
     per_av = observation_space(1, config)
     box = spaces.Box(per_av.low[0], per_av.high[0], dtype=per_av.dtype)  # type: ignore[arg-type]
     obs_space: spaces.Space = box
@@ -352,8 +354,9 @@ def validate_scenario(hyperparams: dict[str, Any], env_id: str) -> None:
     env_config = hyperparams.get("env_config", {})
     if not isinstance(env_config, dict):
         raise ValueError(f"Invalid env_config={env_config!r}: expected a mapping of scenario config keys.")
+    scenario = scenario_of(env_id)
     density = (gym.spec(env_id).kwargs or {}).get("density", 1)
-    validate_config({**default_config(), "density": density, **env_config})
+    validate_config({**scenario_default_config(scenario), "density": density, **env_config}, scenario)
 
 
 def policy_kwargs_for(algo: str, hyperparams: dict[str, Any]) -> dict[str, Any]:

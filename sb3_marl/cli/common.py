@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from sb3_marl.algos import ALGO_NAMES
-from sb3_marl.envs import ENV_IDS
+from sb3_marl.envs import ENV_IDS, SCENARIO_IDS
 
 DEFAULT_ENV = ENV_IDS[1]
 
@@ -162,7 +162,7 @@ def check_seed(seed: int) -> None:
 def add_run_selection(parser: argparse.ArgumentParser) -> None:
     """rl-zoo ``enjoy``'s flags to pick a trained model."""
     parser.add_argument("--algo", default="ma2c", choices=ALGO_NAMES, help="learner (default: ma2c)")
-    parser.add_argument("--env", default=DEFAULT_ENV, choices=list(ENV_IDS.values()), help="scenario id")
+    parser.add_argument("--env", default=DEFAULT_ENV, choices=SCENARIO_IDS, help="scenario id")
     parser.add_argument("-f", "--folder", "--log-folder", dest="folder", default="logs", help="log folder (default: logs)")
     parser.add_argument("--exp-id", type=int, default=0, help="run id; 0 = latest (default)")
     picked = parser.add_mutually_exclusive_group()

@@ -23,7 +23,7 @@ from sb3_marl.cli.common import (
     load_model_of,
     positive,
 )
-from sb3_marl.envs import DENSITIES, ENV_IDS, make_scenario
+from sb3_marl.envs import DENSITIES, ENV_IDS, SCENARIO_IDS, make_scenario
 from sb3_marl.files import write_text
 
 
@@ -54,7 +54,7 @@ def add_parsers(commands: Any) -> None:
     plot.add_argument(
         "--algo", "--algos", dest="algos", nargs="+", default=["ma2c"], choices=ALGO_NAMES, help="learners to plot"
     )
-    plot.add_argument("--env", default=DEFAULT_ENV, choices=list(ENV_IDS.values()), help="scenario id")
+    plot.add_argument("--env", default=DEFAULT_ENV, choices=SCENARIO_IDS, help="scenario id")
     plot.add_argument("-f", "--folder", "--log-folder", dest="folder", default="logs", help="log folder of the runs")
     plot.add_argument("--exp-ids", type=int, nargs="+", default=None, help="runs to plot (default: all)")
     plot.add_argument("-w", "--episode-window", type=positive(), default=100, help="rolling window of training returns")

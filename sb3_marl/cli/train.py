@@ -29,14 +29,14 @@ from sb3_marl.cli.common import (
     positive_or_default,
     set_num_threads,
 )
-from sb3_marl.envs import ENV_IDS
+from sb3_marl.envs import SCENARIO_IDS
 
 
 def add_parsers(commands: Any) -> None:
     """Add train's subcommands to the ``sb3-marl`` parser's ``commands``."""
     train = commands.add_parser("train", help="train a learner (rl-zoo's train.py flags)")
     train.add_argument("--algo", default="ma2c", choices=ALGO_NAMES, help="learner (default: ma2c)")
-    train.add_argument("--env", default=DEFAULT_ENV, choices=list(ENV_IDS.values()), help="scenario id")
+    train.add_argument("--env", default=DEFAULT_ENV, choices=SCENARIO_IDS, help="scenario id")
     train.add_argument(
         "-n",
         "--n-timesteps",

@@ -12,6 +12,8 @@ if TYPE_CHECKING:
 
 ENV_IDS = {density: f"sb3_marl/LaneChange-density{density}-v0" for density in DENSITIES}
 MERGE_ENV_IDS = {density: f"sb3_marl/Merge-density{density}-v0" for density in SCENARIO_DENSITIES[MERGE]}
+#: Every scenario id, the lane change's first.
+SCENARIO_IDS = [*ENV_IDS.values(), *MERGE_ENV_IDS.values()]
 #: The scenario of each registered entry point.
 ENTRY_POINTS = {
     "sb3_marl.envs.lane_change_env:LaneChangeEnv": LANE_CHANGE,
@@ -36,8 +38,7 @@ def scenario_of(env_id: str) -> str:
     scenario = ENTRY_POINTS.get(str(spec.entry_point))
     if scenario is None:
         raise ValueError(
-            f"Invalid env {env_id!r}: not a multi-agent scenario of sb3-marl; use one of "
-            f"{sorted([*ENV_IDS.values(), *MERGE_ENV_IDS.values()])} or a factory."
+            f"Invalid env {env_id!r}: not a multi-agent scenario of sb3-marl; use one of {SCENARIO_IDS} or a factory."
         )
     return scenario
 
@@ -104,6 +105,7 @@ __all__ = [
     "DENSITIES",
     "ENV_IDS",
     "MERGE_ENV_IDS",
+    "SCENARIO_IDS",
     "LaneChangeEnv",
     "LaneChangeParallelEnv",
     "av_counts",

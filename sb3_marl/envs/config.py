@@ -124,6 +124,11 @@ def merge_default_config() -> dict[str, Any]:
     return config
 
 
+def scenario_default_config(scenario: str) -> dict[str, Any]:
+    """The default config of a scenario (:data:`LANE_CHANGE` or :data:`MERGE`)."""
+    return merge_default_config() if scenario == MERGE else default_config()
+
+
 Check = Callable[[Any], bool]
 
 

@@ -39,7 +39,8 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
-from sb3_marl.envs import ENV_IDS, make_scenario
+from sb3_marl.envs import ENV_IDS, MERGE_ENV_IDS, make_scenario
+from sb3_marl.envs.config import LANE_CHANGE, MERGE
 from sb3_marl.envs.lane_change_env import ACTIONS, LaneChangeEnv
 from sb3_marl.envs.reward import REWARD_MODES, apply_reward_mode
 
@@ -57,6 +58,10 @@ AGENT_INFO = (
 )
 
 
+#: Scenario name -> its ids by density.
+SCENARIOS = {LANE_CHANGE: ENV_IDS, MERGE: MERGE_ENV_IDS}
+
+
 class LaneChangeParallelEnv(ParallelEnv):
     """PettingZoo parallel API over one :class:`LaneChangeEnv` (see the module doc)."""
 
@@ -70,6 +75,7 @@ class LaneChangeParallelEnv(ParallelEnv):
         flatten_observations: bool = False,
         action_mask_in_observation: bool = False,
         observation_key: str = "observation",
+        scenario: str = LANE_CHANGE,
         **config: Any,
     ) -> None:
         """
@@ -80,11 +86,15 @@ class LaneChangeParallelEnv(ParallelEnv):
         :param action_mask_in_observation: each agent's observation as a Dict with its action mask
         :param observation_key: the key of the AV's view in that Dict (PettingZoo's ``observation``;
             ``observations`` for RLlib's ``ActionMaskingTorchRLModule``)
+        :param scenario: ``"lane-change"`` or ``"merge"`` (the on-ramp merge)
         :param config: scenario config overrides (``n_avs``, ``safety_supervisor``, ...; see
             :mod:`sb3_marl.envs.config`)
         """
-        if density not in ENV_IDS:
-            raise ValueError(f"Invalid density={density!r}: expected one of {sorted(ENV_IDS)}.")
+        ids = SCENARIOS.get(scenario)
+        if ids is None:
+            raise ValueError(f"Invalid scenario={scenario!r}: expected one of {list(SCENARIOS)}.")
+        if density not in ids:
+            raise ValueError(f"Invalid density={density!r}: expected one of {sorted(ids)}.")
         if reward_mode not in REWARD_MODES:
             raise ValueError(f"Invalid reward_mode={reward_mode!r}: expected one of {list(REWARD_MODES)}.")
         for name, flag in (
@@ -101,7 +111,7 @@ class LaneChangeParallelEnv(ParallelEnv):
         self.observation_key = observation_key
         self.flatten_observations = flatten_observations
         self.action_mask_in_observation = action_mask_in_observation
-        self.env: LaneChangeEnv = make_scenario(ENV_IDS[density], config, render_mode)
+        self.env: LaneChangeEnv = make_scenario(ids[density], config, render_mode)
         self.reward_mode = reward_mode
         self.render_mode = render_mode
         self.possible_agents = [f"av_{i}" for i in range(self.env.n_avs)]
@@ -213,9 +223,10 @@ class LaneChangeParallelEnv(ParallelEnv):
 def parallel_env(
     density: int = 1, reward_mode: str = "local", render_mode: str | None = None, **kwargs: Any
 ) -> LaneChangeParallelEnv:
-    """The lane-change scenario as a PettingZoo ``ParallelEnv`` (PettingZoo's constructor name);
-    ``kwargs``: ``flatten_observations``, ``action_mask_in_observation``, ``observation_key`` and
-    scenario config keys."""
+    """A scenario (the lane change by default; ``scenario="merge"``: the on-ramp merge) as a
+    PettingZoo ``ParallelEnv`` (PettingZoo's constructor name); ``kwargs``: ``scenario``,
+    ``flatten_observations``, ``action_mask_in_observation``, ``observation_key`` and scenario
+    config keys."""
     return LaneChangeParallelEnv(density=density, reward_mode=reward_mode, render_mode=render_mode, **kwargs)
 
 

@@ -1,0 +1,161 @@
+"""The on-ramp merging scenario (sb3_marl/Merge-density{1,2,3}-v0): MARL_CAVs' road, spawn, reward and
+neighbour sets on the lane change's kernel, held to highway-env's own classes on the same road."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from parity import compare, run_episode, stock_rule_actions
+from pettingzoo.test import parallel_api_test
+
+from sb3_marl.envs import ENV_IDS, MERGE_ENV_IDS, av_counts, kernel, parallel_env
+from sb3_marl.envs.lanes import lane_table
+from sb3_marl.envs.merge_road import (
+    CONVERGING,
+    MAIN_BEFORE,
+    MAIN_BESIDE,
+    MAIN_SPAWN,
+    MERGE_END,
+    MERGING_LANE,
+    RAMP,
+    RAMP_SPAWN,
+    RAMP_Y,
+    make_merge_road,
+    merge_lanes,
+)
+from sb3_marl.envs.simulator import COMPILED, STOCK, capture, lane_indices
+from wrappers import ParameterSharingVecEnv
+
+TOLERANCE = 1e-9  # [m, rad, m/s, m/s²], as tests/envs/test_kernel.py
+
+
+def make(density: int = 1, **config):
+    return gym.make(MERGE_ENV_IDS[density], config=config).unwrapped
+
+
+@pytest.mark.parametrize("density", [1, 2, 3])
+@pytest.mark.parametrize(("policy", "config"), [("uniform", {}), ("cruise", {}), ("cruise", {"safety_supervisor": True})])
+def test_compiled_kernel_matches_highway_env_on_the_merge_road(density, policy, config):
+    result = compare(STOCK, COMPILED, MERGE_ENV_IDS[density], range(8), policy, **config)
+    assert result.different_outcomes == []
+    assert result.max_state_difference < TOLERANCE
+    assert result.max_observation_difference < TOLERANCE
+    if not config:
+        assert result.crashes >= 4  # collisions, the obstacle's included, and their impacts
+    assert result.hdv_lane_changes >= 2  # the ramp's HDVs merge by MOBIL
+
+
+def test_lane_table_reads_the_road_highway_env_builds():
+    road = make_merge_road({"speed_limit": 30.0, "show_trajectories": False}, np.random.default_rng(0))
+    table = merge_lanes(30.0)
+    np.testing.assert_array_equal(table, lane_table(road.network))
+    indices = lane_indices(road.network)
+    assert [indices[k] for k in (MAIN_BEFORE, MAIN_BESIDE, MERGING_LANE, RAMP, CONVERGING)] == [
+        ("a", "b", 0),
+        ("b", "c", 0),
+        ("b", "c", 1),
+        ("j", "k", 0),
+        ("k", "b", 0),
+    ]
+    assert road.objects[0].position.tolist() == [MERGE_END, 4.0]
+
+
+@pytest.mark.parametrize("density", [1, 2, 3])
+def test_spawn_is_marl_cavs(density):
+    """Half the AVs (rounded down) on the main road, the others on the ramp, then the HDVs the same
+    way, on the spawn points +- 1.5 m, at 25-27 m/s; the obstacle last."""
+    lo, hi = {1: (1, 3), 2: (2, 4), 3: (3, 5)}[density]
+    for n_avs in av_counts(MERGE_ENV_IDS[density]):
+        env = make(density, n_avs=n_avs)
+        for seed in range(5):
+            env.reset(seed=seed)
+            state, n_hdvs = env.state, env.n_hdvs
+            assert lo <= n_hdvs <= hi and state.shape[0] == n_avs + n_hdvs + 1
+            assert state[-1, kernel.IS_OBSTACLE] == 1 and not state[:-1, kernel.IS_OBSTACLE].any()
+            for rows, main in ((slice(0, n_avs), n_avs // 2), (slice(n_avs, n_avs + n_hdvs), n_hdvs // 2)):
+                vehicles = state[rows]
+                on_ramp = vehicles[:, kernel.LANE] == RAMP
+                assert (~on_ramp).sum() == main and (vehicles[on_ramp, kernel.Y] == RAMP_Y).all()
+                assert (vehicles[~on_ramp, kernel.LANE] == MAIN_BEFORE).all() and (vehicles[~on_ramp, kernel.Y] == 0).all()
+                for x, points in ((vehicles[~on_ramp, kernel.X], MAIN_SPAWN), (vehicles[on_ramp, kernel.X], RAMP_SPAWN)):
+                    assert all(min(abs(p - v) for p in points) <= 1.5 for v in x)
+            speeds = state[:-1, kernel.SPEED]
+            assert ((speeds >= 25) & (speeds <= 27)).all()
+
+
+def test_merging_lane_cost_and_reward():
+    """An AV on the merging lane pays 4 × exp(-(x - 420)² / 1000) more than one on the main road."""
+    env = make(1, n_avs=2, safety_supervisor=False)
+    env.reset(seed=0)
+    _, info = env.place([(400.0, MERGING_LANE, 25.0), (250.0, MAIN_BEFORE, 25.0)])
+    cost = info["reward_terms"]["merging_lane"]
+    np.testing.assert_allclose(cost, [-np.exp(-((400.0 - MERGE_END) ** 2) / 1000.0), 0.0])
+    speed = info["reward_terms"]["speed"]
+    np.testing.assert_allclose(info["rewards"], speed + 4 * cost)  # no leader within 60 m, no comfort term
+
+
+def test_regional_neighbours_see_across_the_ramp():
+    """MARL_CAVs' regional sets: the AVs just ahead and behind, by x, among the vehicles of the own
+    lane's route (the ramp's straight section and the converging section are one route), and on the
+    main road past the ramp's start the converging section's, and the reverse."""
+    env = make(3, n_avs=4)
+    env.reset(seed=0)
+    _, info = env.place(
+        [(260.0, MAIN_BEFORE, 25.0), (250.0, CONVERGING, 25.0), (100.0, MAIN_BEFORE, 25.0), (90.0, RAMP, 25.0)]
+    )
+    assert [set(np.flatnonzero(row)) for row in info["neighbours"]] == [{0, 1, 2}, {0, 1, 2, 3}, {0, 2}, {1, 3}]
+
+
+def test_rule_driver_matches_highway_env_on_the_merge_road():
+    checked = 0
+    for density in (1, 3):
+        env = make(density)
+        rng = np.random.default_rng(density)
+        for seed in range(6):
+            _, info = env.reset(seed=seed)
+            for _ in range(60):
+                np.testing.assert_array_equal(env.rule_actions(), stock_rule_actions(env))
+                checked += 1
+                _, _, terminated, truncated, info = env.step(
+                    np.array([rng.choice(np.flatnonzero(m)) for m in info["action_mask"]])
+                )
+                if terminated or truncated:
+                    break
+    assert checked > 200
+
+
+def test_state_round_trips_through_highway_env_objects():
+    env = make(3)
+    env.reset(seed=1)
+    road = env.road
+    np.testing.assert_array_equal(capture(road.vehicles, road.network, road.objects), env.state)
+
+
+@pytest.mark.parametrize(
+    ("make_env", "key"),
+    [
+        (lambda: gym.make(MERGE_ENV_IDS[1], config={"lanes_count": 3}), "lanes_count"),
+        (lambda: gym.make(ENV_IDS[1], config={"merging_lane_weight": 1.0}), "merging_lane_weight"),
+        (lambda: gym.make(MERGE_ENV_IDS[1], config={"merging_lane_weight": -1.0}), "merging_lane_weight"),
+        (lambda: gym.make(MERGE_ENV_IDS[3], config={"hdv_count_range": [0, 9]}), "hdv_count_range"),
+        (lambda: gym.make(MERGE_ENV_IDS[1], config={"n_avs": 5}), "n_avs"),
+    ],
+)
+def test_bad_config_names_the_key(make_env, key):
+    with pytest.raises(ValueError, match=key):
+        make_env()
+
+
+def test_parameter_sharing_and_pettingzoo_run_the_merge_ids():
+    venv = ParameterSharingVecEnv(MERGE_ENV_IDS[2], seed=0)
+    assert venv.num_envs == 2 + 3 + 4
+    venv.reset()
+    for _ in range(5):
+        venv.step(np.ones(venv.num_envs, dtype=np.int64))
+    venv.close()
+    parallel_api_test(parallel_env(density=1, scenario="merge", safety_supervisor=True), num_cycles=100)
+
+
+def test_a_seed_gives_the_same_episode():
+    a = run_episode(COMPILED, MERGE_ENV_IDS[2], seed=3, policy="cruise")
+    b = run_episode(COMPILED, MERGE_ENV_IDS[2], seed=3, policy="cruise")
+    assert a.events == b.events and all((s == t).all() for s, t in zip(a.states, b.states))
