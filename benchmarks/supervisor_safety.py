@@ -8,6 +8,8 @@ at and the AVs' proposed and executed meta-actions of that step. Run it on two c
 supervisor versions on the same episodes.
 
     python benchmarks/supervisor_safety.py [--episodes 1000] [--densities 1 2 3] [--policies random idle] [--seed 200000]
+
+``--scenario merge`` runs the on-ramp merge (its ``--priority``: the supervisor's order of service).
 """
 
 from __future__ import annotations
@@ -21,7 +23,8 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 from sb3_marl.baselines import CruisePolicy
-from sb3_marl.envs import DENSITIES, ENV_IDS, make_scenario
+from sb3_marl.envs import ENV_IDS, MERGE_ENV_IDS, make_scenario
+from sb3_marl.envs.config import LANE_CHANGE, MERGE, SCENARIO_DENSITIES, SUPERVISOR_PRIORITIES
 from sb3_marl.evaluation import run_episodes, summarize
 
 
@@ -38,19 +41,24 @@ class MaskedRandomPolicy:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=1000)
-    parser.add_argument("--densities", type=int, nargs="+", default=list(DENSITIES))
+    parser.add_argument("--densities", type=int, nargs="+", default=[1, 2, 3])
     parser.add_argument("--policies", nargs="+", default=["random", "idle"], choices=["random", "idle"])
     parser.add_argument("--seed", type=int, default=200_000, help="first episode seed (default: 200000)")
     parser.add_argument("--n-avs", type=int, nargs="+", default=None, help="only these AV counts (default: all)")
     parser.add_argument("--no-rear-avs", action="store_true", help="supervisor_rear_avs: false (see the config)")
+    parser.add_argument("--scenario", default=LANE_CHANGE, choices=[LANE_CHANGE, MERGE])
+    parser.add_argument("--priority", default=None, choices=SUPERVISOR_PRIORITIES, help="merge only: supervisor_priority")
     args = parser.parse_args()
+    ids = MERGE_ENV_IDS if args.scenario == MERGE else ENV_IDS
     for density in args.densities:
-        low, high = DENSITIES[density]["avs"]
+        low, high = SCENARIO_DENSITIES[args.scenario][density]["avs"]
         for n_avs in [n for n in range(low, high + 1) if args.n_avs is None or n in args.n_avs]:
             for name in args.policies:
                 start = time.perf_counter()
                 config = {"safety_supervisor": True, "n_avs": n_avs, "supervisor_rear_avs": not args.no_rear_avs}
-                env = make_scenario(ENV_IDS[density], config)
+                if args.priority is not None:
+                    config["supervisor_priority"] = args.priority
+                env = make_scenario(ids[density], config)
                 policy = MaskedRandomPolicy(args.seed) if name == "random" else CruisePolicy()
                 crashes: list[str] = []
                 records = []

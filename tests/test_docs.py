@@ -15,6 +15,7 @@ RUN_BY = {
     ("README.md", "Quick start"): "tests/test_readme.py::test_the_quick_start_main_job_runs_verbatim",
     ("README.md", "Example"): "tests/test_docs.py::test_the_readme_example_runs_verbatim",
     ("scenario.md", "The scenario"): "tests/test_docs.py::test_the_scenario_example_runs_verbatim",
+    ("merge.md", "The on-ramp merge"): "tests/test_docs.py::test_the_merge_example_runs_verbatim",
     ("parameter-sharing.md", "Parameter sharing: every AV is a slot of one SB3 VecEnv"): (
         "tests/test_docs.py::test_the_parameter_sharing_example_runs_verbatim"
     ),
@@ -97,6 +98,13 @@ def test_the_scenario_example_runs_verbatim():
     namespace: dict = {}
     exec(compile(code("scenario.md", "The scenario"), "scenario.md", "exec"), namespace)
     assert namespace["obs"].shape == (2, 5, 5) and len(namespace["info"]["rewards"]) == 2
+
+
+def test_the_merge_example_runs_verbatim(capsys):
+    namespace: dict = {}
+    exec(compile(code("merge.md", "The on-ramp merge"), "merge.md", "exec"), namespace)
+    assert namespace["obs"].shape == (4, 5, 5) and namespace["done"]
+    assert namespace["on_ramp"].sum() == 2 and "ramp AVs merged" in capsys.readouterr().out
 
 
 @pytest.mark.filterwarnings("ignore::UserWarning")

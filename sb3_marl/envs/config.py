@@ -32,6 +32,11 @@ LANE_CHANGE, MERGE = "lane-change", "merge"
 SCENARIO_DENSITIES = {LANE_CHANGE: DENSITIES, MERGE: MERGE_DENSITIES}
 #: Keys of the lane-change highway's road and spawn grid (the merge road is fixed: sb3_marl/envs/merge_road.py).
 HIGHWAY_KEYS = ("road_length", "lanes_count", "lane_width", "spawn_start", "spawn_spacing", "spawn_slots_per_lane")
+#: Keys of the merge scenario only.
+MERGE_KEYS = ("merging_lane_weight", "supervisor_priority")
+#: The safety supervisor's order of service on the merge road: MARL_CAVs' (the merging lane first,
+#: by distance to its end, then by headway) or the lane change's (the smallest headway margin first).
+SUPERVISOR_PRIORITIES = ("merging", "headway")
 
 #: Highway-env's rendering keys that the scenario keeps (used by ``EnvViewer``).
 RENDER_DEFAULTS: dict[str, Any] = {
@@ -119,6 +124,7 @@ def merge_default_config() -> dict[str, Any]:
             "comfort": False,  # the merging paper's reward has no comfort term
             # weight of the merging-lane cost -exp(-(x - merge end)² / (10 × merging lane length))
             "merging_lane_weight": 4.0,
+            "supervisor_priority": "merging",  # see SUPERVISOR_PRIORITIES
         }
     )
     return config
@@ -223,6 +229,7 @@ _SCHEMA: dict[str, tuple[Check, str]] = {
     "harsh_acceleration_threshold": _POSITIVE,
     "rule_acceleration_threshold": _POSITIVE,
     "merging_lane_weight": _NON_NEGATIVE,
+    "supervisor_priority": ((lambda v: v in SUPERVISOR_PRIORITIES), f"one of {list(SUPERVISOR_PRIORITIES)}"),
     "safety_supervisor": _boolean(),
     "supervisor_horizon": _number(0, 60, strict_lo=True),
     "supervisor_min_gap": _number(0, 100),
@@ -247,7 +254,7 @@ def _fail(key: str, value: Any, allowed: str) -> ValueError:
 def _keys(scenario: str) -> list[str]:
     if scenario == MERGE:
         return [key for key in _SCHEMA if key not in HIGHWAY_KEYS]
-    return [key for key in _SCHEMA if key != "merging_lane_weight"]
+    return [key for key in _SCHEMA if key not in MERGE_KEYS]
 
 
 def validate_config(config: dict[str, Any], scenario: str = LANE_CHANGE) -> None:

@@ -29,6 +29,7 @@ from sb3_marl.envs.merge_road import (
     obstacle_rows,
 )
 from sb3_marl.envs.reward import total_reward
+from sb3_marl.envs.supervisor import Supervisor
 from sb3_marl.envs.traffic import TrafficSnapshot
 
 #: Lanes whose vehicles ``surrounding_vehicles`` searches on each lane (MARL_CAVs' road.py): the
@@ -48,6 +49,10 @@ for _lane, _route in {
 #: and the x [m] the vehicle must have passed for it.
 ACROSS = np.array([CONVERGING, MERGING_LANE, MAIN_BESIDE, -1, -1, MAIN_BEFORE])
 ACROSS_FROM = np.array([ENDS[0], -np.inf, -np.inf, np.inf, np.inf, -np.inf])
+#: The lane after each lane that MARL_CAVs' supervisor headway also searches (-1: none; the merging
+#: lane's is left out, as theirs).
+NEXT_ON_ROUTE = np.array([MAIN_BESIDE, MAIN_AFTER, -1, -1, CONVERGING, MERGING_LANE])
+HEADWAY_CAP = 60.0  # [m] MARL_CAVs' headway without a leader
 
 
 class MergeEnv(LaneChangeEnv):
@@ -67,6 +72,11 @@ class MergeEnv(LaneChangeEnv):
     @classmethod
     def default_config(cls) -> dict[str, Any]:
         return cfg.merge_default_config()
+
+    def _derive(self) -> None:
+        priorities = merge_priorities if self.config["supervisor_priority"] == "merging" else None
+        self.supervisor = Supervisor.from_config(self.config, *self._road_data(), priorities=priorities)
+        self.horizon = self.supervisor.horizon
 
     def _road_data(self) -> tuple[np.ndarray, float]:
         return merge_lanes(float(self.config["speed_limit"])), np.inf
@@ -101,6 +111,35 @@ class MergeEnv(LaneChangeEnv):
 
     def _neighbour_sets(self, snapshot: TrafficSnapshot) -> np.ndarray:
         return regional_neighbours(self.state, self.n_avs)
+
+
+def merge_priorities(state: np.ndarray, n_avs: int, supervisor: Supervisor) -> np.ndarray:
+    """(n_avs,) MARL_CAVs' order of service of the safety supervisor on the merging road, the smallest
+    first: the AVs on the merging lane first, the nearer its end the earlier
+    (-0.5 - (merging lane length - distance to its end) / merging lane length), then by headway
+    (+ 0.5 log(headway / (headway_time × speed)) for a moving AV; headway: the nearest vehicle ahead
+    on its lane or on the lane after it, capped at 60 m). MARL_CAVs breaks ties with unseeded noise;
+    here the lower index goes first."""
+    return _merge_priorities(state, n_avs, supervisor.headway_time, NEXT_ON_ROUTE)
+
+
+@numba.njit(cache=True)
+def _merge_priorities(state: np.ndarray, n_avs: int, headway_time: float, next_on_route: np.ndarray) -> np.ndarray:
+    priority = np.zeros(n_avs)
+    for i in range(n_avs):
+        lane, x, speed = int(state[i, kernel.LANE]), state[i, kernel.X], state[i, kernel.SPEED]
+        if lane == MERGING_LANE:
+            priority[i] = -0.5 - (ENDS[2] - (MERGE_END - x)) / ENDS[2]
+        headway = HEADWAY_CAP
+        for j in range(state.shape[0]):
+            if state[j, kernel.IS_OBSTACLE] or not state[j, kernel.X] > x:
+                continue
+            other = int(state[j, kernel.LANE])
+            if other == lane or (next_on_route[lane] >= 0 and other == next_on_route[lane]):
+                headway = min(headway, state[j, kernel.X] - x)
+        if speed > 0:
+            priority[i] += 0.5 * np.log(headway / (headway_time * speed))
+    return priority
 
 
 def regional_neighbours(state: np.ndarray, n_avs: int) -> np.ndarray:

@@ -37,6 +37,7 @@ pays the compile time only once.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -213,8 +214,8 @@ def supervise_arrays(
     candidate_speed: np.ndarray,
     available: np.ndarray,
     proposed: np.ndarray,
+    priority: np.ndarray,
     horizon: Horizon,
-    headway_time: float,
     min_gap: float,
     repeat_actions: bool,
     rear_avs: bool = True,
@@ -226,7 +227,7 @@ def supervise_arrays(
     :param candidate_speed: (n_avs, 5) target speed [m/s] under each meta-action
     :param available: (n_avs, 5) the action mask
     :param proposed: (n_avs,) the policy's meta-actions
-    :param headway_time: [s] of the priority's headway margin
+    :param priority: (n_avs,) the order of service, the smallest first (equal: the lower index first)
     :param min_gap: [m] the smallest room an action may leave
     :param rear_avs: whether an AV's room counts the AVs behind it in its lane (see
         :func:`_counted`)
@@ -238,14 +239,9 @@ def supervise_arrays(
     collidable = state[:, COLLIDABLE] > 0
     dt = horizon.dt
     speed_step = np.zeros(n_avs, dtype=np.int64)
-    occupancy = lane_occupancy(state, horizon.lanes)
-    margin = np.empty(n_avs)
     for i in range(n_avs):
         _set_action(state, i, proposed[i], speed_step, candidate_lane, candidate_speed, repeat_actions)
-        front = leader(state, horizon.lanes, occupancy, i)
-        gap = lane_distance(state, horizon.lanes, i, front) if front >= 0 else NO_LEADER_GAP
-        margin[i] = gap - state[i, SPEED] * headway_time
-    order = np.argsort(margin, kind="mergesort")
+    order = np.argsort(priority, kind="mergesort")
     # the road predicted under the AVs' current actions, shared by every AV's room until one changes
     path = _predict(state, horizon, speed_step, -1, collidable, -np.inf)[0]
     for _ in range(PASSES):
@@ -298,6 +294,19 @@ def supervise_arrays(
     return executed, rooms
 
 
+@numba.njit(cache=True)
+def headway_margins(state: np.ndarray, n_avs: int, lanes: np.ndarray, headway_time: float) -> np.ndarray:
+    """(n_avs,) each AV's headway margin [m]: the gap to its leader in its lane (:data:`NO_LEADER_GAP`
+    without one) minus its speed [m/s] × ``headway_time`` [s] (the lane change's priority)."""
+    occupancy = lane_occupancy(state, lanes)
+    margin = np.empty(n_avs)
+    for i in range(n_avs):
+        front = leader(state, lanes, occupancy, i)
+        gap = lane_distance(state, lanes, i, front) if front >= 0 else NO_LEADER_GAP
+        margin[i] = gap - state[i, SPEED] * headway_time
+    return margin
+
+
 @dataclass(frozen=True)
 class Supervisor:
     """The supervisor of one scenario config (see the module doc); the env builds it at each reset.
@@ -308,6 +317,8 @@ class Supervisor:
     :param repeat_actions: every AV repeats its action at each policy step of the horizon
         (``supervisor_repeat_actions``)
     :param rear_avs: protect each AV from the AVs behind it too (``supervisor_rear_avs``)
+    :param priorities: (state, n_avs, supervisor) -> (n_avs,) the order of service, the smallest
+        first; by default the headway margin (:func:`headway_margins`)
     """
 
     horizon: Horizon
@@ -315,9 +326,16 @@ class Supervisor:
     min_gap: float
     repeat_actions: bool
     rear_avs: bool
+    priorities: Callable[[np.ndarray, int, Supervisor], np.ndarray] | None = None
 
     @classmethod
-    def from_config(cls, config: dict[str, Any], lanes: np.ndarray | None = None, road_end: float | None = None) -> Supervisor:
+    def from_config(
+        cls,
+        config: dict[str, Any],
+        lanes: np.ndarray | None = None,
+        road_end: float | None = None,
+        priorities: Callable[[np.ndarray, int, Supervisor], np.ndarray] | None = None,
+    ) -> Supervisor:
         """The supervisor of ``config`` on the road ``lanes`` (see :meth:`Horizon.from_config`)."""
         return cls(
             Horizon.from_config(config, lanes, road_end),
@@ -325,6 +343,7 @@ class Supervisor:
             float(config["supervisor_min_gap"]),
             bool(config["supervisor_repeat_actions"]),
             bool(config["supervisor_rear_avs"]),
+            priorities,
         )
 
     def __call__(
@@ -339,14 +358,18 @@ class Supervisor:
         """
         horizon = self.horizon
         candidate_lane, candidate_speed = meta_action_targets(state, n_avs, horizon.lanes, horizon.ladder)
+        if self.priorities is None:
+            priority = headway_margins(state, n_avs, horizon.lanes, self.headway_time)
+        else:
+            priority = self.priorities(state, n_avs, self)
         return supervise_arrays(
             state,
             candidate_lane,
             candidate_speed,
             np.asarray(available, dtype=np.bool_),
             np.asarray(proposed, dtype=np.int64),
+            priority,
             horizon,
-            self.headway_time,
             self.min_gap,
             self.repeat_actions,
             self.rear_avs,
