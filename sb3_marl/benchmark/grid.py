@@ -13,7 +13,7 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 from sb3_marl.checks import check_choice, check_number
-from sb3_marl.envs import DENSITIES, ENV_IDS, av_steps_per_env_step
+from sb3_marl.envs import DENSITIES, ENV_IDS, MERGE_ENV_IDS, av_steps_per_env_step
 
 #: The paper's budget: 1M env steps (10,000 episodes of 100 steps) per trial.
 PAPER_ENV_STEPS = 1_000_000
@@ -58,6 +58,10 @@ VARIANTS["rule-prior-strong"] = {**VARIANTS["rule-prior"], "prior_coef_final": 1
 # supervisor dropout plus an entropy penalty: imitation leaves the policy spread where the rule
 # driver's decision is hard to fit, and sampling those states costs return; the penalty sharpens it
 VARIANTS["rule-prior-sharpen"] = {**VARIANTS["rule-prior-dropout"], "ent_coef": -0.05}
+# the on-ramp merge (sb3_marl/Merge-density<d>-v0) with its zoo config as it is
+VARIANTS["merge"] = {}
+#: Variants trained on the merge scenario's ids instead of the lane change's.
+MERGE_VARIANTS = ("merge",)
 
 #: Experiment -> its curves: label -> (algorithm, variant). In the order of the paper's sections.
 EXPERIMENTS: dict[str, dict[str, tuple[str, str]]] = {
@@ -90,6 +94,13 @@ EXPERIMENTS: dict[str, dict[str, tuple[str, str]]] = {
         "MA2C, rule prior kept strong": ("ma2c", "rule-prior-strong"),
         "MA2C, rule prior, supervisor dropout, entropy penalty": ("ma2c", "rule-prior-sharpen"),
     },
+    # the merging paper's scenario (Chen et al. 2021, docs/merge.md): its four learners
+    "merge": {
+        "MADQN": ("madqn", "merge"),
+        "MA2C": ("ma2c", "merge"),
+        "MAACKTR": ("maacktr", "merge"),
+        "MAPPO": ("mappo", "merge"),
+    },
     # beyond the paper: CTDE, a critic that sees every AV of the copy (same networks otherwise)
     "ctde": {
         "local critic (separate networks)": ("ma2c", "separate-networks"),
@@ -100,7 +111,7 @@ EXPERIMENTS: dict[str, dict[str, tuple[str, str]]] = {
 #: Grid name -> the experiments it runs.
 #: The "paper" grid: the paper's five experiments and our intervention-penalty one (81 trials with 3 seeds).
 GRIDS: dict[str, tuple[str, ...]] = {
-    "paper": tuple(e for e in EXPERIMENTS if e not in ("safety", "ctde", "rule-prior")),
+    "paper": tuple(e for e in EXPERIMENTS if e not in ("safety", "ctde", "rule-prior", "merge")),
     **{name: (name,) for name in EXPERIMENTS},
 }
 
@@ -121,7 +132,8 @@ class TrialSpec:
 
     @property
     def env_id(self) -> str:
-        return ENV_IDS[self.density]
+        """The scenario id: the merge's for :data:`MERGE_VARIANTS`, else the lane change's."""
+        return (MERGE_ENV_IDS if self.variant in MERGE_VARIANTS else ENV_IDS)[self.density]
 
     @property
     def hyperparams(self) -> dict[str, Any]:
@@ -179,6 +191,7 @@ __all__ = [
     "EPISODE_STEPS",
     "EXPERIMENTS",
     "GRIDS",
+    "MERGE_VARIANTS",
     "PAPER_ENV_STEPS",
     "PAPER_EVAL_EPISODES",
     "PAPER_EVAL_EVERY_EPISODES",

@@ -48,6 +48,10 @@ PAPER_FINDINGS = {
         "Beyond the paper: MA2C with a local critic vs a centralised critic (CTDE), separate networks both",
         "not studied (the paper's critics see one AV's view)",
     ),
+    "merge": (
+        "The merging paper's scenario (Chen et al. 2021): MADQN, MA2C, MAACKTR, MAPPO on the on-ramp merge",
+        "its MA2C (with the supervisor and curriculum) 'consistently outperforms' the other learners",
+    ),
     "rule-prior": (
         "Beyond the paper: MA2C and MAPPO started from the IDM/MOBIL rule driver and regularised toward it",
         "not studied (the authors' learners start from scratch); IDM/MOBIL's own row is in the reference section",

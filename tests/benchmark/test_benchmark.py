@@ -63,6 +63,7 @@ def test_grids_hold_each_trial_once():
         "safety",
         "ctde",
         "rule-prior",
+        "merge",
     }
     assert {(s.algo, s.variant) for s in make_grid("rule-prior", seeds=3)} == {
         ("ma2c", "rule-prior"),
@@ -72,6 +73,9 @@ def test_grids_hold_each_trial_once():
         ("ma2c", "rule-prior-strong"),
         ("ma2c", "rule-prior-sharpen"),
     }
+    merge = make_grid("merge", densities=(2,), seeds=1)
+    assert [spec.env_id for spec in merge] == ["sb3_marl/Merge-density2-v0"] * 4
+    assert merge[1].trial_id == "ma2c_density2_merge_seed0" and merge[1].n_timesteps(1.0) == 3_000_000
     safety = make_grid("safety", seeds=1)
     assert [spec.variant for spec in safety] == ["default"] * 3 + ["safety-training"] * 3
     assert safety[-1].hyperparams == VARIANTS["safety-training"] and safety[-1].hyperparams["supervisor_dropout"] > 0
