@@ -28,9 +28,9 @@ import torch
 from tqdm import tqdm
 
 from sb3_marl.baselines import IDMMobilPolicy
-from sb3_marl.benchmark.grid import TrialSpec
+from sb3_marl.benchmark.grid import MERGE_VARIANTS, TrialSpec
 from sb3_marl.benchmark.statistics import clopper_pearson_upper, iqm_with_ci
-from sb3_marl.envs import ENV_IDS
+from sb3_marl.envs import ENV_IDS, MERGE_ENV_IDS
 from sb3_marl.envs.supervisor import VERSION as SUPERVISOR_VERSION
 from sb3_marl.evaluation import evaluate_protocols, model_policy
 from sb3_marl.runs import find_run
@@ -55,6 +55,10 @@ def evaluate_all(args: argparse.Namespace) -> dict:
         "supervisor": "on (top level) and off (supervisor_off)",
         "supervisor_version": SUPERVISOR_VERSION,
     }
+    merge = [v in MERGE_VARIANTS for v in args.variants]
+    if any(merge) and not all(merge):
+        raise SystemExit(f"--variants {args.variants}: the lane change's and the merge's variants go to separate outputs.")
+    ids = MERGE_ENV_IDS if all(merge) else ENV_IDS  # the scenario of IDM/MOBIL's reference rows
     jobs = [(f"idm-mobil_density{d}", None, d) for d in args.densities]
     jobs += [
         (TrialSpec(algo, d, v, s).trial_id, TrialSpec(algo, d, v, s), d)
@@ -81,7 +85,8 @@ def evaluate_all(args: argparse.Namespace) -> dict:
                 policies["greedy"] = model_policy(model, deterministic=True)
         entry: dict = {}
         for actions, policy in policies.items():
-            result = evaluate_protocols(policy, ENV_IDS[density], args.episodes, args.seed, config)
+            env_id = ids[density] if spec is None else spec.env_id
+            result = evaluate_protocols(policy, env_id, args.episodes, args.seed, config)
             evaluated = {**slim(result), "supervisor_off": slim(result["supervisor_off"])}
             entry.update(evaluated if actions == "sampled" else {actions: evaluated})
         entry["wall_time_s"] = round(time.perf_counter() - start, 1)
