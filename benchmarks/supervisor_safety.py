@@ -50,6 +50,7 @@ def main() -> None:
     parser.add_argument("--priority", default=None, choices=SUPERVISOR_PRIORITIES, help="merge only: supervisor_priority")
     args = parser.parse_args()
     ids = MERGE_ENV_IDS if args.scenario == MERGE else ENV_IDS
+    print(f"scenario {args.scenario}" + (f", supervisor_priority {args.priority}" if args.priority else ""), flush=True)
     for density in args.densities:
         low, high = SCENARIO_DENSITIES[args.scenario][density]["avs"]
         for n_avs in [n for n in range(low, high + 1) if args.n_avs is None or n in args.n_avs]:
