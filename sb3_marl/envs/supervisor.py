@@ -49,8 +49,10 @@ from sb3_marl.envs.dynamics import drive
 from sb3_marl.envs.kernel import (
     COLLIDABLE,
     HEADING,
+    IS_OBSTACLE,
     LANE,
     LENGTH,
+    OBSTACLE_LENGTH,
     SPEED,
     TARGET_LANE,
     TARGET_SPEED,
@@ -60,6 +62,7 @@ from sb3_marl.envs.kernel import (
     cos,
     sin,
 )
+from sb3_marl.envs.lanes import closest_lane, follow, local_coordinates, on_lane
 from sb3_marl.envs.meta_actions import meta_action_targets, speed_index
 from sb3_marl.envs.road import highway_lanes
 
@@ -75,6 +78,8 @@ SPEED_STEP = np.array([0, 0, 0, 1, -1], dtype=np.int64)
 LANE_LEFT, IDLE, LANE_RIGHT = 0, 1, 2
 #: Passes over the AVs in priority order (the second checks against the first pass's final actions).
 PASSES = 2
+#: [s] the time an AV is given to leave a lane an obstacle ends (see :func:`_dead_end_margin`)
+LEAVE_TIME = 2.5
 
 
 class Horizon(NamedTuple):
@@ -244,6 +249,7 @@ def supervise_arrays(
     order = np.argsort(priority, kind="mergesort")
     # the road predicted under the AVs' current actions, shared by every AV's room until one changes
     path = _predict(state, horizon, speed_step, -1, collidable, -np.inf)[0]
+    obstacles = np.flatnonzero(state0[:, IS_OBSTACLE] > 0)
     for _ in range(PASSES):
         changed = False
         for i in order:
@@ -252,15 +258,19 @@ def supervise_arrays(
             counted = _counted(state0, i, n_avs, collidable, rear_avs)
             current = executed[i]
             room = _room(i, path, counted, dt)
-            if room < min_gap:
-                best, best_room, best_path = current, room, path
+            dead_end = _dead_end_margin(state, i, path, horizon.lanes, obstacles)
+            if room < min_gap or dead_end < 0:
+                best, best_room, best_dead_end, best_path = current, room, dead_end, path
                 for a in PREFERENCE:
                     if available[i, a] and a != current:
                         _set_action(state, i, a, speed_step, candidate_lane, candidate_speed, repeat_actions)
-                        # stopped once it cannot beat the best: such a candidate is never chosen
-                        candidate_path, candidate_room = _predict(state, horizon, speed_step, i, counted, best_room)
-                        if candidate_room > best_room:
-                            best, best_room, best_path = a, candidate_room, candidate_path
+                        # stopped once it cannot beat the best room: such a candidate is never
+                        # chosen (with a dead end ahead, every candidate is predicted in full)
+                        floor = best_room if obstacles.size == 0 else -np.inf
+                        candidate_path, candidate_room = _predict(state, horizon, speed_step, i, counted, floor)
+                        candidate_dead_end = _dead_end_margin(state, i, candidate_path, horizon.lanes, obstacles)
+                        if _better(candidate_room, candidate_dead_end, best_room, best_dead_end, min_gap):
+                            best, best_room, best_dead_end, best_path = a, candidate_room, candidate_dead_end, candidate_path
                 changed = changed or best != current
                 executed[i], room, path = best, best_room, best_path
                 _set_action(state, i, best, speed_step, candidate_lane, candidate_speed, repeat_actions)
@@ -292,6 +302,42 @@ def supervise_arrays(
                     executed[i] = IDLE
             rooms = trial_rooms
     return executed, rooms
+
+
+@numba.njit(cache=True)
+def _dead_end_margin(state: np.ndarray, ego: int, path: np.ndarray, lanes: np.ndarray, obstacles: np.ndarray) -> float:
+    """[m] How much room AV ``ego`` has left, at the end of the predicted ``path``, to leave a lane
+    that an obstacle ends (the merging lane): the gap to the obstacle ahead on the lane it keeps,
+    minus the distance it covers in :data:`LEAVE_TIME` at its speed; inf when no obstacle ends its
+    lane or it is changing lanes. Its meta-actions cannot stop it (the lowest target speed is 10
+    m/s), so this is how late it may still merge."""
+    if obstacles.size == 0:
+        return np.inf
+    last = path.shape[0] - 1
+    x, y, v = path[last, 0, ego], path[last, 1, ego], path[last, 3, ego]
+    lane = closest_lane(lanes, x, y, path[last, 2, ego])
+    if follow(lanes, int(state[ego, TARGET_LANE]), x, y) != lane:
+        return np.inf
+    s = local_coordinates(lanes, lane, x, y)[0]
+    margin = np.inf
+    for j in obstacles:
+        if on_lane(lanes, lane, state[j, X], state[j, Y], 1.0):
+            gap = local_coordinates(lanes, lane, state[j, X], state[j, Y])[0] - s - (LENGTH + OBSTACLE_LENGTH) / 2
+            if gap > -LENGTH:
+                margin = min(margin, gap - v * LEAVE_TIME)
+    return margin
+
+
+@numba.njit(cache=True)
+def _better(room: float, dead_end: float, best_room: float, best_dead_end: float, min_gap: float) -> bool:
+    """Whether a candidate action beats the best so far: first the actions with room and a way off
+    a dead-end lane (the larger room first), then those with room (the larger dead-end margin
+    first), then the larger room."""
+    tier = 2 if room >= min_gap and dead_end >= 0 else (1 if room >= min_gap else 0)
+    best_tier = 2 if best_room >= min_gap and best_dead_end >= 0 else (1 if best_room >= min_gap else 0)
+    if tier != best_tier:
+        return tier > best_tier
+    return dead_end > best_dead_end if tier == 1 else room > best_room
 
 
 @numba.njit(cache=True)

@@ -159,3 +159,16 @@ def test_a_seed_gives_the_same_episode():
     a = run_episode(COMPILED, MERGE_ENV_IDS[2], seed=3, policy="cruise")
     b = run_episode(COMPILED, MERGE_ENV_IDS[2], seed=3, policy="cruise")
     assert a.events == b.events and all((s == t).all() for s, t in zip(a.states, b.states))
+
+
+def test_supervisor_merges_before_the_merging_lane_ends():
+    """An AV cruising toward the obstacle is made to leave the merging lane while it still can; with
+    the main road beside it taken, it slows down instead of cutting in."""
+    env = make(1, n_avs=1, safety_supervisor=True)
+    env.reset(seed=0)
+    env.place([(360.0, MERGING_LANE, 20.0)])
+    executed, rooms = env.supervisor(env.state, 1, np.array([1]), env.action_masks())
+    assert executed.tolist() == [0] and rooms[0] > 2.0  # LANE_LEFT
+    env.place([(360.0, MERGING_LANE, 20.0)], hdvs=[(361.0, MAIN_BESIDE, 20.0)])
+    executed, _ = env.supervisor(env.state, 1, np.array([1]), env.action_masks())
+    assert executed.tolist() == [4]  # SLOWER: the lane beside is taken
