@@ -115,6 +115,8 @@ class EpisodeRecord:
     av_steps: int = 0  # AV-steps on the road
     rule_agreements: int = 0  # AV-steps on the road whose proposed action was the rule driver's
     rule_actions: np.ndarray | None = None  # the rule driver's actions in the current state
+    merge_times: np.ndarray | None = None  # [s] on the merge: when each ramp AV merged (NaN: not)
+    stranded: int = 0  # on the merge: vehicles at a standstill on the merging lane, at the end
 
     def add_step(self, reward: float, info: dict) -> None:
         """Accumulate one env step from the scalar (global) reward and the env's info."""
@@ -130,6 +132,9 @@ class EpisodeRecord:
         if self.rule_actions is not None:
             self.rule_agreements += int((np.asarray(info["proposed_action"]) == self.rule_actions)[on_road].sum())
         self.rule_actions = info.get("rule_action")
+        if "merge_time" in info:
+            self.merge_times = np.asarray(info["merge_time"])[np.asarray(info["ramp_av"])]
+            self.stranded = int(info["stranded"])
 
     def add_slot_step(self, slot_info: dict) -> None:
         """Accumulate one AV's share of a parameter-sharing VecEnv step (a slot's info, see
@@ -166,6 +171,21 @@ def summarize(records: list[EpisodeRecord]) -> dict[str, float]:
         "yields_per_episode": float(np.mean([len(r.yield_events) for r in records])),
         "intervention_rate": float(sum(r.interventions for r in records) / max(sum(r.av_steps for r in records), 1)),
         "rule_agreement": float(sum(r.rule_agreements for r in records) / max(sum(r.av_steps for r in records), 1)),
+        **_merge_metrics(records),
+    }
+
+
+def _merge_metrics(records: list[EpisodeRecord]) -> dict[str, float]:
+    """On the merge: the share of ramp AVs that merged, their mean time to merge [s] and the
+    vehicles stranded on the merging lane per episode; nothing on the lane change."""
+    if not records or records[0].merge_times is None:
+        return {}
+    times = np.concatenate([r.merge_times for r in records if r.merge_times is not None])
+    merged = times[~np.isnan(times)]
+    return {
+        "merge_rate": float(merged.size / times.size) if times.size else float("nan"),
+        "time_to_merge_mean": float(merged.mean()) if merged.size else float("nan"),
+        "stranded_per_episode": float(np.mean([r.stranded for r in records])),
     }
 
 

@@ -236,12 +236,14 @@ class LaneChangeEnv(AbstractEnv):
 
         state = self.state
         acceleration = (state[:n, kernel.SPEED] - speed_before) * self.config["policy_frequency"]
-        # a lane change: a new target lane other than the road's own continuation of the old one
-        followed = [
-            lanes.follow(self.horizon.lanes, int(t), x, y)
-            for t, x, y in zip(targets_before, state[:n, kernel.X], state[:n, kernel.Y])
-        ]
-        obs, info = self._observe(acceleration, state[:n, kernel.TARGET_LANE] != followed, proposed, actions)
+        # a lane change: a new target lane, other than the road's own continuation of the old one
+        targets = state[:n, kernel.TARGET_LANE]
+        changed = targets != targets_before
+        for i in np.flatnonzero(changed):
+            changed[i] = targets[i] != lanes.follow(
+                self.horizon.lanes, int(targets_before[i]), state[i, kernel.X], state[i, kernel.Y]
+            )
+        obs, info = self._observe(acceleration, changed, proposed, actions)
         terminated = bool(info["crashed"].any())
         truncated = not terminated and (self.steps_done >= self.max_steps or bool(info["exited"].all()))
         self.done = terminated or truncated

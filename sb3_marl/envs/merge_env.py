@@ -34,6 +34,8 @@ from sb3_marl.envs.traffic import TrafficSnapshot
 
 #: Lanes whose vehicles ``surrounding_vehicles`` searches on each lane (MARL_CAVs' road.py): the
 #: lane and its neighbours along the route.
+#: The ramp's lanes: the straight section, the converging section, the merging lane.
+RAMP_SIDE = (RAMP, CONVERGING, MERGING_LANE)
 ROUTE = np.zeros((6, 6), dtype=np.bool_)
 for _lane, _route in {
     MAIN_BEFORE: (MAIN_BEFORE, MAIN_BESIDE),
@@ -111,6 +113,26 @@ class MergeEnv(LaneChangeEnv):
 
     def _neighbour_sets(self, snapshot: TrafficSnapshot) -> np.ndarray:
         return regional_neighbours(self.state, self.n_avs)
+
+    def _observe(
+        self, acceleration: np.ndarray, lane_change: np.ndarray, proposed: np.ndarray, executed: np.ndarray | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        """The lane change's observation and info, plus the merge's: ``ramp_av`` (the AV started on
+        the ramp), ``merge_time`` [s] (when a ramp AV reached the main road; NaN: not yet) and
+        ``stranded`` (vehicles at a standstill, under 1 m/s, on the merging lane)."""
+        obs, info = super()._observe(acceleration, lane_change, proposed, executed)
+        state, n = self.state, self.n_avs
+        lane = state[:n, kernel.LANE]
+        if self.steps == 0:  # a new situation (reset, place)
+            self._ramp_avs = np.isin(lane, RAMP_SIDE)
+            self._merge_time = np.full(n, np.nan)
+        merged = self._ramp_avs & np.isnan(self._merge_time) & ~np.isin(lane, RAMP_SIDE)
+        self._merge_time[merged] = self.steps_done / self.config["policy_frequency"]
+        vehicles = state[state[:, kernel.IS_OBSTACLE] == 0]
+        info["ramp_av"] = self._ramp_avs.copy()
+        info["merge_time"] = self._merge_time.copy()
+        info["stranded"] = int(((vehicles[:, kernel.LANE] == MERGING_LANE) & (vehicles[:, kernel.SPEED] < 1.0)).sum())
+        return obs, info
 
 
 def merge_priorities(state: np.ndarray, n_avs: int, supervisor: Supervisor) -> np.ndarray:

@@ -172,3 +172,13 @@ def test_supervisor_merges_before_the_merging_lane_ends():
     env.place([(360.0, MERGING_LANE, 20.0)], hdvs=[(361.0, MAIN_BESIDE, 20.0)])
     executed, _ = env.supervisor(env.state, 1, np.array([1]), env.action_masks())
     assert executed.tolist() == [4]  # SLOWER: the lane beside is taken
+
+
+def test_merge_metrics_count_the_ramp_avs_that_merge():
+    from sb3_marl.baselines import IDMMobilPolicy
+    from sb3_marl.evaluation import run_episodes, summarize
+
+    summary = summarize(run_episodes(make(1, safety_supervisor=True), IDMMobilPolicy(), 10, seed=0))
+    assert summary["merge_rate"] > 0.9 and 5.0 < summary["time_to_merge_mean"] < 20.0  # [s]
+    assert summary["lane_changes_per_episode"] < 3  # following the road into the next section is not one
+    assert "merge_rate" not in summarize(run_episodes(gym.make(ENV_IDS[1]).unwrapped, IDMMobilPolicy(), 1, seed=0))
