@@ -23,7 +23,8 @@ from sb3_marl.cli.common import (
     load_model_of,
     positive,
 )
-from sb3_marl.envs import DENSITIES, ENV_IDS, SCENARIO_IDS, make_scenario
+from sb3_marl.envs import DENSITIES, ENV_IDS, MERGE_ENV_IDS, SCENARIO_IDS, make_scenario
+from sb3_marl.envs.config import LANE_CHANGE, MERGE, SCENARIO_DENSITIES
 from sb3_marl.files import write_text
 
 
@@ -74,6 +75,9 @@ def add_parsers(commands: Any) -> None:
 
     baselines = commands.add_parser("baselines", help="metrics of the reference policies (random, cruise, IDM/MOBIL)")
     baselines.add_argument("--density", type=int, choices=sorted(DENSITIES), default=1, help="traffic density")
+    baselines.add_argument(
+        "--scenario", choices=[LANE_CHANGE, MERGE], default=LANE_CHANGE, help="the lane change or the on-ramp merge"
+    )
     baselines.add_argument(
         "--episodes", type=positive(maximum=MAX_EPISODES), default=20, help="episodes per policy and AV count"
     )
@@ -195,17 +199,18 @@ def baselines_command(args: argparse.Namespace) -> int:
     from sb3_marl.baselines import BASELINES
     from sb3_marl.evaluation import markdown_table, run_episodes, summarize
 
-    lo, hi = DENSITIES[args.density]["avs"]
+    env_id = (MERGE_ENV_IDS if args.scenario == MERGE else ENV_IDS)[args.density]
+    lo, hi = SCENARIO_DENSITIES[args.scenario][args.density]["avs"]
     rows, results = [], []
     start = time.perf_counter()
     for name, policy_class in BASELINES.items():
         for n_avs in range(lo, hi + 1):
-            env = make_scenario(ENV_IDS[args.density], {"n_avs": n_avs})
+            env = make_scenario(env_id, {"n_avs": n_avs})
             summary = summarize(run_episodes(env, policy_class(), args.episodes, seed=args.seed))
             results.append({"policy": name, "n_avs": n_avs, **summary})
             rows.append(({"policy": name, "n_avs": n_avs}, summary))
     table = (
-        f"Scenario {ENV_IDS[args.density]}: {args.episodes} episodes per row, "
+        f"Scenario {env_id}: {args.episodes} episodes per row, "
         f"seeds {args.seed}..{args.seed + args.episodes - 1}\n\n" + markdown_table(rows)
     )
     print(table)
