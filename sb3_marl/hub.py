@@ -29,6 +29,8 @@ from rl_zoo3.utils import EnvironmentName, get_latest_run_id
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 from sb3_marl.algos import get_algo
+from sb3_marl.envs import scenario_of
+from sb3_marl.envs.config import LANE_CHANGE, MERGE
 from sb3_marl.evaluation import model_policy
 from sb3_marl.files import write_text
 from sb3_marl.runs import Run
@@ -42,6 +44,28 @@ CITATION = """@article{zhou2022multi,
   year    = {2022},
   note    = {arXiv:2111.06318}
 }"""
+
+MERGE_CITATION = """@article{chen2023deep,
+  title   = {Deep multi-agent reinforcement learning for highway on-ramp merging in mixed traffic},
+  author  = {Chen, Dong and Hajidavalloo, Mohammad R. and Li, Zhaojian and Chen, Kaian and Wang, Yongqiang
+             and Jiang, Longsheng and Wang, Yue},
+  journal = {IEEE Transactions on Intelligent Transportation Systems},
+  year    = {2023},
+  note    = {arXiv:2105.05701}
+}"""
+
+#: The scenario's description and citation on the card, for the lane change and the merge.
+SCENARIO_TEXT = {
+    LANE_CHANGE: (
+        "the cooperative lane-changing\nscenario of Zhou, Chen et al. (two-lane 520 m highway with human-driven vehicles)",
+        CITATION,
+    ),
+    MERGE: (
+        "the on-ramp merging\nscenario of Chen et al. (MARL_CAVs: a one-lane highway joined by a ramp, with human-driven\n"
+        "vehicles)",
+        MERGE_CITATION,
+    ),
+}
 
 #: metric of results.json -> (model-index metric type, format of its value)
 CARD_METRICS = {
@@ -106,8 +130,7 @@ def build_model_folder(
 CARD_BODY = """
 # {ALGO} on {env_id}
 
-A policy shared by all connected autonomous vehicles (AVs) of the cooperative lane-changing
-scenario of Zhou, Chen et al. (two-lane 520 m highway with human-driven vehicles), trained with
+A policy shared by all connected autonomous vehicles (AVs) of {scenario}, trained with
 sb3-marl (`{algo}`: {learner} with one policy shared by all AVs),
 {num_timesteps} timesteps (AV-steps).
 
@@ -142,6 +165,8 @@ import gymnasium as gym
 from huggingface_hub import hf_hub_download
 
 from sb3_marl.algos import get_algo
+from sb3_marl.envs import scenario_of
+from sb3_marl.envs.config import LANE_CHANGE, MERGE
 from sb3_marl.evaluation import model_policy, run_episodes
 
 model = get_algo("{algo}").load(hf_hub_download(repo_id="{repo_id}", filename="{model_file}"))
@@ -193,6 +218,7 @@ def _eval_results(results: dict[str, Any]) -> list[EvalResult]:
 def model_card(results: dict[str, Any], repo_id: str) -> ModelCard:
     """A model card whose model-index carries the evaluation of ``results`` (a results.json)."""
     algo, env_id = results["algo"], results["env_id"]
+    scenario, citation = SCENARIO_TEXT[scenario_of(env_id)]
     alone = results.get("supervisor_off")
     rows = "\n".join(f"| {title} | {cell(results)} | {cell(alone) if alone else '—'} |" for title, cell in CARD_ROWS)
     data = ModelCardData(
@@ -205,6 +231,7 @@ def model_card(results: dict[str, Any], repo_id: str) -> ModelCard:
         ALGO=algo.upper(),
         algo=algo,
         env_id=env_id,
+        scenario=scenario,
         learner=get_algo(algo).__name__,
         num_timesteps=results["num_timesteps"],
         episodes=results["episodes"],
@@ -215,7 +242,7 @@ def model_card(results: dict[str, Any], repo_id: str) -> ModelCard:
         repo_id=repo_id,
         model_file=model_file_name(algo, env_id),
         env_config=repr(dict(results.get("env_config") or {})),
-        citation=CITATION,
+        citation=citation,
     )
     return ModelCard(f"---\n{data.to_yaml()}\n---\n{body}")
 
