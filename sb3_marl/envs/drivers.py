@@ -65,11 +65,22 @@ def _neighbours(state: np.ndarray, lanes: np.ndarray, occupancy: np.ndarray, k: 
         if j == k or not occupancy[lane, j]:
             continue
         s_v = local_coordinates(lanes, lane, state[j, X], state[j, Y])[0]
-        if s <= s_v and (front < 0 or s_v <= s_front):
-            front, s_front = j, s_v
-        if s_v < s and (rear < 0 or s_v > s_rear):
-            rear, s_rear = j, s_v
+        front, rear, s_front, s_rear = nearer(s, j, s_v, front, rear, s_front, s_rear)
     return front, rear
+
+
+@numba.njit(cache=True)
+def nearer(
+    s: float, j: int, s_v: float, front: int, rear: int, s_front: float, s_rear: float
+) -> tuple[int, int, float, float]:
+    """One step of highway-env's front / rear search from the coordinate ``s`` [m]: vehicle j at
+    ``s_v`` [m] replaces the front (the nearest at or ahead of ``s``, the last of equals) or the
+    rear (the nearest behind, the first of equals) found so far (-1: none)."""
+    if s <= s_v and (front < 0 or s_v <= s_front):
+        front, s_front = j, s_v
+    if s_v < s and (rear < 0 or s_v > s_rear):
+        rear, s_rear = j, s_v
+    return front, rear, s_front, s_rear
 
 
 @numba.njit(cache=True)

@@ -12,6 +12,7 @@ from highway_env.road.road import Road
 
 from sb3_marl.envs import config as cfg
 from sb3_marl.envs import kernel
+from sb3_marl.envs.drivers import nearer
 from sb3_marl.envs.lane_change_env import LaneChangeEnv
 from sb3_marl.envs.merge_road import (
     CONVERGING,
@@ -182,11 +183,7 @@ def _surrounding(state: np.ndarray, k: int, lane: int, route: np.ndarray) -> tup
     for j in range(state.shape[0]):
         if j == k or state[j, kernel.IS_OBSTACLE] or not route[lane, int(state[j, kernel.LANE])]:
             continue
-        s_v = state[j, kernel.X]
-        if s <= s_v and (front < 0 or s_v <= s_front):
-            front, s_front = j, s_v
-        if s_v < s and (rear < 0 or s_v > s_rear):
-            rear, s_rear = j, s_v
+        front, rear, s_front, s_rear = nearer(s, j, state[j, kernel.X], front, rear, s_front, s_rear)
     return front, rear
 
 
