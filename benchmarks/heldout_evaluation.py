@@ -100,6 +100,7 @@ def table(results: dict, variants: list[str], densities: list[int], seeds: int, 
     supervisor and without: return over training seeds, its IQM, the pooled collision rate with
     its 95 % Clopper–Pearson upper bound, agreement with the rule driver, lane changes, yields."""
     entries, episodes = results["entries"], results["protocol"]["episodes"]
+    merge = any("merge_rate" in entry for entry in entries.values())  # the merge's metrics too
     lines = [
         f"Held-out evaluation: {episodes} episodes, seeds {results['protocol']['seeds'][0]}.."
         f"{results['protocol']['seeds'][1]}, {results['protocol']['actions']}, safety supervisor "
@@ -109,8 +110,9 @@ def table(results: dict, variants: list[str], densities: list[int], seeds: int, 
         "agreement: share of AV-steps whose proposed action is the rule driver's (IDM/MOBIL).",
         "",
         "| policy | actions | density | seeds | supervisor | return | IQM [95 % CI] | collisions | "
-        "collision rate (95 % upper) | agreement | lane changes / ep. | yields / ep. |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "collision rate (95 % upper) | agreement | lane changes / ep. | yields / ep. |"
+        + (" ramp AVs merged | time to merge [s] | stranded / ep. |" if merge else ""),
+        "|---|---|---|---|---|---|---|---|---|---|---|---|" + ("---|---|---|" if merge else ""),
     ]
     for density in densities:
         rows = [("IDM/MOBIL", "rules", [entries.get(f"idm-mobil_density{density}")])]
@@ -142,6 +144,11 @@ def table(results: dict, variants: list[str], densities: list[int], seeds: int, 
                     f"{means.mean():.2f} ± {means.std():.2f} | {iqm} | {crashes} / {n} | "
                     f"{crashes / n:.4f} ({upper:.4f}) | {mean('rule_agreement'):.3f} | "
                     f"{mean('lane_changes_per_episode'):.2f} | {mean('yields_per_episode'):.2f} |"
+                    + (
+                        f" {mean('merge_rate'):.3f} | {mean('time_to_merge_mean'):.2f} | {mean('stranded_per_episode'):.2f} |"
+                        if merge
+                        else ""
+                    )
                 )
     return "\n".join(lines) + "\n"
 
