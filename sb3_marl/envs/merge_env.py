@@ -33,10 +33,10 @@ from sb3_marl.envs.reward import total_reward
 from sb3_marl.envs.supervisor import Supervisor
 from sb3_marl.envs.traffic import TrafficSnapshot
 
-#: Lanes whose vehicles ``surrounding_vehicles`` searches on each lane (MARL_CAVs' road.py): the
-#: lane and its neighbours along the route.
 #: The ramp's lanes: the straight section, the converging section, the merging lane.
 RAMP_SIDE = (RAMP, CONVERGING, MERGING_LANE)
+#: Lanes whose vehicles ``surrounding_vehicles`` searches on each lane (MARL_CAVs' road.py): the
+#: lane and its neighbours along the route.
 ROUTE = np.zeros((6, 6), dtype=np.bool_)
 for _lane, _route in {
     MAIN_BEFORE: (MAIN_BEFORE, MAIN_BESIDE),
