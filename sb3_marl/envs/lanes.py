@@ -17,7 +17,7 @@ import numpy as np
 from highway_env.road.lane import SineLane, StraightLane
 from highway_env.road.road import RoadNetwork
 
-from sb3_marl.envs.kernel import LANE_VEHICLE_LENGTH, cos, sin, wrap_to_pi
+from sb3_marl.envs.kernel import LANE_VEHICLE_LENGTH, wrap_to_pi
 
 #: Columns of the lane table.
 (
@@ -185,10 +185,3 @@ def follow(lanes: np.ndarray, lane: int, x: float, y: float) -> int:
         if distance < best_distance:
             best, best_distance = candidate, distance
     return best
-
-
-@numba.njit(cache=True)
-def direction(lanes: np.ndarray, lane: int, x: float, y: float) -> tuple[float, float]:
-    """(cos, sin) of the lane's heading at the point (x, y) [m]."""
-    heading = heading_at(lanes, lane, local_coordinates(lanes, lane, x, y)[0])
-    return cos(heading), sin(heading)
