@@ -2,9 +2,11 @@
 
 Every policy step, before the AVs act, the supervisor serves the AVs on the road one by one in
 priority order: the smallest headway margin first (gap to the leader in the AV's lane [m] minus
-speed [m/s] × ``headway_time`` [s]; equal margins: the lower AV index first, so runs stay
-reproducible without drawing random numbers). For the AV being served it predicts the next
-``supervisor_horizon`` s of the whole road, frame by frame at ``simulation_frequency`` Hz:
+speed [m/s] × ``headway_time`` [s]; :func:`headway_margins`; the merge serves its merging lane
+first, :class:`Supervisor`'s ``priorities``; equal priorities: the lower AV index first, so runs
+stay reproducible without drawing random numbers). For the AV being served it predicts the next
+``supervisor_horizon`` s of the whole road, frame by frame at ``simulation_frequency`` Hz
+(:mod:`sb3_marl.envs.rooms`):
 
 - every vehicle with the road's own equations (:func:`sb3_marl.envs.dynamics.drive`: highway-env's
   controllers, the HDVs' IDM and MOBIL lane changes with their timers and abort rule, the
@@ -30,7 +32,13 @@ in two passes (:data:`PASSES`): the second re-checks each AV against the actions
 with in the first (an AV served early was checked against proposals that may have been replaced
 since). Served one at a time, two AVs whose lane changes conflict can still each find every option
 unsafe and cross each other; a joint fallback then makes the AVs left short of room after a lane
-change keep their lanes together (IDLE), when that leaves every AV more room. The prediction runs
+change keep their lanes together (IDLE), when that leaves every AV more room.
+
+A lane an obstacle ends (the merge's merging lane) is a constraint of its own: an AV cannot stop on
+it (its lowest target speed is 10 m/s), so an action is also replaced when it leaves the AV on
+that lane, at the end of the prediction, with under ``LEAVE_TIME`` s of driving to the obstacle
+(:func:`~sb3_marl.envs.rooms.dead_end_margin`); the replacement is the action with room and a way
+off the lane, else with room and the most time left, else the largest room. The prediction runs
 as one compiled (numba) function per step; compiled code is cached on disk, so a fresh process
 pays the compile time only once.
 """
@@ -39,32 +47,15 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any
 
 import numba
 import numpy as np
 
 from sb3_marl.envs.drivers import lane_distance, lane_occupancy, leader
-from sb3_marl.envs.dynamics import drive
-from sb3_marl.envs.kernel import (
-    COLLIDABLE,
-    HEADING,
-    IS_OBSTACLE,
-    LANE,
-    LENGTH,
-    OBSTACLE_LENGTH,
-    SPEED,
-    TARGET_LANE,
-    TARGET_SPEED,
-    WIDTH,
-    X,
-    Y,
-    cos,
-    sin,
-)
-from sb3_marl.envs.lanes import closest_lane, follow, local_coordinates, on_lane
-from sb3_marl.envs.meta_actions import meta_action_targets, speed_index
-from sb3_marl.envs.road import highway_lanes
+from sb3_marl.envs.kernel import COLLIDABLE, IS_OBSTACLE, LANE, SPEED, TARGET_LANE, TARGET_SPEED, X
+from sb3_marl.envs.meta_actions import meta_action_targets
+from sb3_marl.envs.rooms import Horizon, dead_end_margin, path_room, predict
 
 #: Version of the supervisor's decisions; evaluations record it, and ``sb3-marl benchmark evaluate``
 #: re-evaluates trials evaluated under another (history in CHANGELOG.md; 3: the road's own equations).
@@ -78,109 +69,8 @@ SPEED_STEP = np.array([0, 0, 0, 1, -1], dtype=np.int64)
 LANE_LEFT, IDLE, LANE_RIGHT = 0, 1, 2
 #: Passes over the AVs in priority order (the second checks against the first pass's final actions).
 PASSES = 2
-#: [s] the time an AV is given to leave a lane an obstacle ends (see :func:`_dead_end_margin`)
+#: [s] the time an AV is given to leave a lane an obstacle ends (see :func:`dead_end_margin`)
 LEAVE_TIME = 2.5
-
-
-class Horizon(NamedTuple):
-    """The road and the prediction's time grid (compiled code takes it as one argument)."""
-
-    lanes: np.ndarray  # the road's lane table (sb3_marl.envs.lanes)
-    road_end: float  # [m] x past which vehicles leave the road
-    speed_limit: float  # [m/s]
-    dt: float  # [s] one frame
-    frames: int  # frames predicted
-    frames_per_step: int  # frames of one policy step
-    ladder: np.ndarray  # [m/s] the AVs' target speeds (MDPVehicle.target_speeds)
-
-    @classmethod
-    def from_config(cls, config: dict[str, Any], lanes: np.ndarray | None = None, road_end: float | None = None) -> Horizon:
-        """The road and time grid of a scenario config (frequencies [Hz], ``supervisor_horizon`` [s]);
-        the road is ``lanes`` and ``road_end`` [m], by default the lane-change highway of the config
-        (:func:`~sb3_marl.envs.road.highway_lanes`, ``road_length``)."""
-        return cls(
-            lanes=highway_lanes(config) if lanes is None else lanes,
-            road_end=float(config["road_length"] if road_end is None else road_end),
-            speed_limit=float(config["speed_limit"]),
-            dt=1.0 / config["simulation_frequency"],
-            frames=max(int(round(config["supervisor_horizon"] * config["simulation_frequency"])), 1),
-            frames_per_step=max(config["simulation_frequency"] // config["policy_frequency"], 1),
-            ladder=np.asarray(config["target_speeds"], dtype=np.float64),
-        )
-
-
-@numba.njit(cache=True)
-def _predict(
-    state0: np.ndarray, horizon: Horizon, speed_step: np.ndarray, ego: int, collidable: np.ndarray, floor: float
-) -> tuple[np.ndarray, float]:
-    """(frames, 4, n) x, y [m], heading [rad] and speed [m/s] of every vehicle after each frame of
-    the road driven from ``state0`` (the kernel's layout, the AVs' targets set), and the room [m] of
-    vehicle ``ego`` along it (see :func:`_room`; inf for ``ego`` -1). The prediction stops as soon
-    as that room is at most ``floor`` m (it can only shrink): the rest of the path is then unset.
-
-    ``speed_step`` (+1 FASTER, -1 SLOWER, 0 otherwise, per AV) repeats a speed change at every
-    policy step of the horizon, as ``MDPVehicle.act`` would on the speed ladder: the AV keeps its
-    action over the horizon."""
-    state = state0.copy()
-    n = state.shape[0]
-    path = np.empty((horizon.frames, 4, n))
-    room = np.inf
-    ladder = horizon.ladder
-    top = ladder.size - 1
-    for frame in range(horizon.frames):
-        if frame > 0 and frame % horizon.frames_per_step == 0:
-            for k in range(speed_step.size):
-                if speed_step[k] != 0:
-                    index = min(max(speed_index(state[k, SPEED], ladder) + speed_step[k], 0), top)
-                    state[k, TARGET_SPEED] = ladder[index]
-        drive(state, horizon.dt, horizon.lanes, horizon.speed_limit)
-        path[frame, 0], path[frame, 1] = state[:, X], state[:, Y]
-        path[frame, 2], path[frame, 3] = state[:, HEADING], state[:, SPEED]
-        if ego >= 0:
-            room = min(
-                room, _frame_room(ego, path[frame, 0], path[frame, 1], path[frame, 2], path[frame, 3], collidable, horizon.dt)
-            )
-            if room <= floor:
-                break
-    return path, room
-
-
-@numba.njit(cache=True)
-def _room(ego: int, path: np.ndarray, collidable: np.ndarray, dt: float) -> float:
-    """Smallest bumper-to-bumper gap [m] along a predicted ``path`` (see :func:`_predict`) between
-    vehicle ``ego`` and any collidable vehicle overlapping it laterally (negative: a collision)."""
-    room = np.inf
-    for frame in range(path.shape[0]):
-        room = min(room, _frame_room(ego, path[frame, 0], path[frame, 1], path[frame, 2], path[frame, 3], collidable, dt))
-    return room
-
-
-@numba.njit(cache=True)
-def _frame_room(
-    ego: int, x: np.ndarray, y: np.ndarray, h: np.ndarray, v: np.ndarray, collidable: np.ndarray, dt: float
-) -> float:
-    """:func:`_room` of one frame's positions [m], headings [rad] and speeds [m/s]."""
-    room = np.inf
-    ego_x, ego_y = _half_extents(h[ego])
-    for j in range(x.size):
-        if j != ego and collidable[j]:
-            other_x, other_y = _half_extents(h[j])
-            # highway-env flags a collision when the bodies would meet within the next frame
-            # (each moved by its velocity × dt): the gaps shrink by the closing speed × dt
-            dx, dy = x[j] - x[ego], y[j] - y[ego]
-            closing_x = (v[ego] * cos(h[ego]) - v[j] * cos(h[j])) * np.sign(dx)
-            closing_y = (v[ego] * sin(h[ego]) - v[j] * sin(h[j])) * np.sign(dy)
-            if abs(dy) - max(closing_y, 0.0) * dt < ego_y + other_y:
-                room = min(room, abs(dx) - ego_x - other_x - max(closing_x, 0.0) * dt)
-    return room
-
-
-@numba.njit(cache=True)
-def _half_extents(heading: float) -> tuple[float, float]:
-    """Half length along x and half width along y [m] of the axis-aligned box around a vehicle
-    body rotated by ``heading`` rad (a lane change tilts it: the box covers the corners)."""
-    c, s = abs(cos(heading)), abs(sin(heading))
-    return LENGTH / 2 * c + WIDTH / 2 * s, LENGTH / 2 * s + WIDTH / 2 * c
 
 
 @numba.njit(cache=True)
@@ -248,7 +138,7 @@ def supervise_arrays(
         _set_action(state, i, proposed[i], speed_step, candidate_lane, candidate_speed, repeat_actions)
     order = np.argsort(priority, kind="mergesort")
     # the road predicted under the AVs' current actions, shared by every AV's room until one changes
-    path = _predict(state, horizon, speed_step, -1, collidable, -np.inf)[0]
+    path = predict(state, horizon, speed_step, -1, collidable, -np.inf)[0]
     obstacles = np.flatnonzero(state0[:, IS_OBSTACLE] > 0)
     for _ in range(PASSES):
         changed = False
@@ -257,8 +147,8 @@ def supervise_arrays(
                 continue
             counted = _counted(state0, i, n_avs, collidable, rear_avs)
             current = executed[i]
-            room = _room(i, path, counted, dt)
-            dead_end = _dead_end_margin(state, i, path, horizon.lanes, obstacles)
+            room = path_room(i, path, counted, dt)
+            dead_end = dead_end_margin(state, i, path, horizon.lanes, obstacles)
             if room < min_gap or dead_end < 0:
                 best, best_room, best_dead_end, best_path = current, room, dead_end, path
                 for a in PREFERENCE:
@@ -267,8 +157,8 @@ def supervise_arrays(
                         # stopped once it cannot beat the best room: such a candidate is never
                         # chosen (with a dead end ahead, every candidate is predicted in full)
                         floor = best_room if obstacles.size == 0 else -np.inf
-                        candidate_path, candidate_room = _predict(state, horizon, speed_step, i, counted, floor)
-                        candidate_dead_end = _dead_end_margin(state, i, candidate_path, horizon.lanes, obstacles)
+                        candidate_path, candidate_room = predict(state, horizon, speed_step, i, counted, floor)
+                        candidate_dead_end = dead_end_margin(state, i, candidate_path, horizon.lanes, obstacles)
                         if _better(candidate_room, candidate_dead_end, best_room, best_dead_end, min_gap):
                             best, best_room, best_dead_end, best_path = a, candidate_room, candidate_dead_end, candidate_path
                 changed = changed or best != current
@@ -289,12 +179,12 @@ def supervise_arrays(
         for i in range(n_avs):
             if stuck[i]:
                 _set_action(trial, i, IDLE, trial_step, candidate_lane, candidate_speed, repeat_actions)
-        trial_path = _predict(trial, horizon, trial_step, -1, collidable, -np.inf)[0]
+        trial_path = predict(trial, horizon, trial_step, -1, collidable, -np.inf)[0]
         trial_rooms = rooms.copy()
         before, after = np.inf, np.inf
         for i in order:
             if collidable[i]:
-                trial_rooms[i] = _room(i, trial_path, _counted(state0, i, n_avs, collidable, rear_avs), dt)
+                trial_rooms[i] = path_room(i, trial_path, _counted(state0, i, n_avs, collidable, rear_avs), dt)
                 before, after = min(before, rooms[i]), min(after, trial_rooms[i])
         if after > before:
             for i in range(n_avs):
@@ -302,30 +192,6 @@ def supervise_arrays(
                     executed[i] = IDLE
             rooms = trial_rooms
     return executed, rooms
-
-
-@numba.njit(cache=True)
-def _dead_end_margin(state: np.ndarray, ego: int, path: np.ndarray, lanes: np.ndarray, obstacles: np.ndarray) -> float:
-    """[m] How much room AV ``ego`` has left, at the end of the predicted ``path``, to leave a lane
-    that an obstacle ends (the merging lane): the gap to the obstacle ahead on the lane it keeps,
-    minus the distance it covers in :data:`LEAVE_TIME` at its speed; inf when no obstacle ends its
-    lane or it is changing lanes. Its meta-actions cannot stop it (the lowest target speed is 10
-    m/s), so this is how late it may still merge."""
-    if obstacles.size == 0:
-        return np.inf
-    last = path.shape[0] - 1
-    x, y, v = path[last, 0, ego], path[last, 1, ego], path[last, 3, ego]
-    lane = closest_lane(lanes, x, y, path[last, 2, ego])
-    if follow(lanes, int(state[ego, TARGET_LANE]), x, y) != lane:
-        return np.inf
-    s = local_coordinates(lanes, lane, x, y)[0]
-    margin = np.inf
-    for j in obstacles:
-        if on_lane(lanes, lane, state[j, X], state[j, Y], 1.0):
-            gap = local_coordinates(lanes, lane, state[j, X], state[j, Y])[0] - s - (LENGTH + OBSTACLE_LENGTH) / 2
-            if gap > -LENGTH:
-                margin = min(margin, gap - v * LEAVE_TIME)
-    return margin
 
 
 @numba.njit(cache=True)
