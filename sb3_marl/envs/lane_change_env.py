@@ -173,12 +173,11 @@ class LaneChangeEnv(AbstractEnv):
         if len(avs) != self.n_avs:
             raise ValueError(f"Invalid avs: expected {self.n_avs} (x, lane, speed) tuples, got {len(avs)}.")
         x, lane, speed = np.array([*avs, *hdvs], dtype=np.float64).reshape(-1, 3).T
-        table = self.horizon.lanes
-        if not all(0 <= number < len(table) for number in lane.tolist()):
-            raise ValueError(f"Invalid lane in {lane.tolist()}: expected lane numbers 0..{len(table) - 1}.")
-        y = [lanes.position(table, int(k), s - table[int(k), lanes.START_X], 0.0)[1] for k, s in zip(lane, x)]
+        if not all(0 <= number < len(self.horizon.lanes) for number in lane.tolist()):
+            raise ValueError(f"Invalid lane in {lane.tolist()}: expected lane numbers 0..{len(self.horizon.lanes) - 1}.")
+        y = lanes.centre_y(self.horizon.lanes, lane.astype(np.int64), x)
         self.n_hdvs = len(hdvs)
-        self.state = np.concatenate([vehicle_state(self.config, x, lane, speed, self.n_avs, y=np.array(y)), self._obstacles()])
+        self.state = np.concatenate([vehicle_state(self.config, x, lane, speed, self.n_avs, y=y), self._obstacles()])
         return self._observe_start()
 
     @property
@@ -236,13 +235,7 @@ class LaneChangeEnv(AbstractEnv):
 
         state = self.state
         acceleration = (state[:n, kernel.SPEED] - speed_before) * self.config["policy_frequency"]
-        # a lane change: a new target lane, other than the road's own continuation of the old one
-        targets = state[:n, kernel.TARGET_LANE]
-        changed = targets != targets_before
-        for i in np.flatnonzero(changed):
-            changed[i] = targets[i] != lanes.follow(
-                self.horizon.lanes, int(targets_before[i]), state[i, kernel.X], state[i, kernel.Y]
-            )
+        changed = lanes.lane_changes(self.horizon.lanes, targets_before, state)
         obs, info = self._observe(acceleration, changed, proposed, actions)
         terminated = bool(info["crashed"].any())
         truncated = not terminated and (self.steps_done >= self.max_steps or bool(info["exited"].all()))

@@ -17,7 +17,7 @@ import numpy as np
 from highway_env.road.lane import SineLane, StraightLane
 from highway_env.road.road import RoadNetwork
 
-from sb3_marl.envs.kernel import LANE_VEHICLE_LENGTH, wrap_to_pi
+from sb3_marl.envs.kernel import LANE_VEHICLE_LENGTH, TARGET_LANE, X, Y, wrap_to_pi
 
 #: Columns of the lane table.
 (
@@ -185,3 +185,24 @@ def follow(lanes: np.ndarray, lane: int, x: float, y: float) -> int:
         if distance < best_distance:
             best, best_distance = candidate, distance
     return best
+
+
+@numba.njit(cache=True)
+def centre_y(lanes: np.ndarray, lane: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """y [m] of the centre of each ``lane`` where its base line is at each ``x`` [m] (a lane along +x)."""
+    y = np.empty(x.size)
+    for k in range(x.size):
+        y[k] = position(lanes, lane[k], x[k] - lanes[lane[k], START_X], 0.0)[1]
+    return y
+
+
+@numba.njit(cache=True)
+def lane_changes(lanes: np.ndarray, before: np.ndarray, state: np.ndarray) -> np.ndarray:
+    """(n,) bool: which of the first ``before.size`` vehicles of ``state`` started a lane change since
+    their target lanes were ``before``: a new target lane other than the road's own continuation of
+    the old one (:func:`follow` at the vehicle's position)."""
+    changed = np.zeros(before.size, dtype=np.bool_)
+    for i in range(before.size):
+        target = int(state[i, TARGET_LANE])
+        changed[i] = target != before[i] and target != follow(lanes, int(before[i]), state[i, X], state[i, Y])
+    return changed
