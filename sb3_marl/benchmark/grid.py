@@ -96,10 +96,10 @@ EXPERIMENTS: dict[str, dict[str, tuple[str, str]]] = {
     },
     # the merging paper's scenario (Chen et al. 2021, docs/merge.md): its four learners
     "merge": {
-        "MADQN": ("madqn", "merge"),
-        "MA2C": ("ma2c", "merge"),
-        "MAACKTR": ("maacktr", "merge"),
-        "MAPPO": ("mappo", "merge"),
+        "MADQN, merge": ("madqn", "merge"),
+        "MA2C, merge": ("ma2c", "merge"),
+        "MAACKTR, merge": ("maacktr", "merge"),
+        "MAPPO, merge": ("mappo", "merge"),
     },
     # beyond the paper: CTDE, a critic that sees every AV of the copy (same networks otherwise)
     "ctde": {
