@@ -19,9 +19,9 @@ from highway_env.road.lane import LineType, SineLane, StraightLane
 from highway_env.road.road import Road, RoadNetwork
 from highway_env.vehicle.objects import Obstacle
 
-from sb3_marl.envs import kernel
 from sb3_marl.envs.lanes import lane_table
 from sb3_marl.envs.road import vehicle_state
+from sb3_marl.envs.simulator import capture
 
 ENDS = (220.0, 100.0, 100.0, 100.0)  # [m] the four sections
 AMPLITUDE = 3.25  # [m] of the converging sine section
@@ -74,8 +74,13 @@ def make_merge_road(config: dict[str, Any], np_random: np.random.Generator) -> R
     """highway-env's merging road of the config with its obstacle, without vehicles."""
     network = merge_network(float(config["speed_limit"]))
     road = Road(network=network, np_random=np_random, record_history=config["show_trajectories"])
-    road.objects.append(Obstacle(road, network.get_lane(("b", "c", 1)).position(ENDS[2], 0)))
+    road.objects.append(Obstacle(road, _obstacle_position(network)))
     return road
+
+
+def _obstacle_position(network: RoadNetwork) -> np.ndarray:
+    """[m] where MARL_CAVs puts the obstacle: the merging lane's end."""
+    return network.get_lane(("b", "c", 1)).position(ENDS[2], 0)
 
 
 def merge_lanes(speed_limit: float) -> np.ndarray:
@@ -90,12 +95,14 @@ def _merge_lanes(speed_limit: float) -> np.ndarray:
 
 def obstacle_rows() -> np.ndarray:
     """(1, :data:`~sb3_marl.envs.kernel.COLUMNS`) the obstacle at the merging lane's end, as the
-    state array's last row."""
-    row = np.zeros((1, kernel.COLUMNS))
-    row[0, kernel.X], row[0, kernel.Y] = MERGE_END, 6.5 + 4 - 2 * AMPLITUDE
-    row[0, kernel.LANE] = row[0, kernel.TARGET_LANE] = -1
-    row[0, kernel.COLLIDABLE] = row[0, kernel.PRESENT] = row[0, kernel.IS_OBSTACLE] = 1.0
-    return row
+    state array's last row (a new array)."""
+    return _obstacle_rows().copy()
+
+
+@functools.lru_cache(maxsize=1)
+def _obstacle_rows() -> np.ndarray:
+    network = merge_network(30.0)  # the obstacle's place does not depend on the speed limit
+    return capture([], network, [Obstacle(None, _obstacle_position(network))])
 
 
 def merge_spawn(config: dict[str, Any], n_avs: int, n_hdvs: int, np_random: np.random.Generator) -> np.ndarray:
