@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -100,8 +100,12 @@ class LaneChangeEnv(AbstractEnv):
 
     def _derive(self) -> None:
         """What the steps read from the config: the road and time grid, the safety supervisor."""
-        self.supervisor = Supervisor.from_config(self.config, *self._road_data())
+        self.supervisor = Supervisor.from_config(self.config, *self._road_data(), priorities=self._priorities())
         self.horizon = self.supervisor.horizon
+
+    def _priorities(self) -> Callable[[np.ndarray, int, Supervisor], np.ndarray] | None:
+        """The supervisor's order of service (None: the headway margin's)."""
+        return None
 
     def _road_data(self) -> tuple[np.ndarray, float]:
         """The road as the kernel reads it: (lane table, road end [m])."""

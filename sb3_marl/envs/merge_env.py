@@ -4,6 +4,7 @@ observation, supervisor and info, on the merging road (:mod:`sb3_marl.envs.merge
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numba
@@ -76,10 +77,8 @@ class MergeEnv(LaneChangeEnv):
     def default_config(cls) -> dict[str, Any]:
         return cfg.merge_default_config()
 
-    def _derive(self) -> None:
-        priorities = merge_priorities if self.config["supervisor_priority"] == "merging" else None
-        self.supervisor = Supervisor.from_config(self.config, *self._road_data(), priorities=priorities)
-        self.horizon = self.supervisor.horizon
+    def _priorities(self) -> Callable[[np.ndarray, int, Supervisor], np.ndarray] | None:
+        return merge_priorities if self.config["supervisor_priority"] == "merging" else None
 
     def _road_data(self) -> tuple[np.ndarray, float]:
         return merge_lanes(float(self.config["speed_limit"])), np.inf
