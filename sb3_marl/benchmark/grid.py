@@ -58,6 +58,9 @@ VARIANTS["rule-prior-strong"] = {**VARIANTS["rule-prior"], "prior_coef_final": 1
 # supervisor dropout plus an entropy penalty: imitation leaves the policy spread where the rule
 # driver's decision is hard to fit, and sampling those states costs return; the penalty sharpens it
 VARIANTS["rule-prior-sharpen"] = {**VARIANTS["rule-prior-dropout"], "ent_coef": -0.05}
+# the same with a two and four times stronger penalty: sampled actions closer to the greedy ones
+VARIANTS["rule-prior-sharpen-0.1"] = {**VARIANTS["rule-prior-dropout"], "ent_coef": -0.1}
+VARIANTS["rule-prior-sharpen-0.2"] = {**VARIANTS["rule-prior-dropout"], "ent_coef": -0.2}
 # the on-ramp merge (sb3_marl/Merge-density<d>-v0) with its zoo config as it is
 VARIANTS["merge"] = {}
 #: Variants trained on the merge scenario's ids instead of the lane change's.
@@ -93,6 +96,8 @@ EXPERIMENTS: dict[str, dict[str, tuple[str, str]]] = {
         "MA2C, rule prior, supervisor dropout": ("ma2c", "rule-prior-dropout"),
         "MA2C, rule prior kept strong": ("ma2c", "rule-prior-strong"),
         "MA2C, rule prior, supervisor dropout, entropy penalty": ("ma2c", "rule-prior-sharpen"),
+        "MA2C, rule prior, supervisor dropout, entropy penalty 0.1": ("ma2c", "rule-prior-sharpen-0.1"),
+        "MA2C, rule prior, supervisor dropout, entropy penalty 0.2": ("ma2c", "rule-prior-sharpen-0.2"),
     },
     # the merging paper's scenario (Chen et al. 2021, docs/merge.md): its four learners
     "merge": {
