@@ -107,6 +107,10 @@ def default_config() -> dict[str, Any]:
         # themselves and brake for it), so that it may brake behind a slower vehicle; True (v3):
         # every vehicle counts, and a platoon of AVs behind a slower HDV holds its speed
         "supervisor_rear_avs": True,
+        # when no meta-action leaves an AV supervisor_min_gap of room, brake it to a stop (a target
+        # speed of 0 m/s, below the speed ladder) if that leaves more; on for the merge, whose AVs
+        # meet stalled vehicles and a dead end they cannot stop for at the ladder's 10 m/s
+        "supervisor_emergency_brake": False,
         # Rule driver (IDM/MOBIL as meta-actions, info["rule_action"]): FASTER / SLOWER when IDM's
         # acceleration is above / below +- this threshold
         "rule_acceleration_threshold": 1.0,  # [m/s²]
@@ -125,6 +129,7 @@ def merge_default_config() -> dict[str, Any]:
             # weight of the merging-lane cost -exp(-(x - merge end)² / (10 × merging lane length))
             "merging_lane_weight": 4.0,
             "supervisor_priority": "merging",  # see SUPERVISOR_PRIORITIES
+            "supervisor_emergency_brake": True,
         }
     )
     return config
@@ -235,6 +240,7 @@ _SCHEMA: dict[str, tuple[Check, str]] = {
     "supervisor_min_gap": _number(0, 100),
     "supervisor_repeat_actions": _boolean(),
     "supervisor_rear_avs": _boolean(),
+    "supervisor_emergency_brake": _boolean(),
     "screen_width": _integer(1),
     "screen_height": _integer(1),
     "centering_position": _any(),

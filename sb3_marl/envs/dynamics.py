@@ -90,9 +90,11 @@ def policy_step(
     road_end: float,
     speed_limit: float,
     ladder: np.ndarray,
+    braking: np.ndarray,
 ) -> np.ndarray:
     """One policy step of the scenario on a copy of ``state``: the first ``actions.size`` rows (the
-    AVs) take their meta-actions (:func:`meta_action_targets`), then ``frames`` frames of ``dt`` s
+    AVs) take their meta-actions (:func:`meta_action_targets`; target speed 0 m/s for the AVs
+    ``braking``, the safety supervisor's emergency brake), then ``frames`` frames of ``dt`` s
     run (``Road.act``, ``Road.step``); after each, vehicles whose x passes ``road_end`` [m] leave:
     HDVs are removed, AVs stop colliding. Returns the new state without the removed vehicles.
 
@@ -106,6 +108,8 @@ def policy_step(
     target_lane, target_speed = meta_action_targets(state, n_avs, lanes, ladder)
     for i in range(n_avs):
         state[i, TARGET_LANE], state[i, TARGET_SPEED] = target_lane[i, actions[i]], target_speed[i, actions[i]]
+        if braking[i]:
+            state[i, TARGET_SPEED] = 0.0
     for _ in range(frames):
         drive(state, dt, lanes, speed_limit)
         for i in range(n):

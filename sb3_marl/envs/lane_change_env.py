@@ -228,19 +228,19 @@ class LaneChangeEnv(AbstractEnv):
             raise RuntimeError("The episode is over (terminated or truncated): call reset() before step().")
         n = self.n_avs
         proposed = self._check_actions(action)
-        actions = proposed
+        actions, braking = proposed, np.zeros(n, dtype=bool)
         if self.config["safety_supervisor"]:
-            actions, _ = self.supervisor(self.state, n, proposed, self.action_masks())
+            actions, _, braking = self.supervisor(self.state, n, proposed, self.action_masks())
         speed_before = self.state[:n, kernel.SPEED].copy()
         targets_before = self.state[:n, kernel.TARGET_LANE].copy()
 
-        self._simulate(actions)
+        self._simulate(actions, braking)
         self.time += 1.0 / self.config["policy_frequency"]
 
         state = self.state
         acceleration = (state[:n, kernel.SPEED] - speed_before) * self.config["policy_frequency"]
         changed = lanes.lane_changes(self.horizon.lanes, targets_before, state)
-        obs, info = self._observe(acceleration, changed, proposed, actions)
+        obs, info = self._observe(acceleration, changed, proposed, actions, braking)
         terminated = bool(info["crashed"].any())
         truncated = not terminated and (self.steps_done >= self.max_steps or bool(info["exited"].all()))
         self.done = terminated or truncated
@@ -252,10 +252,11 @@ class LaneChangeEnv(AbstractEnv):
         """Whether highway-env's objects step the road frame by frame (drawn frames, or the stock reference)."""
         return self.simulator == STOCK or self.viewer is not None or bool(self.config["show_trajectories"])
 
-    def _simulate(self, actions: np.ndarray) -> None:
-        """Apply the executed meta-actions and simulate the frames of one policy step: compiled on
-        the state array, or with highway-env's ``Road.act`` / ``Road.step`` frame by frame (the
-        frames in between drawn), captured into the state array after."""
+    def _simulate(self, actions: np.ndarray, braking: np.ndarray) -> None:
+        """Apply the executed meta-actions (target speed 0 m/s for the AVs ``braking``) and simulate
+        the frames of one policy step: compiled on the state array, or with highway-env's
+        ``Road.act`` / ``Road.step`` frame by frame (the frames in between drawn), captured into the
+        state array after."""
         frames, dt = self.horizon.frames_per_step, self.horizon.dt
         if not self._uses_objects():
             self.state = dynamics.policy_step(
@@ -267,14 +268,17 @@ class LaneChangeEnv(AbstractEnv):
                 self.horizon.road_end,
                 self.horizon.speed_limit,
                 self.horizon.ladder,
+                braking,
             )
             self.steps += frames
             return
         road, road_length = self.road, self.horizon.road_end
         for frame in range(frames):
             if frame == 0:
-                for av, a in zip(self.avs, actions):
+                for av, a, brake in zip(self.avs, actions, braking):
                     av.act(ACTIONS[int(a)])
+                    if brake:
+                        av.target_speed = 0.0
             road.act()
             road.step(dt)
             self.steps += 1
@@ -349,7 +353,12 @@ class LaneChangeEnv(AbstractEnv):
         return self._observe(np.zeros(n), np.zeros(n, dtype=bool), np.full(n, -1))
 
     def _observe(
-        self, acceleration: np.ndarray, lane_change: np.ndarray, proposed: np.ndarray, executed: np.ndarray | None = None
+        self,
+        acceleration: np.ndarray,
+        lane_change: np.ndarray,
+        proposed: np.ndarray,
+        executed: np.ndarray | None = None,
+        braking: np.ndarray | None = None,
     ) -> tuple[np.ndarray, dict[str, Any]]:
         """The observation of :attr:`state` and the step's info, per-AV arrays of shape (n_avs,) unless stated.
 
@@ -358,7 +367,8 @@ class LaneChangeEnv(AbstractEnv):
         sets), ``crashed``, ``speed`` [m/s], ``headway`` [m], ``acceleration`` [m/s²],
         ``lane_change``, ``exited`` (past the road end), ``action_mask`` ((n_avs, 5) bool, for
         the next step), ``proposed_action`` (the policy's), ``executed_action`` (after the safety
-        supervisor; both -1 after a reset), ``intervened`` (the supervisor replaced the action),
+        supervisor; both -1 after a reset), ``emergency_brake`` (the supervisor braked the AV to a
+        stop), ``intervened`` (the supervisor replaced the action or braked),
         ``rule_action`` (the rule driver's meta-action in the new state, :meth:`rule_actions`),
         and the scalars ``n_avs``, ``n_hdvs``, ``step``.
         """
@@ -369,6 +379,7 @@ class LaneChangeEnv(AbstractEnv):
         headway = terms.pop("headway_distance")
         proposed = np.asarray(proposed, dtype=np.int64)
         executed = proposed if executed is None else np.asarray(executed, dtype=np.int64)
+        braking = np.zeros(n, dtype=bool) if braking is None else np.asarray(braking, dtype=bool)
         info = {
             "rewards": self._total_reward(terms),
             "reward_terms": terms,
@@ -382,7 +393,8 @@ class LaneChangeEnv(AbstractEnv):
             "action_mask": self.action_masks(),
             "proposed_action": proposed,
             "executed_action": executed,
-            "intervened": proposed != executed,
+            "emergency_brake": braking,
+            "intervened": (proposed != executed) | braking,
             "rule_action": self.rule_actions(),
             "n_avs": n,
             "n_hdvs": self.n_hdvs,

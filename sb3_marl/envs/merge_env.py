@@ -115,12 +115,17 @@ class MergeEnv(LaneChangeEnv):
         return regional_neighbours(self.state, self.n_avs)
 
     def _observe(
-        self, acceleration: np.ndarray, lane_change: np.ndarray, proposed: np.ndarray, executed: np.ndarray | None = None
+        self,
+        acceleration: np.ndarray,
+        lane_change: np.ndarray,
+        proposed: np.ndarray,
+        executed: np.ndarray | None = None,
+        braking: np.ndarray | None = None,
     ) -> tuple[np.ndarray, dict[str, Any]]:
         """The lane change's observation and info, plus the merge's: ``ramp_av`` (the AV started on
         the ramp), ``merge_time`` [s] (when a ramp AV reached the main road; NaN: not yet) and
         ``stranded`` (vehicles at a standstill, under 1 m/s, on the merging lane)."""
-        obs, info = super()._observe(acceleration, lane_change, proposed, executed)
+        obs, info = super()._observe(acceleration, lane_change, proposed, executed, braking)
         state, n = self.state, self.n_avs
         lane = state[:n, kernel.LANE]
         if self.steps == 0:  # a new situation (reset, place)

@@ -90,6 +90,13 @@ def _set_action(
 
 
 @numba.njit(cache=True)
+def _set_brake(state: np.ndarray, i: int, speed_step: np.ndarray, candidate_lane: np.ndarray) -> None:
+    """Predict AV ``i`` under the emergency brake: IDLE's target lane, target speed 0 m/s."""
+    state[i, TARGET_LANE], state[i, TARGET_SPEED] = candidate_lane[i, IDLE], 0.0
+    speed_step[i] = 0
+
+
+@numba.njit(cache=True)
 def _counted(state0: np.ndarray, ego: int, n_avs: int, collidable: np.ndarray, rear_avs: bool) -> np.ndarray:
     """The vehicles the room of AV ``ego`` counts: the collidable ones, without (unless
     ``rear_avs``) the AVs behind it in its own lane, which are served themselves and may brake
@@ -114,9 +121,11 @@ def supervise_arrays(
     min_gap: float,
     repeat_actions: bool,
     rear_avs: bool = True,
-) -> tuple[np.ndarray, np.ndarray]:
+    emergency_brake: bool = False,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The supervisor on the road's state array (the kernel's layout, AVs first). Returns the
-    executed actions and each AV's room [m] under them (NaN for AVs not served: past the road end).
+    executed actions, each AV's room [m] under them (NaN for AVs not served: past the road end) and
+    which AVs brake to a stop (IDLE with a target speed of 0 m/s, see ``emergency_brake``).
 
     :param candidate_lane: (n_avs, 5) target lane of each AV under each meta-action
     :param candidate_speed: (n_avs, 5) target speed [m/s] under each meta-action
@@ -126,9 +135,12 @@ def supervise_arrays(
     :param min_gap: [m] the smallest room an action may leave
     :param rear_avs: whether an AV's room counts the AVs behind it in its lane (see
         :func:`_counted`)
+    :param emergency_brake: when no meta-action leaves an AV ``min_gap`` of room, try braking to a
+        stop (target speed 0 m/s, below the speed ladder) and take it if it leaves more room
     """
     n_avs = proposed.size
     executed = proposed.copy()
+    braking = np.zeros(n_avs, dtype=np.bool_)
     rooms = np.full(n_avs, np.nan)
     state = state0.copy()  # the AVs' targets under the actions being checked
     collidable = state[:, COLLIDABLE] > 0
@@ -150,20 +162,36 @@ def supervise_arrays(
             room = path_room(i, path, counted, dt)
             dead_end = dead_end_margin(state, i, path, horizon.lanes, obstacles)
             if room < min_gap or dead_end < 0:
-                best, best_room, best_dead_end, best_path = current, room, dead_end, path
-                for a in PREFERENCE:
-                    if available[i, a] and a != current:
+                best, best_brake, best_room, best_dead_end, best_path = current, braking[i], room, dead_end, path
+                # the meta-actions in tie order, then (as a last resort) the emergency brake
+                for k in range(PREFERENCE.size + 1):
+                    brake = k == PREFERENCE.size
+                    if brake:
+                        if not emergency_brake or best_brake or best_room >= min_gap:
+                            continue
+                        _set_brake(state, i, speed_step, candidate_lane)
+                        a = IDLE
+                    else:
+                        a = PREFERENCE[k]
+                        if not available[i, a] or (a == current and not braking[i]):
+                            continue
                         _set_action(state, i, a, speed_step, candidate_lane, candidate_speed, repeat_actions)
-                        # stopped once it cannot beat the best room: such a candidate is never
-                        # chosen (with a dead end ahead, every candidate is predicted in full)
-                        floor = best_room if obstacles.size == 0 else -np.inf
-                        candidate_path, candidate_room = predict(state, horizon, speed_step, i, counted, floor)
-                        candidate_dead_end = dead_end_margin(state, i, candidate_path, horizon.lanes, obstacles)
-                        if _better(candidate_room, candidate_dead_end, best_room, best_dead_end, min_gap):
-                            best, best_room, best_dead_end, best_path = a, candidate_room, candidate_dead_end, candidate_path
-                changed = changed or best != current
-                executed[i], room, path = best, best_room, best_path
-                _set_action(state, i, best, speed_step, candidate_lane, candidate_speed, repeat_actions)
+                    # stopped once it cannot beat the best room: such a candidate is never
+                    # chosen (with a dead end ahead, every candidate is predicted in full)
+                    floor = best_room if obstacles.size == 0 else -np.inf
+                    # braking counts no AV behind in the lane: they are served after and may brake too
+                    seen = _counted(state0, i, n_avs, collidable, False) if brake else counted
+                    candidate_path, candidate_room = predict(state, horizon, speed_step, i, seen, floor)
+                    candidate_dead_end = dead_end_margin(state, i, candidate_path, horizon.lanes, obstacles)
+                    if _better(candidate_room, candidate_dead_end, best_room, best_dead_end, min_gap):
+                        best, best_brake = a, brake
+                        best_room, best_dead_end, best_path = candidate_room, candidate_dead_end, candidate_path
+                changed = changed or best != current or best_brake != braking[i]
+                executed[i], braking[i], room, path = best, best_brake, best_room, best_path
+                if best_brake:
+                    _set_brake(state, i, speed_step, candidate_lane)
+                else:
+                    _set_action(state, i, best, speed_step, candidate_lane, candidate_speed, repeat_actions)
             rooms[i] = room
         if not changed:
             break  # another pass would see the same actions and find the same rooms
@@ -191,7 +219,7 @@ def supervise_arrays(
                 if stuck[i]:
                     executed[i] = IDLE
             rooms = trial_rooms
-    return executed, rooms
+    return executed, rooms, braking
 
 
 @numba.njit(cache=True)
@@ -229,6 +257,7 @@ class Supervisor:
     :param repeat_actions: every AV repeats its action at each policy step of the horizon
         (``supervisor_repeat_actions``)
     :param rear_avs: protect each AV from the AVs behind it too (``supervisor_rear_avs``)
+    :param emergency_brake: brake to a stop when no meta-action leaves room (``supervisor_emergency_brake``)
     :param priorities: (state, n_avs, supervisor) -> (n_avs,) the order of service, the smallest
         first; by default the headway margin (:func:`headway_margins`)
     """
@@ -238,6 +267,7 @@ class Supervisor:
     min_gap: float
     repeat_actions: bool
     rear_avs: bool
+    emergency_brake: bool = False
     priorities: Callable[[np.ndarray, int, Supervisor], np.ndarray] | None = None
 
     @classmethod
@@ -255,13 +285,14 @@ class Supervisor:
             float(config["supervisor_min_gap"]),
             bool(config["supervisor_repeat_actions"]),
             bool(config["supervisor_rear_avs"]),
+            bool(config["supervisor_emergency_brake"]),
             priorities,
         )
 
     def __call__(
         self, state: np.ndarray, n_avs: int, proposed: np.ndarray, available: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Executed meta-actions (n_avs,) and each AV's predicted room [m].
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Executed meta-actions (n_avs,), each AV's predicted room [m] and which AVs brake to a stop.
 
         :param state: the road's state array (:mod:`~sb3_marl.envs.kernel` layout), the ``n_avs`` AVs
             first; not modified
@@ -285,4 +316,5 @@ class Supervisor:
             self.min_gap,
             self.repeat_actions,
             self.rear_avs,
+            self.emergency_brake,
         )

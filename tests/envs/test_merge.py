@@ -167,11 +167,38 @@ def test_supervisor_merges_before_the_merging_lane_ends():
     env = make(1, n_avs=1, safety_supervisor=True)
     env.reset(seed=0)
     env.place([(360.0, MERGING_LANE, 20.0)])
-    executed, rooms = env.supervisor(env.state, 1, np.array([1]), env.action_masks())
+    executed, rooms, _ = env.supervisor(env.state, 1, np.array([1]), env.action_masks())
     assert executed.tolist() == [0] and rooms[0] > 2.0  # LANE_LEFT
     env.place([(360.0, MERGING_LANE, 20.0)], hdvs=[(361.0, MAIN_BESIDE, 20.0)])
-    executed, _ = env.supervisor(env.state, 1, np.array([1]), env.action_masks())
+    executed, _, _ = env.supervisor(env.state, 1, np.array([1]), env.action_masks())
     assert executed.tolist() == [4]  # SLOWER: the lane beside is taken
+
+
+@pytest.mark.parametrize("simulator", [COMPILED, STOCK])
+def test_the_emergency_brake_stops_an_av_for_a_stalled_vehicle(simulator):
+    """An AV at the ladder's lowest speed (10 m/s) closing on a stalled HDV has no meta-action with
+    room: without the emergency brake it runs into it; with it (the merge's default) the supervisor
+    brakes it (target speed 0 m/s), on the compiled road and on highway-env's objects alike."""
+    outcome = {}
+    for brake in (False, True):
+        env = make(1, n_avs=1, safety_supervisor=True, supervisor_emergency_brake=brake)
+        env.simulator = simulator
+        env.reset(seed=0)
+        env.place([(100.0, MAIN_BEFORE, 10.0)], hdvs=[(112.0, MAIN_BEFORE, 0.0)])
+        braked, crashed = [], False
+        for _ in range(10):
+            _, _, terminated, _, info = env.step(np.array([1]))
+            braked.append(bool(info["emergency_brake"][0]))
+            crashed = crashed or bool(info["crashed"][0])
+            if terminated:
+                break
+        outcome[brake] = (crashed, braked[0], float(env.state[0, kernel.TARGET_SPEED]))
+    assert outcome[False][:2] == (True, False)
+    assert outcome[True][:2] == (False, True) and info["intervened"][0] == braked[-1]
+    assert (
+        make(1).config["supervisor_emergency_brake"]
+        and not gym.make(ENV_IDS[1]).unwrapped.config["supervisor_emergency_brake"]
+    )
 
 
 def test_merge_metrics_count_the_ramp_avs_that_merge():

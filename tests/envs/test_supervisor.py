@@ -22,7 +22,7 @@ def test_faster_just_behind_a_slow_hdv_is_replaced():
     env = supervised_env()
     env.place(avs=[(100.0, 0, 25.0)], hdvs=[(115.0, 0, 15.0)])
     proposed = np.array([FASTER])
-    executed, rooms = Supervisor.from_config(env.config)(env.state, 1, proposed, env.action_masks())
+    executed, rooms, _ = Supervisor.from_config(env.config)(env.state, 1, proposed, env.action_masks())
     assert executed[0] != FASTER and env.action_masks()[0, executed[0]]
     unsafe_room = Supervisor.from_config({**env.config, "supervisor_min_gap": -1e9})(
         env.state, 1, proposed, env.action_masks()
@@ -118,7 +118,7 @@ def test_conflicting_lane_changes_keep_their_lanes_together():
             state[k, TARGET_SPEED] = ladder[speed_index(speed, ladder)]
     env.state = state
     proposed = np.array([FASTER, ACTION_INDEX["LANE_RIGHT"], IDLE, FASTER, IDLE])
-    executed, rooms = Supervisor.from_config(env.config)(env.state, 5, proposed, env.action_masks())
+    executed, rooms, _ = Supervisor.from_config(env.config)(env.state, 5, proposed, env.action_masks())
     assert executed[:2].tolist() == [IDLE, IDLE] and (rooms >= env.config["supervisor_min_gap"]).all()
     for _ in range(10):
         _, _, terminated, _, _ = env.step(np.array([IDLE] * 5))
