@@ -63,8 +63,14 @@ VARIANTS["rule-prior-sharpen-0.1"] = {**VARIANTS["rule-prior-dropout"], "ent_coe
 VARIANTS["rule-prior-sharpen-0.2"] = {**VARIANTS["rule-prior-dropout"], "ent_coef": -0.2}
 # the on-ramp merge (sb3_marl/Merge-density<d>-v0) with its zoo config as it is
 VARIANTS["merge"] = {}
+# the merging paper's curriculum: density 2 starts from density 1's model, density 3 from density 2's
+VARIANTS["merge-curriculum"] = {}
 #: Variants trained on the merge scenario's ids instead of the lane change's.
-MERGE_VARIANTS = ("merge",)
+MERGE_VARIANTS = ("merge", "merge-curriculum")
+#: Curriculum variants -> the variant of their density-1 start: the trial at density d > 1 starts from
+#: the final model of the same learner and seed at density d - 1 and trains its own full budget
+#: (no curriculum trial at density 1: that is the start's).
+CURRICULA = {"merge-curriculum": "merge"}
 
 #: Experiment -> its curves: label -> (algorithm, variant). In the order of the paper's sections.
 EXPERIMENTS: dict[str, dict[str, tuple[str, str]]] = {
@@ -106,6 +112,11 @@ EXPERIMENTS: dict[str, dict[str, tuple[str, str]]] = {
         "MAACKTR, merge": ("maacktr", "merge"),
         "MAPPO, merge": ("mappo", "merge"),
     },
+    # the merging paper's curriculum: MA2C at densities 2 and 3 started from the easier density's model
+    "curriculum": {
+        "MA2C, merge, from scratch": ("ma2c", "merge"),
+        "MA2C, merge, curriculum": ("ma2c", "merge-curriculum"),
+    },
     # beyond the paper: CTDE, a critic that sees every AV of the copy (same networks otherwise)
     "ctde": {
         "local critic (separate networks)": ("ma2c", "separate-networks"),
@@ -116,7 +127,7 @@ EXPERIMENTS: dict[str, dict[str, tuple[str, str]]] = {
 #: Grid name -> the experiments it runs.
 #: The "paper" grid: the paper's five experiments and our intervention-penalty one (81 trials with 3 seeds).
 GRIDS: dict[str, tuple[str, ...]] = {
-    "paper": tuple(e for e in EXPERIMENTS if e not in ("safety", "ctde", "rule-prior", "merge")),
+    "paper": tuple(e for e in EXPERIMENTS if e not in ("safety", "ctde", "rule-prior", "merge", "curriculum")),
     **{name: (name,) for name in EXPERIMENTS},
 }
 
@@ -139,6 +150,14 @@ class TrialSpec:
     def env_id(self) -> str:
         """The scenario id: the merge's for :data:`MERGE_VARIANTS`, else the lane change's."""
         return (MERGE_ENV_IDS if self.variant in MERGE_VARIANTS else ENV_IDS)[self.density]
+
+    @property
+    def starts_from(self) -> TrialSpec | None:
+        """The trial whose final model this one starts from (:data:`CURRICULA`), or None."""
+        if self.variant not in CURRICULA or self.density == 1:
+            return None
+        variant = CURRICULA[self.variant] if self.density == 2 else self.variant
+        return TrialSpec(self.algo, self.density - 1, variant, self.seed)
 
     @property
     def hyperparams(self) -> dict[str, Any]:
@@ -173,7 +192,8 @@ def check_budget(budget: float) -> float:
 
 
 def make_grid(grid: str = "paper", densities: tuple[int, ...] = tuple(DENSITIES), seeds: int = PAPER_SEEDS) -> list[TrialSpec]:
-    """The trials of ``grid`` on ``densities`` with seeds ``0 .. seeds-1``, each trial once.
+    """The trials of ``grid`` on ``densities`` with seeds ``0 .. seeds-1``, each trial once, a
+    curriculum trial after the trials it starts from (added if ``densities`` leaves them out).
 
     :raises ValueError: naming the bad grid name, density or seed count
     """
@@ -183,16 +203,23 @@ def make_grid(grid: str = "paper", densities: tuple[int, ...] = tuple(DENSITIES)
     if not isinstance(seeds, int) or seeds < 1:
         raise ValueError(f"Invalid seeds={seeds!r}: expected a number of seeds >= 1.")
     trials: dict[str, TrialSpec] = {}
+
+    def add(spec: TrialSpec) -> None:
+        if spec.starts_from is not None:
+            add(spec.starts_from)
+        trials.setdefault(spec.trial_id, spec)
+
     for experiment in GRIDS[grid]:
         for algo, variant in EXPERIMENTS[experiment].values():
             for density in sorted(set(densities)):
                 for seed in range(seeds):
-                    spec = TrialSpec(algo, density, variant, seed)
-                    trials.setdefault(spec.trial_id, spec)
+                    if not (variant in CURRICULA and density == 1):
+                        add(TrialSpec(algo, density, variant, seed))
     return list(trials.values())
 
 
 __all__ = [
+    "CURRICULA",
     "EPISODE_STEPS",
     "EXPERIMENTS",
     "GRIDS",

@@ -12,6 +12,7 @@ On a multi-node cluster the log folder must be on a file system every node sees.
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import time
@@ -114,22 +115,38 @@ def run_benchmark(
     write_text(log_folder / SETTINGS_FILE, json.dumps(settings, indent=2) + "\n")
     started_ray = _start_ray(ray, address, verbose)
     start = time.perf_counter()
+    errors: dict[str, Any] = {}
     try:
-        tuner = _tuner(grid, todo, log_folder, settings, max_concurrent, max_failures, verbose)
-        results = tuner.fit()
+        # a curriculum trial starts from another trial's final model: the trials run in waves, each
+        # of those whose start has finished; a wave left unfinished (Ctrl-C) ends the run
+        for wave in itertools.count():
+            ready = [spec for spec in todo if spec.trial_id not in errors and _ready(log_folder, spec)]
+            ready = [spec for spec in ready if not (trial_folder(log_folder, spec) / RESULT).is_file()]
+            if not ready:
+                break
+            results = _tuner(grid, wave, ready, log_folder, settings, max_concurrent, max_failures, verbose).fit()
+            errors.update({TrialSpec(**r.config["spec"]).trial_id: r.error for r in results if r.error is not None})
+            if any(not (trial_folder(log_folder, spec) / RESULT).is_file() and spec.trial_id not in errors for spec in ready):
+                break
     finally:
         if started_ray:
             ray.shutdown()
     outcome.wall_time_s = time.perf_counter() - start
-    errors = {TrialSpec(**r.config["spec"]).trial_id: r.error for r in results if r.error is not None}
     for spec in todo:
         if (trial_folder(log_folder, spec) / RESULT).is_file():
             outcome.completed.append(spec.trial_id)
         elif spec.trial_id in errors:
             outcome.failed[spec.trial_id] = f"{type(errors[spec.trial_id]).__name__}: {errors[spec.trial_id]}"
+        elif spec.starts_from is not None and spec.starts_from.trial_id in outcome.failed:
+            outcome.failed[spec.trial_id] = f"not started: the trial it starts from ({spec.starts_from.trial_id}) failed"
         else:  # stopped before the end (Ctrl-C): continues from its checkpoint next time
             outcome.unfinished.append(spec.trial_id)
     return outcome
+
+
+def _ready(log_folder: Path, spec: TrialSpec) -> bool:
+    """Whether ``spec`` can start: it starts from no trial, or from one that has finished."""
+    return spec.starts_from is None or (trial_folder(log_folder, spec.starts_from) / RESULT).is_file()
 
 
 def _import_ray() -> Any:
@@ -165,6 +182,7 @@ def _start_ray(ray: Any, address: str | None, verbose: int) -> bool:
 
 def _tuner(
     grid: str,
+    wave: int,
     todo: list[TrialSpec],
     log_folder: Path,
     settings: dict[str, Any],
@@ -172,7 +190,8 @@ def _tuner(
     max_failures: int,
     verbose: int,
 ) -> Any:
-    """Ray Tune's Tuner of the trials ``todo``: one CPU each, Ray's state under ``<log_folder>/ray``."""
+    """Ray Tune's Tuner of the trials ``todo`` (``wave`` > 0: trials that start from the models of
+    an earlier wave): one CPU each, Ray's state under ``<log_folder>/ray``."""
     from ray import tune
 
     return tune.Tuner(
@@ -182,7 +201,7 @@ def _tuner(
             max_concurrent_trials=max_concurrent, trial_name_creator=_trial_id, trial_dirname_creator=_trial_id
         ),
         run_config=tune.RunConfig(
-            name=f"{grid}-{time.strftime('%Y%m%d-%H%M%S')}",
+            name=f"{grid}-{time.strftime('%Y%m%d-%H%M%S')}" + (f"-{wave + 1}" if wave else ""),
             storage_path=str(log_folder / "ray"),
             failure_config=tune.FailureConfig(max_failures=max_failures),
             checkpoint_config=tune.CheckpointConfig(num_to_keep=1),

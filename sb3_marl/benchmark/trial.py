@@ -116,7 +116,8 @@ def trial_metrics(spec: TrialSpec, num_timesteps: int, summary: dict[str, float]
 
 
 def run_trial(config: dict[str, Any]) -> None:
-    """Train and evaluate one trial (Ray Tune function trainable).
+    """Train and evaluate one trial (Ray Tune function trainable); a curriculum trial
+    (:attr:`TrialSpec.starts_from`) starts from the final weights of the trial before it.
 
     ``config``: ``spec`` (a :class:`TrialSpec` as a dict), ``log_folder`` (absolute), ``budget``
     (fraction of 1M env steps), ``eval_every_episodes``, ``eval_episodes``.
@@ -156,6 +157,8 @@ def run_trial(config: dict[str, Any]) -> None:
     )
     manager = MARLExperimentManager(run, callback_after_eval=CheckpointAndReport(folder, spec))
     model, _ = manager.setup_experiment()  # type: ignore[misc]
+    if spec.starts_from is not None and not resumed_at:  # a curriculum: the easier density's final weights
+        model.set_parameters(str(start_model(config["log_folder"], spec.starts_from)), device="cpu")
     evaluation = next(c for c in manager.callbacks if isinstance(c, ScenarioEvalCallback))
     if resumed_at:
         evaluation.load_history(checkpoint / "evaluations.npz", resumed_at)
@@ -176,6 +179,17 @@ def run_trial(config: dict[str, Any]) -> None:
         "machine": f"{platform.node()} ({os.cpu_count()} cores)",
     }
     write_json(folder / RESULT, result)
+
+
+def start_model(log_folder: str | Path, start: TrialSpec) -> Path:
+    """The final model zip of the finished trial ``start`` (a curriculum's easier density), checked
+    as a model of its learner (:func:`~sb3_marl.runs.check_model_file`); its tensors are read as
+    data (SB3's ``set_parameters``)."""
+    from sb3_marl.runs import check_model_file, find_run
+
+    path = find_run(trial_folder(log_folder, start), start.algo, start.env_id, RUN_ID).model_path
+    check_model_file(path, start.algo)
+    return Path(path)
 
 
 def _restore_checkpoint(folder: Path, ray_checkpoint: Any) -> int:

@@ -64,6 +64,7 @@ def test_grids_hold_each_trial_once():
         "ctde",
         "rule-prior",
         "merge",
+        "curriculum",
     }
     assert {(s.algo, s.variant) for s in make_grid("rule-prior", seeds=3)} == {
         ("ma2c", "rule-prior"),
@@ -172,6 +173,33 @@ def test_second_invocation_skips_finished_trials_and_resumes_unfinished(tiny_ben
     attempts = json.loads((unfinished.parent / "trial.json").read_text())["attempts"]
     assert attempts[-1]["resumed_at_timesteps"] == final["timesteps"]
     assert json.loads(unfinished.read_text())["final_evaluation"] == final
+
+
+def test_a_curriculum_trial_starts_from_the_easier_densitys_model(local_ray, tmp_path):
+    """The curriculum's density-2 trial runs after density 1's (added to the grid), from its final
+    weights: its first evaluation is of a trained model, not of a fresh one."""
+    from sb3_marl.runs import find_run
+
+    grid = make_grid("curriculum", densities=(2,), seeds=1)
+    assert [spec.trial_id for spec in grid] == [
+        "ma2c_density2_merge_seed0",
+        "ma2c_density1_merge_seed0",  # added: the curriculum starts from it
+        "ma2c_density2_merge-curriculum_seed0",
+    ]
+    scratch, start, curriculum = grid
+    assert curriculum.starts_from == start and make_grid("curriculum", densities=(3,), seeds=1)[-1].starts_from == curriculum
+    outcome = run_benchmark("curriculum", tmp_path, budget=0.0003, seeds=1, densities=(2,), eval_every_episodes=1, verbose=0)
+    assert sorted(outcome.completed) == sorted(spec.trial_id for spec in grid) and not outcome.failed
+    started = json.loads((tmp_path / "trials" / curriculum.trial_id / "trial.json").read_text())["attempts"][0]["started"]
+    finished = (tmp_path / "trials" / start.trial_id / "result.json").stat().st_mtime
+    assert time.mktime(time.strptime(started, "%Y-%m-%dT%H:%M:%S")) >= int(finished)
+    models = [
+        find_run(tmp_path / "trials" / s.trial_id, "ma2c", s.env_id).load_model("cpu") for s in (start, curriculum, scratch)
+    ]
+    weights = [dict(m.policy.named_parameters()) for m in models]
+    # trained on from the start's weights: nearer to them than the trial trained from scratch
+    distance = [sum(float((w[k] - weights[0][k]).norm()) for k in weights[0]) for w in weights[1:]]
+    assert distance[0] < distance[1]
 
 
 def test_a_trial_whose_worker_dies_is_retried_from_its_checkpoint(local_ray, tmp_path):
