@@ -52,6 +52,10 @@ PAPER_FINDINGS = {
         "The merging paper's scenario (Chen et al. 2021): MADQN, MA2C, MAACKTR, MAPPO on the on-ramp merge",
         "its MA2C (with the supervisor and curriculum) 'consistently outperforms' the other learners",
     ),
+    "curriculum": (
+        "The merging paper's curriculum: MA2C at densities 2 and 3 from the easier density's model, on the merge",
+        "how its MA2C is trained; the gain over training from scratch is not in the sources this project reads",
+    ),
     "rule-prior": (
         "Beyond the paper: MA2C and MAPPO started from the IDM/MOBIL rule driver and regularised toward it",
         "not studied (the authors' learners start from scratch); IDM/MOBIL's own row is in the reference section",

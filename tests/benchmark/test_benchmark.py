@@ -66,6 +66,10 @@ def test_grids_hold_each_trial_once():
         "merge",
         "curriculum",
     }
+    from sb3_marl.benchmark.grid import EXPERIMENTS
+    from sb3_marl.benchmark.tables import PAPER_FINDINGS
+
+    assert set(PAPER_FINDINGS) == set(EXPERIMENTS)  # every experiment has its title in the report
     assert {(s.algo, s.variant) for s in make_grid("rule-prior", seeds=3)} == {
         ("ma2c", "rule-prior"),
         ("mappo", "rule-prior"),
