@@ -61,6 +61,9 @@ VARIANTS["rule-prior-sharpen"] = {**VARIANTS["rule-prior-dropout"], "ent_coef": 
 # the same with a two and four times stronger penalty: sampled actions closer to the greedy ones
 VARIANTS["rule-prior-sharpen-0.1"] = {**VARIANTS["rule-prior-dropout"], "ent_coef": -0.1}
 VARIANTS["rule-prior-sharpen-0.2"] = {**VARIANTS["rule-prior-dropout"], "ent_coef": -0.2}
+# the prior's weight falling to 0: where the learned argmax is not the rule action, a prior kept at a
+# floor holds probability on both against the penalty, and sampling picks the rule action's
+VARIANTS["rule-prior-sharpen-free"] = {**VARIANTS["rule-prior-sharpen-0.1"], "prior_coef_final": 0.0}
 # the on-ramp merge (sb3_marl/Merge-density<d>-v0) with its zoo config as it is
 VARIANTS["merge"] = {}
 # the merging paper's curriculum: density 2 starts from density 1's model, density 3 from density 2's
@@ -104,6 +107,7 @@ EXPERIMENTS: dict[str, dict[str, tuple[str, str]]] = {
         "MA2C, rule prior, supervisor dropout, entropy penalty": ("ma2c", "rule-prior-sharpen"),
         "MA2C, rule prior, supervisor dropout, entropy penalty 0.1": ("ma2c", "rule-prior-sharpen-0.1"),
         "MA2C, rule prior, supervisor dropout, entropy penalty 0.2": ("ma2c", "rule-prior-sharpen-0.2"),
+        "MA2C, rule prior falling to 0, supervisor dropout, entropy penalty 0.1": ("ma2c", "rule-prior-sharpen-free"),
     },
     # the merging paper's scenario (Chen et al. 2021, docs/merge.md): its four learners
     "merge": {
