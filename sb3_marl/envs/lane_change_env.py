@@ -9,23 +9,21 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 from highway_env.envs.common.abstract import AbstractEnv
-from highway_env.envs.common.action import DiscreteMetaAction
 from highway_env.envs.common.graphics import EnvViewer
 from highway_env.road.road import Road
 from highway_env.vehicle.controller import MDPVehicle
 
 from sb3_marl.envs import config as cfg
 from sb3_marl.envs import drivers, dynamics, kernel, lanes, meta_actions
+from sb3_marl.envs.meta_actions import ACTION_INDEX, ACTIONS
 from sb3_marl.envs.observation import observation_space, observe
 from sb3_marl.envs.reward import neighbour_matrix, reward_terms, total_reward
 from sb3_marl.envs.road import highway_lanes, make_road, spawn, vehicle_state
-from sb3_marl.envs.simulator import COMPILED, SIMULATORS, STOCK, capture, vehicle_objects
+from sb3_marl.envs.simulator import COMPILED, SIMULATORS, STOCK, capture, step_objects, vehicle_objects
 from sb3_marl.envs.supervisor import Supervisor
 from sb3_marl.envs.traffic import TrafficSnapshot
 
-#: Meta-action index -> label, highway-env's ``DiscreteMetaAction`` numbering.
-ACTIONS: dict[int, str] = dict(DiscreteMetaAction.ACTIONS_ALL)
-ACTION_INDEX: dict[str, int] = {label: index for index, label in ACTIONS.items()}
+__all__ = ["ACTIONS", "ACTION_INDEX", "LaneChangeEnv"]
 
 
 class LaneChangeEnv(AbstractEnv):
@@ -227,7 +225,7 @@ class LaneChangeEnv(AbstractEnv):
         if self.done:
             raise RuntimeError("The episode is over (terminated or truncated): call reset() before step().")
         n = self.n_avs
-        proposed = self._check_actions(action)
+        proposed = meta_actions.check_actions(action, n)
         actions, braking = proposed, np.zeros(n, dtype=bool)
         if self.config["safety_supervisor"]:
             actions, _, braking = self.supervisor(self.state, n, proposed, self.action_masks())
@@ -272,24 +270,17 @@ class LaneChangeEnv(AbstractEnv):
             )
             self.steps += frames
             return
-        road, road_length = self.road, self.horizon.road_end
-        for frame in range(frames):
-            if frame == 0:
-                for av, a, brake in zip(self.avs, actions, braking):
-                    av.act(ACTIONS[int(a)])
-                    if brake:
-                        av.target_speed = 0.0
-            road.act()
-            road.step(dt)
-            self.steps += 1
-            for av in road.vehicles[: self.n_avs]:  # past the road end: see the class docstring
-                av.collidable = av.collidable and av.position[0] <= road_length
-            road.vehicles = [v for k, v in enumerate(road.vehicles) if k < self.n_avs or v.position[0] <= road_length]
-            if frame < frames - 1:
-                self._automatic_rendering()
+        road = self.road
+        step_objects(road, [ACTIONS[int(a)] for a in actions], braking, frames, dt, self.horizon.road_end, self._frame)
         self.enable_auto_render = False
         self.state = capture(road.vehicles, road.network, road.objects)
         self._road_current = True  # the objects stepped are the state
+
+    def _frame(self, frame: int) -> None:
+        """After each simulated frame of the objects: draw the frames between policy steps."""
+        self.steps += 1
+        if frame < self.horizon.frames_per_step - 1:
+            self._automatic_rendering()
 
     def render(self) -> np.ndarray | None:
         """Render with highway-env's viewer; ``rgb_array`` frames are drawn offscreen, headless.
@@ -333,19 +324,6 @@ class LaneChangeEnv(AbstractEnv):
             float(config["hdv_lane_change_threshold"]),
             float(config["rule_acceleration_threshold"]),
         )
-
-    def _check_actions(self, action: Any) -> np.ndarray:
-        actions = np.asarray(action)
-        if actions.shape == () and self.n_avs == 1:
-            actions = actions.reshape(1)
-        if actions.shape != (self.n_avs,) or not np.issubdtype(actions.dtype, np.integer):
-            raise ValueError(
-                f"Invalid action {action!r}: expected an int array of shape ({self.n_avs},), "
-                f"one meta-action per AV, got dtype {actions.dtype} and shape {actions.shape}."
-            )
-        if not all(0 <= a < len(ACTIONS) for a in actions.tolist()):
-            raise ValueError(f"Invalid action {actions.tolist()}: each must be in {ACTIONS}.")
-        return actions
 
     def _observe_start(self) -> tuple[np.ndarray, dict[str, Any]]:
         """:meth:`_observe` of a new situation: no acceleration or lane change, no action yet (-1)."""

@@ -4,11 +4,33 @@ speed ladder, on the road's lane table (:mod:`sb3_marl.envs.lanes`). Units: m, m
 
 from __future__ import annotations
 
+from typing import Any
+
 import numba
 import numpy as np
+from highway_env.envs.common.action import DiscreteMetaAction
 
 from sb3_marl.envs.kernel import LANE, SPEED, TARGET_LANE, TARGET_SPEED, X, Y
 from sb3_marl.envs.lanes import LEFT, RIGHT, follow, reachable_from
+
+#: Meta-action index -> label, highway-env's ``DiscreteMetaAction`` numbering.
+ACTIONS: dict[int, str] = dict(DiscreteMetaAction.ACTIONS_ALL)
+ACTION_INDEX: dict[str, int] = {label: index for index, label in ACTIONS.items()}
+
+
+def check_actions(action: Any, n_avs: int) -> np.ndarray:
+    """``action`` as an int array (n_avs,) of meta-action indices, or a ValueError saying what is wrong."""
+    actions = np.asarray(action)
+    if actions.shape == () and n_avs == 1:
+        actions = actions.reshape(1)
+    if actions.shape != (n_avs,) or not np.issubdtype(actions.dtype, np.integer):
+        raise ValueError(
+            f"Invalid action {action!r}: expected an int array of shape ({n_avs},), "
+            f"one meta-action per AV, got dtype {actions.dtype} and shape {actions.shape}."
+        )
+    if not all(0 <= a < len(ACTIONS) for a in actions.tolist()):
+        raise ValueError(f"Invalid action {actions.tolist()}: each must be in {ACTIONS}.")
+    return actions
 
 
 @numba.njit(cache=True)

@@ -12,7 +12,7 @@ Units: positions in m, speeds in m/s, angles in rad, time in s.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -29,6 +29,33 @@ from sb3_marl.envs import kernel
 COMPILED, STOCK = "compiled", "stock"
 SIMULATORS = (COMPILED, STOCK)
 SEGMENT = ("start", "end")  # the highway's one road segment (RoadNetwork node names)
+
+
+def step_objects(
+    road: Road,
+    actions: Sequence[str],
+    braking: np.ndarray,
+    frames: int,
+    dt: float,
+    road_end: float,
+    on_frame: Callable[[int], None],
+) -> None:
+    """One policy step with highway-env's own classes: the first ``len(actions)`` vehicles of
+    ``road`` (the AVs) take their meta-actions (labels; target speed 0 m/s for those ``braking``),
+    then ``frames`` frames of ``dt`` s (``Road.act``, ``Road.step``), each followed by
+    ``on_frame(frame)``. Past ``road_end`` [m] HDVs are removed and AVs stop colliding."""
+    n_avs = len(actions)
+    for av, action, brake in zip(road.vehicles, actions, braking):
+        av.act(action)
+        if brake:
+            av.target_speed = 0.0
+    for frame in range(frames):
+        road.act()
+        road.step(dt)
+        for av in road.vehicles[:n_avs]:
+            av.collidable = av.collidable and av.position[0] <= road_end
+        road.vehicles = [v for k, v in enumerate(road.vehicles) if k < n_avs or v.position[0] <= road_end]
+        on_frame(frame)
 
 
 def capture(vehicles: list[Vehicle], network: RoadNetwork, objects: Sequence[RoadObject] = ()) -> np.ndarray:
