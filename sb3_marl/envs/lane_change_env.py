@@ -100,6 +100,7 @@ class LaneChangeEnv(AbstractEnv):
         """What the steps read from the config: the road and time grid, the safety supervisor."""
         self.supervisor = Supervisor.from_config(self.config, *self._road_data(), priorities=self._priorities())
         self.horizon = self.supervisor.horizon
+        self._n_avs = cfg.resolved_n_avs(self.config, self.scenario)
 
     def _priorities(self) -> Callable[[np.ndarray, int, Supervisor], np.ndarray] | None:
         """The supervisor's order of service (None: the headway margin's)."""
@@ -128,8 +129,8 @@ class LaneChangeEnv(AbstractEnv):
 
     @property
     def n_avs(self) -> int:
-        """Number of AVs controlled by this instance."""
-        return cfg.resolved_n_avs(self.config, self.scenario)
+        """Number of AVs controlled by this instance (the config's, as of the last reset or configure)."""
+        return self._n_avs
 
     @property
     def max_steps(self) -> int:

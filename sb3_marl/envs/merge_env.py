@@ -36,6 +36,8 @@ from sb3_marl.envs.traffic import TrafficSnapshot
 
 #: The ramp's lanes: the straight section, the converging section, the merging lane.
 RAMP_SIDE = (RAMP, CONVERGING, MERGING_LANE)
+#: Lane number -> whether it is on the ramp's side (a lookup instead of np.isin on every step).
+ON_RAMP_SIDE = np.isin(np.arange(max(RAMP_SIDE) + 1), RAMP_SIDE)
 #: Lanes whose vehicles ``surrounding_vehicles`` searches on each lane (MARL_CAVs' road.py): the
 #: lane and its neighbours along the route.
 ROUTE = np.zeros((6, 6), dtype=np.bool_)
@@ -127,16 +129,18 @@ class MergeEnv(LaneChangeEnv):
         ``stranded`` (vehicles at a standstill, under 1 m/s, on the merging lane)."""
         obs, info = super()._observe(acceleration, lane_change, proposed, executed, braking)
         state, n = self.state, self.n_avs
-        lane = state[:n, kernel.LANE]
+        on_ramp_side = ON_RAMP_SIDE[state[:n, kernel.LANE].astype(np.int64)]
         if self.steps == 0:  # a new situation (reset, place)
-            self._ramp_avs = np.isin(lane, RAMP_SIDE)
+            self._ramp_avs = on_ramp_side
             self._merge_time = np.full(n, np.nan)
-        merged = self._ramp_avs & np.isnan(self._merge_time) & ~np.isin(lane, RAMP_SIDE)
+        merged = self._ramp_avs & np.isnan(self._merge_time) & ~on_ramp_side
         self._merge_time[merged] = self.steps_done / self.config["policy_frequency"]
-        vehicles = state[state[:, kernel.IS_OBSTACLE] == 0]
         info["ramp_av"] = self._ramp_avs.copy()
         info["merge_time"] = self._merge_time.copy()
-        info["stranded"] = int(((vehicles[:, kernel.LANE] == MERGING_LANE) & (vehicles[:, kernel.SPEED] < 1.0)).sum())
+        stranded = (
+            (state[:, kernel.LANE] == MERGING_LANE) & (state[:, kernel.SPEED] < 1.0) & (state[:, kernel.IS_OBSTACLE] == 0)
+        )
+        info["stranded"] = int(np.count_nonzero(stranded))
         return obs, info
 
 
