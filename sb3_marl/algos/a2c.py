@@ -26,7 +26,7 @@ class MaskableA2C(MaskableActorCritic):
     :param safety_loss_coef: weight of the safety supervisor's teaching loss (:class:`SupervisorTeacher`; 0: off)
     :param prior: ``idm-mobil``: start from the rule driver and regularise toward it
         (:mod:`sb3_marl.algos.rule_prior`, with ``prior_warm_start``, ``prior_coef``,
-        ``prior_coef_final``, ``prior_decay_steps``, ``prior_smoothing``); None: off
+        ``prior_coef_final``, ``prior_decay_steps``, ``prior_smoothing``, ``prior_form``); None: off
     :param per_agent_updates: one optimiser step per AV slot on that slot's ``n_steps`` transitions
         (the authors' cadence: as many steps per rollout as slots; each later step's loss is the
         unclipped importance-weighted policy gradient, its ratio stays close to 1) instead of
@@ -58,6 +58,7 @@ class MaskableA2C(MaskableActorCritic):
         prior_coef_final: float = 0.0,
         prior_decay_steps: int = 1,
         prior_smoothing: float = 0.0,
+        prior_form: str = "cross-entropy",
         rollout_buffer_class: type[RolloutBuffer] | None = None,
         rollout_buffer_kwargs: dict[str, Any] | None = None,
         stats_window_size: int = 100,
@@ -104,6 +105,7 @@ class MaskableA2C(MaskableActorCritic):
             prior_coef_final=prior_coef_final,
             prior_decay_steps=prior_decay_steps,
             prior_smoothing=prior_smoothing,
+            prior_form=prior_form,
         )
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = ACTOR_CRITIC_POLICIES

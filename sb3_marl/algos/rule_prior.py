@@ -18,6 +18,10 @@ A learner with a :class:`RulePrior`:
 ``prior_loss`` is the cross-entropy to the rule action smoothed by ``smoothing`` over the
 available actions: up to a constant it is KL(π_rule ‖ π) with π_rule = (1 - ε) one-hot + ε
 uniform; it is logged as that KL (``train/prior_kl``) with its weight (``train/prior_coef``).
+With ``form: agreement`` the fine-tuning's term is instead the expected disagreement with the
+rule driver, 1 - Σ π_rule(a) π(a): its pull toward the rule action fades where the policy has
+committed to another action, so it does not hold probability on both (the cross-entropy's pull
+grows there); the warm start fits the cross-entropy either way.
 Timesteps count AV-steps (SB3's ``num_timesteps`` on the parameter-sharing VecEnv), the warm
 start's included.
 """
@@ -43,6 +47,8 @@ else:
 
 #: Rule drivers a learner can start from: the scenario's IDM/MOBIL decision.
 PRIORS = ("idm-mobil",)
+#: The fine-tuning's prior term: the cross-entropy to the rule action, or the expected disagreement.
+PRIOR_FORMS = ("cross-entropy", "agreement")
 #: DAgger rounds of the warm start (β = 0.5 ** round; round 0 is the rule driver alone).
 DAGGER_ITERATIONS = 8
 #: Passes over the gathered states after each DAgger round, minibatch size and Adam's step size.
@@ -55,7 +61,7 @@ DAGGER_EVAL_EPISODES, DAGGER_EVAL_SEED = 12, 20_000
 @dataclass(frozen=True)
 class RulePrior:
     """A learner's rule prior (the hyperparameters ``prior``, ``prior_warm_start``, ``prior_coef``,
-    ``prior_coef_final``, ``prior_decay_steps``, ``prior_smoothing``).
+    ``prior_coef_final``, ``prior_decay_steps``, ``prior_smoothing``, ``prior_form``).
 
     :param name: the rule driver (one of :data:`PRIORS`), None: off
     :param warm_start: AV-steps of the DAgger warm start (0: none)
@@ -64,6 +70,7 @@ class RulePrior:
     :param decay_steps: AV-steps over which the weight falls linearly from ``coef`` to ``coef_final``
     :param smoothing: ε of the smoothed rule action, in [0, 1) (0: the rule action itself; the loss
         is then -log π(rule action | s))
+    :param form: the fine-tuning's term, one of :data:`PRIOR_FORMS` (see the module doc)
     """
 
     name: str | None = None
@@ -72,6 +79,7 @@ class RulePrior:
     coef_final: float = 0.0
     decay_steps: int = 1
     smoothing: float = 0.0
+    form: str = "cross-entropy"
 
     @classmethod
     def from_kwargs(cls, kwargs: dict[str, Any]) -> RulePrior:
@@ -86,6 +94,8 @@ class RulePrior:
         check_number("prior_coef", self.coef, 0)
         check_number("prior_coef_final", self.coef_final, 0)
         check_number("prior_smoothing", self.smoothing, 0, 1, high_open=True, expected="a number in [0, 1)")
+        if self.form not in PRIOR_FORMS:
+            raise invalid("prior_form", self.form, f"one of {list(PRIOR_FORMS)}")
 
     @property
     def active(self) -> bool:
@@ -112,18 +122,22 @@ def smoothed_targets(labels: th.Tensor, smoothing: float, available: th.Tensor) 
 
 
 def prior_loss(
-    logits: th.Tensor, labels: th.Tensor, smoothing: float, masks: th.Tensor | None = None
+    logits: th.Tensor, labels: th.Tensor, smoothing: float, masks: th.Tensor | None = None, form: str = "cross-entropy"
 ) -> tuple[th.Tensor, th.Tensor]:
-    """(mean cross-entropy, mean KL(π_rule ‖ π) without gradient) of the policy's ``logits``
-    (batch, actions) to the rule actions ``labels`` smoothed by ``smoothing`` over the available
-    actions (``masks``, bool; None: all)."""
+    """(mean loss, mean KL(π_rule ‖ π) without gradient) of the policy's ``logits`` (batch,
+    actions) to the rule actions ``labels`` smoothed by ``smoothing`` over the available actions
+    (``masks``, bool; None: all); the loss is the cross-entropy, or with ``form`` ``agreement``
+    the expected disagreement 1 - Σ π_rule(a) π(a)."""
     available = th.ones_like(logits, dtype=th.bool) if masks is None else masks.bool()
     target = smoothed_targets(labels, smoothing, available)
     log_probs = F.log_softmax(logits.masked_fill(~available, -1e8), dim=1)
     cross_entropy = -(target * log_probs).sum(dim=1).mean()
     with th.no_grad():
         entropy = -(target * th.log(target.clamp(min=1e-12))).sum(dim=1).mean()
-    return cross_entropy, cross_entropy.detach() - entropy
+    kl = cross_entropy.detach() - entropy
+    if form == "agreement":
+        return 1 - (target * log_probs.exp()).sum(dim=1).mean(), kl
+    return cross_entropy, kl
 
 
 def masked_logits(policy: Any, observations: Any, action_masks: Any) -> th.Tensor:
@@ -287,7 +301,7 @@ def _fit(
 
 class RulePriorLearner(_OnPolicyHost):
     """The rule prior of an on-policy actor-critic (``prior``, ``prior_warm_start``, ``prior_coef``,
-    ``prior_coef_final``, ``prior_decay_steps``, ``prior_smoothing``; :mod:`sb3_marl.algos.rule_prior`):
+    ``prior_coef_final``, ``prior_decay_steps``, ``prior_smoothing``, ``prior_form``; :mod:`sb3_marl.algos.rule_prior`):
     the DAgger warm start when learning starts, the rule driver's labels of each rollout, and the
     prior's term of the loss. The values are saved with the model (plain attributes)."""
 
@@ -298,6 +312,7 @@ class RulePriorLearner(_OnPolicyHost):
     prior_coef_final: float
     prior_decay_steps: int
     prior_smoothing: float
+    prior_form: str
     _rule_labels: np.ndarray | None = None
 
     def __init__(
@@ -309,9 +324,12 @@ class RulePriorLearner(_OnPolicyHost):
         prior_coef_final: float = 0.0,
         prior_decay_steps: int = 1,
         prior_smoothing: float = 0.0,
+        prior_form: str = "cross-entropy",
         **kwargs: Any,
     ) -> None:
-        settings = RulePrior(prior, prior_warm_start, prior_coef, prior_coef_final, prior_decay_steps, prior_smoothing)
+        settings = RulePrior(
+            prior, prior_warm_start, prior_coef, prior_coef_final, prior_decay_steps, prior_smoothing, prior_form
+        )
         self.__dict__.update(settings.as_kwargs())
         super().__init__(*args, **kwargs)
 
@@ -348,7 +366,8 @@ class RulePriorLearner(_OnPolicyHost):
             return 0.0
         policy: Any = self.policy
         labels = th.as_tensor(self._rule_labels.swapaxes(0, 1).reshape(-1)[indices], device=policy.device)
-        loss, kl = prior_loss(masked_logits(policy, observations, action_masks), labels, self.prior_smoothing, action_masks)
+        logits = masked_logits(policy, observations, action_masks)
+        loss, kl = prior_loss(logits, labels, self.prior_smoothing, action_masks, self.prior_form)
         logs["prior_loss"].append(loss.item())
         logs["prior_kl"].append(kl.item())
         logs["prior_coef"].append(weight)

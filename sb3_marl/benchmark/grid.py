@@ -64,6 +64,9 @@ VARIANTS["rule-prior-sharpen-0.2"] = {**VARIANTS["rule-prior-dropout"], "ent_coe
 # the prior's weight falling to 0: where the learned argmax is not the rule action, a prior kept at a
 # floor holds probability on both against the penalty, and sampling picks the rule action's
 VARIANTS["rule-prior-sharpen-free"] = {**VARIANTS["rule-prior-sharpen-0.1"], "prior_coef_final": 0.0}
+# the prior kept, as the expected disagreement instead of the cross-entropy: it lets go where the
+# policy has committed to another action instead of holding probability on both
+VARIANTS["rule-prior-agreement"] = {**VARIANTS["rule-prior-sharpen-0.1"], "prior_form": "agreement"}
 # the on-ramp merge (sb3_marl/Merge-density<d>-v0) with its zoo config as it is
 VARIANTS["merge"] = {}
 # the merging paper's curriculum: density 2 starts from density 1's model, density 3 from density 2's
@@ -108,6 +111,7 @@ EXPERIMENTS: dict[str, dict[str, tuple[str, str]]] = {
         "MA2C, rule prior, supervisor dropout, entropy penalty 0.1": ("ma2c", "rule-prior-sharpen-0.1"),
         "MA2C, rule prior, supervisor dropout, entropy penalty 0.2": ("ma2c", "rule-prior-sharpen-0.2"),
         "MA2C, rule prior falling to 0, supervisor dropout, entropy penalty 0.1": ("ma2c", "rule-prior-sharpen-free"),
+        "MA2C, rule prior as disagreement, supervisor dropout, entropy penalty 0.1": ("ma2c", "rule-prior-agreement"),
     },
     # the merging paper's scenario (Chen et al. 2021, docs/merge.md): its four learners
     "merge": {

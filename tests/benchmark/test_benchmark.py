@@ -80,6 +80,7 @@ def test_grids_hold_each_trial_once():
         ("ma2c", "rule-prior-sharpen-0.1"),
         ("ma2c", "rule-prior-sharpen-0.2"),
         ("ma2c", "rule-prior-sharpen-free"),
+        ("ma2c", "rule-prior-agreement"),
     }
     merge = make_grid("merge", densities=(2,), seeds=1)
     assert [spec.env_id for spec in merge] == ["sb3_marl/Merge-density2-v0"] * 4

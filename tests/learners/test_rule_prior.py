@@ -48,6 +48,20 @@ def test_the_prior_loss_raises_the_rule_action_and_vanishes_at_zero_weight():
         assert (after > before).all()
 
 
+def test_the_agreement_form_lets_go_where_the_policy_has_committed_elsewhere():
+    """Both forms raise the rule action's probability; where the policy puts 1 % on it, the
+    cross-entropy pulls it back hard (gradient ~ -1 on its logit), the expected disagreement hardly
+    (~ -0.01): the policy may keep its own argmax without holding mass on both."""
+    labels = th.tensor([0, 0])
+    for form, pull in (("cross-entropy", 0.9), ("agreement", 0.02)):
+        logits = th.tensor([[0.0, 0.0, 0.0, 0.0, 0.0], [-4.6, 0.0, -9.0, -9.0, -9.0]], requires_grad=True)
+        loss, _ = prior_loss(logits, labels, 0.0, None, form)
+        loss.backward()
+        rule_gradient = logits.grad[:, 0] * 2  # the loss is a mean over the batch of 2
+        assert (rule_gradient < 0).all()  # a gradient step raises the rule action's logit
+        assert abs(rule_gradient[1].item()) > pull if form == "cross-entropy" else abs(rule_gradient[1].item()) < pull
+
+
 def test_the_weight_falls_linearly_after_the_warm_start():
     prior = RulePrior("idm-mobil", warm_start=100, coef=1.0, coef_final=0.2, decay_steps=400)
     assert [prior.weight(t) for t in (0, 100, 300, 500, 10_000)] == pytest.approx([1.0, 1.0, 0.6, 0.2, 0.2])
@@ -72,7 +86,14 @@ def test_a_short_dagger_warm_start_raises_agreement_with_the_rule_driver():
 def test_each_actor_critic_trains_with_the_prior_and_keeps_it_when_saved(algo, tmp_path):
     """A short run with the recipe on (warm start, then the regularised loss, logged), and the
     prior's settings back after save / load."""
-    settings = {**PRIOR, "prior_warm_start": 1200, "n_steps": 20, "env_config": {"safety_supervisor": True}}
+    form = {"ma2c": "agreement"}.get(algo, "cross-entropy")
+    settings = {
+        **PRIOR,
+        "prior_warm_start": 1200,
+        "prior_form": form,
+        "n_steps": 20,
+        "env_config": {"safety_supervisor": True},
+    }
     if algo == "mappo":
         settings.update(batch_size=60, n_epochs=2)
     venv = make_venv(ENV, settings, seed=1)
@@ -84,7 +105,7 @@ def test_each_actor_critic_trains_with_the_prior_and_keeps_it_when_saved(algo, t
     assert all(0.1 < coef <= 1.0 for coef in dumps.values("train/prior_coef")) and dumps.values("train/prior_kl")
     model.save(tmp_path / "model.zip")
     loaded = get_algo(algo).load(tmp_path / "model.zip")
-    assert loaded.rule_prior == model.rule_prior == RulePrior("idm-mobil", 1200, 1.0, 0.1, 1000, 0.0)
+    assert loaded.rule_prior == model.rule_prior == RulePrior("idm-mobil", 1200, 1.0, 0.1, 1000, 0.0, form)
 
 
 @pytest.mark.parametrize(
@@ -96,6 +117,7 @@ def test_each_actor_critic_trains_with_the_prior_and_keeps_it_when_saved(algo, t
         ("mappo", "prior_coef:'high'", "Invalid prior_coef='high': expected a finite number >= 0"),
         ("ma2c", "prior_decay_steps:0", "Invalid prior_decay_steps=0: expected an integer >= 1"),
         ("maacktr", "prior_smoothing:1.0", "Invalid prior_smoothing=1.0: expected a number in [0, 1)"),
+        ("ma2c", "prior_form:'kl'", "Invalid prior_form='kl': expected one of ['cross-entropy', 'agreement']"),
         ("madqn", "prior:'idm-mobil'", "Unknown hyperparameter(s) ['prior'] for 'madqn'"),
     ],
 )
