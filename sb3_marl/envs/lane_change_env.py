@@ -258,16 +258,9 @@ class LaneChangeEnv(AbstractEnv):
         state array after."""
         frames, dt = self.horizon.frames_per_step, self.horizon.dt
         if not self._uses_objects():
+            h = self.horizon
             self.state = dynamics.policy_step(
-                self.state,
-                actions,
-                frames,
-                dt,
-                self.horizon.lanes,
-                self.horizon.road_end,
-                self.horizon.speed_limit,
-                self.horizon.ladder,
-                braking,
+                self.state, actions, frames, dt, h.lanes, h.road_end, h.speed_limit, h.ladder, braking
             )
             self.steps += frames
             return
@@ -379,8 +372,12 @@ class LaneChangeEnv(AbstractEnv):
             "n_hdvs": self.n_hdvs,
             "step": self.steps_done,
         }
+        self._scenario_info(info)
         target_speeds = state[:n, kernel.TARGET_SPEED].copy() if self.config["obs_target_speed"] else None
         return observe(snapshot, self.config, self.road_length, target_speeds), info
+
+    def _scenario_info(self, info: dict[str, Any]) -> None:
+        """Add the scenario's own entries to a step's ``info`` (none on the lane change)."""
 
     def _reward_terms(
         self, snapshot: TrafficSnapshot, crashed: np.ndarray, acceleration: np.ndarray, lane_change: np.ndarray

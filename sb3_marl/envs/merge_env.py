@@ -116,18 +116,10 @@ class MergeEnv(LaneChangeEnv):
     def _neighbour_sets(self, snapshot: TrafficSnapshot) -> np.ndarray:
         return regional_neighbours(self.state, self.n_avs)
 
-    def _observe(
-        self,
-        acceleration: np.ndarray,
-        lane_change: np.ndarray,
-        proposed: np.ndarray,
-        executed: np.ndarray | None = None,
-        braking: np.ndarray | None = None,
-    ) -> tuple[np.ndarray, dict[str, Any]]:
-        """The lane change's observation and info, plus the merge's: ``ramp_av`` (the AV started on
-        the ramp), ``merge_time`` [s] (when a ramp AV reached the main road; NaN: not yet) and
-        ``stranded`` (vehicles at a standstill, under 1 m/s, on the merging lane)."""
-        obs, info = super()._observe(acceleration, lane_change, proposed, executed, braking)
+    def _scenario_info(self, info: dict[str, Any]) -> None:
+        """The merge's info: ``ramp_av`` (the AV started on the ramp), ``merge_time`` [s] (when a
+        ramp AV reached the main road; NaN: not yet) and ``stranded`` (vehicles at a standstill,
+        under 1 m/s, on the merging lane)."""
         state, n = self.state, self.n_avs
         on_ramp_side = ON_RAMP_SIDE[state[:n, kernel.LANE].astype(np.int64)]
         if self.steps == 0:  # a new situation (reset, place)
@@ -141,7 +133,6 @@ class MergeEnv(LaneChangeEnv):
             (state[:, kernel.LANE] == MERGING_LANE) & (state[:, kernel.SPEED] < 1.0) & (state[:, kernel.IS_OBSTACLE] == 0)
         )
         info["stranded"] = int(np.count_nonzero(stranded))
-        return obs, info
 
 
 def merge_priorities(state: np.ndarray, n_avs: int, supervisor: Supervisor) -> np.ndarray:
