@@ -121,7 +121,6 @@ def run_benchmark(
         # of those whose start has finished; a wave left unfinished (Ctrl-C) ends the run
         for wave in itertools.count():
             ready = [spec for spec in todo if spec.trial_id not in errors and _ready(log_folder, spec)]
-            ready = [spec for spec in ready if not (trial_folder(log_folder, spec) / RESULT).is_file()]
             if not ready:
                 break
             results = _tuner(grid, wave, ready, log_folder, settings, max_concurrent, max_failures, verbose).fit()
@@ -145,8 +144,12 @@ def run_benchmark(
 
 
 def _ready(log_folder: Path, spec: TrialSpec) -> bool:
-    """Whether ``spec`` can start: it starts from no trial, or from one that has finished."""
-    return spec.starts_from is None or (trial_folder(log_folder, spec.starts_from) / RESULT).is_file()
+    """Whether ``spec`` is to run now: unfinished, and it starts from no trial or from a finished one."""
+
+    def finished(trial: TrialSpec) -> bool:
+        return (trial_folder(log_folder, trial) / RESULT).is_file()
+
+    return not finished(spec) and (spec.starts_from is None or finished(spec.starts_from))
 
 
 def _import_ray() -> Any:
