@@ -202,15 +202,24 @@ TABLE_COLUMNS: tuple[tuple[str, Callable[[dict[str, float]], str]], ...] = (
     ("supervisor interventions", lambda s: f"{s.get('intervention_rate', 0.0):.3f}"),
     ("steps/ep", lambda s: f"{s['length_mean']:.1f}"),
 )
+#: The merge's columns, where every row has them (:func:`_merge_metrics`).
+MERGE_COLUMNS: tuple[tuple[str, Callable[[dict[str, float]], str]], ...] = (
+    ("ramp AVs merged", lambda s: f"{s['merge_rate']:.3f}"),
+    ("time to merge [s]", lambda s: f"{s['time_to_merge_mean']:.2f}"),
+    ("stranded/ep", lambda s: f"{s['stranded_per_episode']:.2f}"),
+)
 
 
 def markdown_table(rows: list[tuple[dict[str, Any], dict[str, float]]]) -> str:
-    """A markdown table: per row, its label columns (e.g. ``{"policy": "random"}``) then the metrics."""
+    """A markdown table: per row, its label columns (e.g. ``{"policy": "random"}``) then the metrics
+    (the merge's too where every row has them)."""
     labels = list(rows[0][0]) if rows else []
-    titles = [*labels, *(title for title, _ in TABLE_COLUMNS)]
+    merge = bool(rows) and all("merge_rate" in summary for _, summary in rows)
+    columns = TABLE_COLUMNS + (MERGE_COLUMNS if merge else ())
+    titles = [*labels, *(title for title, _ in columns)]
     lines = ["| " + " | ".join(titles) + " |", "|" + "---|" * len(titles)]
     for label, summary in rows:
-        cells = [str(label[key]) for key in labels] + [fmt(summary) for _, fmt in TABLE_COLUMNS]
+        cells = [str(label[key]) for key in labels] + [fmt(summary) for _, fmt in columns]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 

@@ -316,7 +316,9 @@ def test_baselines_table(tmp_path, capsys):
     assert main(["baselines", "--episodes", "1", "--out", str(out)]) == 0
     rows = json.loads(out.with_suffix(".json").read_text())
     assert [(r["policy"], r["n_avs"]) for r in rows] == [(p, n) for p in ("random", "cruise", "idm-mobil") for n in (1, 2, 3)]
-    assert "| idm-mobil | 3 |" in out.read_text()
+    assert "| idm-mobil | 3 |" in out.read_text() and "ramp AVs merged" not in out.read_text()
+    assert main(["baselines", "--scenario", "merge", "--episodes", "1", "--out", str(out)]) == 0
+    assert "| ramp AVs merged | time to merge [s] | stranded/ep |" in out.read_text()
 
 
 def test_two_trainings_started_together_get_their_own_run_folders(tmp_path):
