@@ -100,7 +100,7 @@ def run_benchmark(
     check_settings(log_folder, settings)
 
     outcome = BenchmarkRun()
-    todo = [spec for spec in trials if not (trial_folder(log_folder, spec) / RESULT).is_file()]
+    todo = [spec for spec in trials if not _finished(log_folder, spec)]
     outcome.skipped = [spec.trial_id for spec in trials if spec not in todo]
     if verbose:
         print(
@@ -125,14 +125,14 @@ def run_benchmark(
                 break
             results = _tuner(grid, wave, ready, log_folder, settings, max_concurrent, max_failures, verbose).fit()
             errors.update({TrialSpec(**r.config["spec"]).trial_id: r.error for r in results if r.error is not None})
-            if any(not (trial_folder(log_folder, spec) / RESULT).is_file() and spec.trial_id not in errors for spec in ready):
+            if any(not _finished(log_folder, spec) and spec.trial_id not in errors for spec in ready):
                 break
     finally:
         if started_ray:
             ray.shutdown()
     outcome.wall_time_s = time.perf_counter() - start
     for spec in todo:
-        if (trial_folder(log_folder, spec) / RESULT).is_file():
+        if _finished(log_folder, spec):
             outcome.completed.append(spec.trial_id)
         elif spec.trial_id in errors:
             outcome.failed[spec.trial_id] = f"{type(errors[spec.trial_id]).__name__}: {errors[spec.trial_id]}"
@@ -143,13 +143,14 @@ def run_benchmark(
     return outcome
 
 
+def _finished(log_folder: Path, spec: TrialSpec) -> bool:
+    """Whether the trial ``spec`` has finished in ``log_folder`` (its ``result.json``)."""
+    return (trial_folder(log_folder, spec) / RESULT).is_file()
+
+
 def _ready(log_folder: Path, spec: TrialSpec) -> bool:
     """Whether ``spec`` is to run now: unfinished, and it starts from no trial or from a finished one."""
-
-    def finished(trial: TrialSpec) -> bool:
-        return (trial_folder(log_folder, trial) / RESULT).is_file()
-
-    return not finished(spec) and (spec.starts_from is None or finished(spec.starts_from))
+    return not _finished(log_folder, spec) and (spec.starts_from is None or _finished(log_folder, spec.starts_from))
 
 
 def _import_ray() -> Any:

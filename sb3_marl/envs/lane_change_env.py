@@ -256,16 +256,16 @@ class LaneChangeEnv(AbstractEnv):
         the frames of one policy step: compiled on the state array, or with highway-env's
         ``Road.act`` / ``Road.step`` frame by frame (the frames in between drawn), captured into the
         state array after."""
-        frames, dt = self.horizon.frames_per_step, self.horizon.dt
+        h = self.horizon
+        frames, dt = h.frames_per_step, h.dt
         if not self._uses_objects():
-            h = self.horizon
             self.state = dynamics.policy_step(
                 self.state, actions, frames, dt, h.lanes, h.road_end, h.speed_limit, h.ladder, braking
             )
             self.steps += frames
             return
         road = self.road
-        step_objects(road, [ACTIONS[int(a)] for a in actions], braking, frames, dt, self.horizon.road_end, self._frame)
+        step_objects(road, [ACTIONS[int(a)] for a in actions], braking, frames, dt, h.road_end, self._frame)
         self.enable_auto_render = False
         self.state = capture(road.vehicles, road.network, road.objects)
         self._road_current = True  # the objects stepped are the state
