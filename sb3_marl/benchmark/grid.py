@@ -67,6 +67,9 @@ VARIANTS["rule-prior-sharpen-free"] = {**VARIANTS["rule-prior-sharpen-0.1"], "pr
 # the prior kept, as the expected disagreement instead of the cross-entropy: it lets go where the
 # policy has committed to another action instead of holding probability on both
 VARIANTS["rule-prior-agreement"] = {**VARIANTS["rule-prior-sharpen-0.1"], "prior_form": "agreement"}
+# the same with the prior's floor at 0.5: a stronger pull toward the rule action where the policy still
+# gives it probability
+VARIANTS["rule-prior-agreement-0.5"] = {**VARIANTS["rule-prior-agreement"], "prior_coef_final": 0.5}
 # the on-ramp merge (sb3_marl/Merge-density<d>-v0) with its zoo config as it is
 VARIANTS["merge"] = {}
 # the merging paper's curriculum: density 2 starts from density 1's model, density 3 from density 2's
@@ -112,6 +115,10 @@ EXPERIMENTS: dict[str, dict[str, tuple[str, str]]] = {
         "MA2C, rule prior, supervisor dropout, entropy penalty 0.2": ("ma2c", "rule-prior-sharpen-0.2"),
         "MA2C, rule prior falling to 0, supervisor dropout, entropy penalty 0.1": ("ma2c", "rule-prior-sharpen-free"),
         "MA2C, rule prior as disagreement, supervisor dropout, entropy penalty 0.1": ("ma2c", "rule-prior-agreement"),
+        "MA2C, rule prior as disagreement (floor 0.5), supervisor dropout, entropy penalty 0.1": (
+            "ma2c",
+            "rule-prior-agreement-0.5",
+        ),
     },
     # the merging paper's scenario (Chen et al. 2021, docs/merge.md): its four learners
     "merge": {
