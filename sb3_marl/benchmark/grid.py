@@ -70,6 +70,13 @@ VARIANTS["rule-prior-agreement"] = {**VARIANTS["rule-prior-sharpen-0.1"], "prior
 # the same with the prior's floor at 0.5: a stronger pull toward the rule action where the policy still
 # gives it probability
 VARIANTS["rule-prior-agreement-0.5"] = {**VARIANTS["rule-prior-agreement"], "prior_coef_final": 0.5}
+# the disagreement prior with the safety supervisor in shadow in the episodes run without it and a
+# 4x intervention penalty: every unsafe proposal costs, supervised or not (docs/safety.md)
+VARIANTS["rule-prior-agreement-shadow"] = {
+    **VARIANTS["rule-prior-agreement"],
+    "env_config": {"supervisor_shadow": True},
+    "intervention_penalty": 20.0,
+}
 # the on-ramp merge (sb3_marl/Merge-density<d>-v0) with its zoo config as it is
 VARIANTS["merge"] = {}
 # the merging paper's curriculum: density 2 starts from density 1's model, density 3 from density 2's
@@ -118,6 +125,10 @@ EXPERIMENTS: dict[str, dict[str, tuple[str, str]]] = {
         "MA2C, rule prior as disagreement (floor 0.5), supervisor dropout, entropy penalty 0.1": (
             "ma2c",
             "rule-prior-agreement-0.5",
+        ),
+        "MA2C, rule prior as disagreement, supervisor dropout and shadow, penalty 20, entropy penalty 0.1": (
+            "ma2c",
+            "rule-prior-agreement-shadow",
         ),
     },
     # the merging paper's scenario (Chen et al. 2021, docs/merge.md): its four learners

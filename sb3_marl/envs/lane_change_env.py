@@ -38,7 +38,9 @@ class LaneChangeEnv(AbstractEnv):
       the observations, the mean AV reward (the global reward, a scalar for gymnasium),
       ``terminated``, ``truncated`` and an info dict of per-AV arrays (see :meth:`_info`).
     - With ``safety_supervisor``, the proposed actions pass the priority-based safety supervisor
-      (:mod:`sb3_marl.envs.supervisor`) first, which replaces those predicted to collide.
+      (:mod:`sb3_marl.envs.supervisor`) first, which replaces those predicted to collide; with
+      ``supervisor_shadow`` and the supervisor off, it only reports where it would have
+      (``info["intervened"]``).
     - The episode terminates for all AVs as soon as any AV crashes. It is truncated after
       ``duration * policy_frequency`` steps (100 by default).
 
@@ -227,9 +229,12 @@ class LaneChangeEnv(AbstractEnv):
             raise RuntimeError("The episode is over (terminated or truncated): call reset() before step().")
         n = self.n_avs
         proposed = meta_actions.check_actions(action, n)
-        actions, braking = proposed, np.zeros(n, dtype=bool)
+        actions, braking, shadow = proposed, np.zeros(n, dtype=bool), None
         if self.config["safety_supervisor"]:
             actions, _, braking = self.supervisor(self.state, n, proposed, self.action_masks())
+        elif self.config["supervisor_shadow"]:
+            supervised, _, would_brake = self.supervisor(self.state, n, proposed, self.action_masks())
+            shadow = (supervised != proposed) | would_brake
         speed_before = self.state[:n, kernel.SPEED].copy()
         targets_before = self.state[:n, kernel.TARGET_LANE].copy()
 
@@ -240,6 +245,8 @@ class LaneChangeEnv(AbstractEnv):
         acceleration = (state[:n, kernel.SPEED] - speed_before) * self.config["policy_frequency"]
         changed = lanes.lane_changes(self.horizon.lanes, targets_before, state)
         obs, info = self._observe(acceleration, changed, proposed, actions, braking)
+        if shadow is not None:
+            info["intervened"] = shadow
         terminated = bool(info["crashed"].any())
         truncated = not terminated and (self.steps_done >= self.max_steps or bool(info["exited"].all()))
         self.done = terminated or truncated
@@ -340,7 +347,8 @@ class LaneChangeEnv(AbstractEnv):
         ``lane_change``, ``exited`` (past the road end), ``action_mask`` ((n_avs, 5) bool, for
         the next step), ``proposed_action`` (the policy's), ``executed_action`` (after the safety
         supervisor; both -1 after a reset), ``emergency_brake`` (the supervisor braked the AV to a
-        stop), ``intervened`` (the supervisor replaced the action or braked),
+        stop), ``intervened`` (the supervisor replaced the action or braked; with
+        ``supervisor_shadow`` and the supervisor off: would have),
         ``rule_action`` (the rule driver's meta-action in the new state, :meth:`rule_actions`),
         and the scalars ``n_avs``, ``n_hdvs``, ``step``.
         """

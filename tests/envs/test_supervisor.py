@@ -45,6 +45,25 @@ def test_the_same_situation_without_supervisor_crashes():
     assert crashed
 
 
+def test_the_shadow_supervisor_reports_where_it_would_intervene_and_applies_nothing():
+    runs = {}
+    for shadow in (False, True):
+        env = supervised_env(safety_supervisor=False, supervisor_shadow=shadow)
+        env.place(avs=[(100.0, 0, 25.0)], hdvs=[(115.0, 0, 15.0)])
+        steps = []
+        for _ in range(10):
+            obs, reward, crashed, _, info = env.step(np.array([FASTER]))
+            steps.append((obs, reward, bool(info["intervened"][0]), info["executed_action"].tolist()))
+            if crashed:
+                break
+        runs[shadow] = steps, crashed
+    (plain, plain_crashed), (shadowed, shadow_crashed) = runs[False], runs[True]
+    assert plain_crashed and shadow_crashed and len(plain) == len(shadowed)
+    for (obs, reward, _, executed), (shadow_obs, shadow_reward, _, shadow_executed) in zip(plain, shadowed, strict=True):
+        assert np.array_equal(obs, shadow_obs) and reward == shadow_reward and executed == shadow_executed == [FASTER]
+    assert not any(step[2] for step in plain) and shadowed[0][2]  # the supervisor would have replaced FASTER
+
+
 @pytest.mark.parametrize("action", ["FASTER", "IDLE", "SLOWER", "LANE_LEFT"])
 def test_safe_actions_are_left_alone(action):
     env = supervised_env()
@@ -167,6 +186,7 @@ def test_supervised_episodes_are_reproducible():
         ("supervisor_min_gap", -1.0),
         ("supervisor_min_gap", float("inf")),
         ("supervisor_repeat_actions", 1),
+        ("supervisor_shadow", "yes"),
     ],
 )
 def test_bad_supervisor_keys_name_the_key(key, value):
