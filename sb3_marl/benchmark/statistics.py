@@ -3,6 +3,7 @@ the final evaluation over seeds of every curve, and the hand-written reference p
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -150,7 +151,8 @@ def curve_summaries(trials: list[TrialLog]) -> dict[tuple[str, str, int], dict[s
 def reference_summaries(trials: list[TrialLog], log_folder: str | Path, seed: int) -> dict[tuple[str, int], dict[str, Any]]:
     """Each hand-written policy of :data:`sb3_marl.baselines.BASELINES`, keyed by (name, density), on
     the final evaluation's episodes (seeds ``seed ..``, the same AV counts) at each density with a
-    finished default MA2C trial, in that trial's scenario config (the zoo's: safety supervisor on).
+    finished default MA2C trial, in that trial's scenario config (the zoo's: safety supervisor on);
+    on the merge (keyed by ``"<name>, merge"``) where a ``merge`` MA2C trial has finished.
 
     The IQM's confidence interval resamples the 30 episodes (a fixed policy: its only randomness
     is the episodes'), where the learners' resamples seeds."""
@@ -160,8 +162,8 @@ def reference_summaries(trials: list[TrialLog], log_folder: str | Path, seed: in
     from sb3_marl.runs import find_run
 
     summaries = {}
-    for density in DENSITIES:
-        finished = [t for t in select_trials(trials, "ma2c", "default", density) if t.result is not None]
+    for (variant, suffix), density in itertools.product((("default", ""), ("merge", ", merge")), DENSITIES):
+        finished = [t for t in select_trials(trials, "ma2c", variant, density) if t.result is not None]
         if not finished:
             continue
         spec = finished[0].spec
@@ -173,7 +175,8 @@ def reference_summaries(trials: list[TrialLog], log_folder: str | Path, seed: in
             alone = summarize(protocols["off"])
             alone["return_std"] = 0.0  # a std over seeds: one fixed policy, like the learners' cells
             iqm, low, high = iqm_with_ci(np.array([[r.episode_return] for r in records]))
-            summaries[name, density] = {**summary, "iqm": iqm, "iqm_low": low, "iqm_high": high, "supervisor_off": alone}
+            summary.update(iqm=iqm, iqm_low=low, iqm_high=high, supervisor_off=alone)
+            summaries[name + suffix, density] = summary
     return summaries
 
 

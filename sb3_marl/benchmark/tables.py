@@ -173,14 +173,15 @@ def _reference_section(
         f"{_iqm_cell(s)} | {s['collision_rate']:.2f} | {s['supervisor_off']['return_mean']:.2f} | "
         f"{s['supervisor_off']['collision_rate']:.2f} | {s['lane_changes_per_episode']:.1f} | {_yields_cell(s)} | "
         f"{s['speed_mean']:.2f} | {s['acceleration_std']:.3f} | {s['intervention_rate']:.3f} |"
-        for (name, density), s in sorted(references.items(), key=lambda item: item[0][1])
+        for (name, density), s in sorted(references.items(), key=lambda item: (item[0][0].endswith(", merge"), item[0][1]))
     ]
     lines = [
         "## Beyond the paper: hand-written reference policies",
         "",
         "Not learned (`sb3_marl/baselines.py`): IDM/MOBIL picks the meta-action a human driver of the scenario "
         "would; cruise always IDLE; random uniform. The same 30 episodes as the final evaluations, in the "
-        "default MA2C trial's scenario config, with the safety supervisor and without it. Return: mean ± std "
+        "default MA2C trial's scenario config (`, merge`: the merge MA2C trial's, on the merge), with the "
+        "safety supervisor and without it. Return: mean ± std "
         "over the episodes; the IQM's CI resamples episodes (the learners' resample seeds).",
         "",
         "| policy | density | episodes | return: mean ± std over episodes | return: IQM [95 % CI] | collision rate "
