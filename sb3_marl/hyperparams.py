@@ -23,10 +23,11 @@ an entry may set the scenario and the wrapper:
 and ``safety_loss_coef`` (``ma2c``, ``mappo``, ``madqn``): weight of the loss that teaches the
 policy the safety supervisor's replacements (default 0, see :mod:`sb3_marl.algos.teacher`);
 
-and the rule prior (``ma2c``, ``mappo``, ``maacktr``; :mod:`sb3_marl.algos.rule_prior`): ``prior``
-(``idm-mobil`` or null), ``prior_warm_start`` (AV-steps of the DAgger warm start),
-``prior_coef`` / ``prior_coef_final`` / ``prior_decay_steps`` (the regularisation's weight, falling
-linearly over that many AV-steps after the warm start), ``prior_smoothing`` and ``prior_form``;
+and the rule prior (``ma2c``, ``mappo``, ``maacktr``, ``madqn``; :mod:`sb3_marl.algos.rule_prior`): ``prior``
+(``idm-mobil`` or null), ``prior_warm_start`` (AV-steps of the DAgger warm start; MADQN: of the
+rule driver driving), ``prior_coef`` / ``prior_coef_final`` / ``prior_decay_steps`` (the
+regularisation's weight, falling linearly over that many AV-steps after the warm start), and for
+the actor-critics ``prior_smoothing`` and ``prior_form``;
 
 and the maskable learners (``ma2c``, ``mappo``, ``maacktr``, ``madqn``) take ``action_masking``
 (true in every zoo config, the authors' choice; false for the unmasked ablation).

@@ -15,8 +15,9 @@ from sb3_marl.algos.teacher import executed_labels
 
 
 class MaskedReplayBufferSamples(NamedTuple):
-    """SB3's ``ReplayBufferSamples`` plus the action mask of each next observation and the action
-    the safety supervisor executed in place of the stored one (-1: it did not intervene)."""
+    """SB3's ``ReplayBufferSamples`` plus the action mask of each next observation, the action
+    the safety supervisor executed in place of the stored one (-1: it did not intervene) and the
+    rule driver's action for the next observation (-1: none, or the AV has left the road)."""
 
     observations: th.Tensor
     actions: th.Tensor
@@ -25,6 +26,7 @@ class MaskedReplayBufferSamples(NamedTuple):
     rewards: th.Tensor
     next_action_masks: th.Tensor
     executed_actions: th.Tensor
+    next_rule_actions: th.Tensor
     discounts: th.Tensor | None = None
 
 
@@ -32,7 +34,8 @@ class MaskedReplayBuffer(ReplayBuffer):
     """SB3's ``ReplayBuffer`` that also keeps the action mask of every next observation, taken
     from the step infos' ``action_mask`` (the scenario reports the mask of the observation it
     returns; after an episode end, of the terminal observation; without one: all available), and
-    the action the safety supervisor executed where it replaced the stored one (-1 elsewhere)."""
+    the action the safety supervisor executed where it replaced the stored one (-1 elsewhere), and
+    the rule driver's action for each next observation (``info["rule_action"]``, -1 without one)."""
 
     def __init__(
         self,
@@ -49,6 +52,7 @@ class MaskedReplayBuffer(ReplayBuffer):
         super().__init__(buffer_size, observation_space, action_space, device, n_envs, False, handle_timeout_termination)
         self.next_action_masks = np.ones((self.buffer_size, self.n_envs, int(action_space.n)), dtype=bool)
         self.executed_actions = np.full((self.buffer_size, self.n_envs), -1, dtype=np.int64)
+        self.next_rule_actions = np.full((self.buffer_size, self.n_envs), -1, dtype=np.int64)
 
     def add(
         self,
@@ -61,6 +65,7 @@ class MaskedReplayBuffer(ReplayBuffer):
     ) -> None:
         self.next_action_masks[self.pos] = [info.get("action_mask", True) for info in infos]
         self.executed_actions[self.pos] = executed_labels(infos)
+        self.next_rule_actions[self.pos] = [-1 if info.get("exited", False) else info.get("rule_action", -1) for info in infos]
         super().add(obs, next_obs, action, reward, done, infos)
 
     def _get_samples(self, batch_inds: np.ndarray, env: Any = None) -> MaskedReplayBufferSamples:  # type: ignore[override]
@@ -74,6 +79,7 @@ class MaskedReplayBuffer(ReplayBuffer):
             self._normalize_reward(self.rewards[batch_inds, env_indices].reshape(-1, 1), env),
             self.next_action_masks[batch_inds, env_indices, :],
             self.executed_actions[batch_inds, env_indices],
+            self.next_rule_actions[batch_inds, env_indices],
         )
         return MaskedReplayBufferSamples(*tuple(map(self.to_torch, data)))
 

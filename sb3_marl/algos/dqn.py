@@ -1,4 +1,5 @@
-"""MADQN: SB3's DQN with action masking, the supervisor teacher's large-margin loss."""
+"""MADQN: SB3's DQN with action masking, and the large-margin loss (DQfD) toward the safety
+supervisor's actions or the rule driver's."""
 
 from __future__ import annotations
 
@@ -13,7 +14,19 @@ from stable_baselines3.common.type_aliases import GymEnv
 
 from sb3_marl.algos.base import MaskingLearner
 from sb3_marl.algos.buffers import MaskedReplayBuffer
+from sb3_marl.algos.rule_prior import RulePrior
 from sb3_marl.algos.teacher import check_safety_loss_coef
+
+
+def large_margin_loss(q_values: th.Tensor, labels: th.Tensor, margin: float) -> th.Tensor:
+    """DQfD's large-margin loss ``max_a [Q(s, a) + margin·(a ≠ a_E)] - Q(s, a_E)`` averaged over the
+    rows whose label a_E is >= 0 (0 without such rows): ``q_values`` (batch, n_actions), ``labels`` (batch,)."""
+    chosen = labels >= 0
+    if not bool(chosen.any()):
+        return q_values.new_zeros(())
+    q, labels = q_values[chosen], labels[chosen].long()
+    margins = th.full_like(q, margin).scatter(1, labels[:, None], 0.0)
+    return ((q + margins).max(dim=1).values - q.gather(1, labels[:, None]).squeeze(1)).mean()
 
 
 class MaskableDQN(MaskingLearner, DQN):
@@ -27,13 +40,22 @@ class MaskableDQN(MaskingLearner, DQN):
     with a_E the executed action and margin :attr:`SAFETY_MARGIN`, so that the greedy action
     becomes the supervisor's.
 
+    With ``prior: idm-mobil`` the rule driver is the starting point (as the actor-critics'
+    :mod:`~sb3_marl.algos.rule_prior`, here in DQfD's way): for the first ``prior_warm_start``
+    AV-steps it drives (its actions fill the replay buffer, in place of ε-greedy exploration), and
+    every update adds ``w · `` the large-margin loss toward the rule action on the replayed next
+    observations (the scenario labels each one, ``info["rule_action"]``), ``w`` falling from
+    ``prior_coef`` to ``prior_coef_final`` over ``prior_decay_steps`` AV-steps after the warm start.
+
     :param action_masking: use the env's action masks (True) or SB3's DQN unchanged (False)
     :param safety_loss_coef: weight of the supervisor's large-margin loss (0: off)
+    :param prior: ``idm-mobil`` or None (off), with ``prior_warm_start``, ``prior_coef``,
+        ``prior_coef_final`` and ``prior_decay_steps`` (:class:`~sb3_marl.algos.rule_prior.RulePrior`)
 
     Other parameters: as SB3's ``DQN`` (the replay buffer is :class:`MaskedReplayBuffer`).
     """
 
-    #: DQfD's margin of the supervisor's action over the others (Hester et al. 2018: 0.8)
+    #: DQfD's margin of the teacher's action over the others (Hester et al. 2018: 0.8)
     SAFETY_MARGIN = 0.8
     known_classes: ClassVar[tuple[type, ...]] = (MaskedReplayBuffer,)
 
@@ -44,22 +66,24 @@ class MaskableDQN(MaskingLearner, DQN):
         *args: Any,
         action_masking: bool = True,
         safety_loss_coef: float = 0.0,
+        prior: str | None = None,
+        prior_warm_start: int = 0,
+        prior_coef: float = 1.0,
+        prior_coef_final: float = 0.0,
+        prior_decay_steps: int = 1,
         **kwargs: Any,
     ):
-        if (action_masking or safety_loss_coef) and kwargs.get("replay_buffer_class") is None:
+        settings = RulePrior(prior, prior_warm_start, prior_coef, prior_coef_final, prior_decay_steps)
+        self.prior, self.prior_warm_start, self.prior_coef = settings.name, settings.warm_start, settings.coef
+        self.prior_coef_final, self.prior_decay_steps = settings.coef_final, settings.decay_steps
+        if (action_masking or safety_loss_coef or settings.active) and kwargs.get("replay_buffer_class") is None:
             kwargs["replay_buffer_class"] = MaskedReplayBuffer
         self.safety_loss_coef = check_safety_loss_coef(safety_loss_coef)
         super().__init__(policy, env, *args, action_masking=action_masking, **kwargs)
 
-    def safety_loss(self, q_values: th.Tensor, executed: th.Tensor) -> th.Tensor:
-        """DQfD's large-margin loss averaged over the rows whose ``executed`` action is >= 0
-        (0 without such rows): ``q_values`` (batch, n_actions), ``executed`` (batch,)."""
-        chosen = executed >= 0
-        if not bool(chosen.any()):
-            return q_values.new_zeros(())
-        q, labels = q_values[chosen], executed[chosen].long()
-        margins = th.full_like(q, self.SAFETY_MARGIN).scatter(1, labels[:, None], 0.0)
-        return ((q + margins).max(dim=1).values - q.gather(1, labels[:, None]).squeeze(1)).mean()
+    @property
+    def rule_prior(self) -> RulePrior:
+        return RulePrior(self.prior, self.prior_warm_start, self.prior_coef, self.prior_coef_final, self.prior_decay_steps)
 
     def predict(  # type: ignore[override]
         self,
@@ -86,6 +110,9 @@ class MaskableDQN(MaskingLearner, DQN):
         if not self.action_masking:
             return super()._sample_action(learning_starts, action_noise, n_envs)
         assert self.env is not None and self._last_obs is not None, "the DQN collects on its env"
+        if self.num_timesteps < self.rule_prior.warm_start:  # the rule driver drives (0 when off)
+            actions = np.asarray(self.env.env_method("rule_actions"), dtype=np.int64)
+            return actions, actions
         masks = get_action_masks(self.env)
         if self.num_timesteps < learning_starts:
             actions = _random_available(masks)
@@ -95,11 +122,12 @@ class MaskableDQN(MaskingLearner, DQN):
 
     def train(self, gradient_steps: int, batch_size: int = 100) -> None:
         """SB3's ``DQN.train`` with the bootstrap target's max over the available next actions."""
-        if not self.action_masking and not self.safety_loss_coef:
+        prior_weight = self.rule_prior.weight(self.num_timesteps)
+        if not self.action_masking and not self.safety_loss_coef and not prior_weight:
             return super().train(gradient_steps, batch_size)
         self.policy.set_training_mode(True)
         self._update_learning_rate(self.policy.optimizer)
-        losses, safety_losses = [], []
+        losses, safety_losses, prior_losses = [], [], []
         assert self.replay_buffer is not None
         for _ in range(gradient_steps):
             replay_data: Any = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)
@@ -115,9 +143,14 @@ class MaskableDQN(MaskingLearner, DQN):
             loss = F.smooth_l1_loss(current_q_values, target_q_values)
             losses.append(loss.item())
             if self.safety_loss_coef:
-                safety_loss = self.safety_loss(q_values, replay_data.executed_actions)
+                safety_loss = large_margin_loss(q_values, replay_data.executed_actions, self.SAFETY_MARGIN)
                 safety_losses.append(safety_loss.item())
                 loss = loss + self.safety_loss_coef * safety_loss
+            if prior_weight:
+                next_q = self.q_net(replay_data.next_observations)
+                prior_loss = large_margin_loss(next_q, replay_data.next_rule_actions, self.SAFETY_MARGIN)
+                prior_losses.append(prior_loss.item())
+                loss = loss + prior_weight * prior_loss
             self.policy.optimizer.zero_grad()
             loss.backward()
             th.nn.utils.clip_grad_norm_(self.policy.parameters(), self.max_grad_norm)
@@ -127,6 +160,9 @@ class MaskableDQN(MaskingLearner, DQN):
         self.logger.record("train/loss", np.mean(losses))
         if safety_losses:
             self.logger.record("train/safety_loss", np.mean(safety_losses))
+        if prior_losses:
+            self.logger.record("train/prior_loss", np.mean(prior_losses))
+            self.logger.record("train/prior_coef", prior_weight)
 
 
 def _random_available(masks: np.ndarray) -> np.ndarray:

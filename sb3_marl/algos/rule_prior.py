@@ -23,7 +23,7 @@ rule driver, 1 - Σ π_rule(a) π(a): its pull toward the rule action fades wher
 committed to another action, so it does not hold probability on both (the cross-entropy's pull
 grows there); the warm start fits the cross-entropy either way.
 Timesteps count AV-steps (SB3's ``num_timesteps`` on the parameter-sharing VecEnv), the warm
-start's included.
+start's included. MADQN takes the same schedule in DQfD's way (:class:`~sb3_marl.algos.dqn.MaskableDQN`).
 """
 
 from __future__ import annotations

@@ -175,8 +175,8 @@ def reference_summaries(trials: list[TrialLog], log_folder: str | Path, seed: in
             alone = summarize(protocols["off"])
             alone["return_std"] = 0.0  # a std over seeds: one fixed policy, like the learners' cells
             iqm, low, high = iqm_with_ci(np.array([[r.episode_return] for r in records]))
-            summary.update(iqm=iqm, iqm_low=low, iqm_high=high, supervisor_off=alone)
-            summaries[name + suffix, density] = summary
+            bounds = {"iqm": iqm, "iqm_low": low, "iqm_high": high}
+            summaries[name + suffix, density] = {**summary, **bounds, "supervisor_off": alone}
     return summaries
 
 

@@ -1,6 +1,8 @@
 """The rule prior: its loss and schedule, the DAgger warm start, a short run of each learner with
 it, save/load of its settings, and bad input (real envs, real learners)."""
 
+import copy
+
 import pytest
 import torch as th
 from stable_baselines3.common.logger import KVWriter, Logger
@@ -108,6 +110,41 @@ def test_each_actor_critic_trains_with_the_prior_and_keeps_it_when_saved(algo, t
     assert loaded.rule_prior == model.rule_prior == RulePrior("idm-mobil", 1200, 1.0, 0.1, 1000, 0.0, form)
 
 
+def test_madqn_starts_from_the_rule_driver_and_keeps_the_prior_when_saved(tmp_path):
+    """MADQN's warm start: the rule driver's actions fill the replay buffer, and the large-margin
+    loss toward the rule action makes the greedy action agree with it far more than at the start."""
+    settings = {**PRIOR, "prior_warm_start": 600, "learning_starts": 0, "train_freq": 1, "gradient_steps": 4}
+    settings["env_config"] = {"safety_supervisor": True}
+    model = make_model("madqn", make_venv(ENV, settings, seed=2), settings, seed=2)
+    initial = copy.deepcopy(model.q_net)
+    dumps = Dumps()
+    model.set_logger(Logger(None, [dumps]))
+    model.learn(600, log_interval=1)
+    buffer = model.replay_buffer
+    # the rule driver drove: each stored action is the label of the previous step's next observation
+    stored, previous = buffer.actions[1 : buffer.pos, :, 0], buffer.next_rule_actions[: buffer.pos - 1]
+    carried = (previous >= 0) & ~buffer.dones[: buffer.pos - 1].astype(bool)
+    assert carried.sum() > 300 and (stored[carried] == previous[carried]).all()
+    labels = buffer.next_rule_actions[: buffer.pos].reshape(-1)
+    obs = th.as_tensor(buffer.next_observations[: buffer.pos].reshape(len(labels), -1))
+
+    def agreement(q_net) -> float:
+        with th.no_grad():
+            greedy = q_net(obs).argmax(dim=1).numpy()
+        return float((greedy == labels)[labels >= 0].mean())
+
+    assert agreement(model.q_net) > max(agreement(initial) + 0.3, 0.8)
+    model.learn(300, reset_num_timesteps=False, log_interval=1)  # past the warm start: ε-greedy, prior decaying
+    coefs = dumps.values("train/prior_coef")
+    assert dumps.values("train/prior_loss") and coefs[-1] < 1.0 and all(0.1 <= coef <= 1.0 for coef in coefs)
+    model.save(tmp_path / "model.zip")
+    assert (
+        get_algo("madqn").load(tmp_path / "model.zip").rule_prior
+        == model.rule_prior
+        == RulePrior("idm-mobil", 600, 1.0, 0.1, 1000)
+    )
+
+
 @pytest.mark.parametrize(
     ("algo", "params", "message"),
     [
@@ -118,7 +155,8 @@ def test_each_actor_critic_trains_with_the_prior_and_keeps_it_when_saved(algo, t
         ("ma2c", "prior_decay_steps:0", "Invalid prior_decay_steps=0: expected an integer >= 1"),
         ("maacktr", "prior_smoothing:1.0", "Invalid prior_smoothing=1.0: expected a number in [0, 1)"),
         ("ma2c", "prior_form:'kl'", "Invalid prior_form='kl': expected one of ['cross-entropy', 'agreement']"),
-        ("madqn", "prior:'idm-mobil'", "Unknown hyperparameter(s) ['prior'] for 'madqn'"),
+        ("madqn", "prior_form:'agreement'", "Unknown hyperparameter(s) ['prior_form'] for 'madqn'"),
+        ("madqn", "prior_coef_final:-1", "Invalid prior_coef_final=-1: expected a finite number >= 0"),
     ],
 )
 def test_bad_prior_settings_exit_2_before_any_folder(algo, params, message, tmp_path, capsys):

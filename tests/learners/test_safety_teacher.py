@@ -9,7 +9,7 @@ import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_marl.algos.a2c import MaskableA2C
-from sb3_marl.algos.dqn import MaskableDQN
+from sb3_marl.algos.dqn import MaskableDQN, large_margin_loss
 from sb3_marl.cli import main
 from wrappers import ParameterSharingVecEnv
 
@@ -77,11 +77,11 @@ def test_the_dqn_margin_loss():
     venv = ParameterSharingVecEnv(ENV, config=SUPERVISED, seed=0)
     model = MaskableDQN("MlpPolicy", venv, safety_loss_coef=1.0, learning_starts=0, seed=0)
     q = th.tensor([[1.0, 2.0, 0.0, 0.0, 0.0], [3.0, 0.0, 0.0, 0.0, 0.0]])
-    assert model.safety_loss(q, th.tensor([-1, -1])).item() == 0.0
+    assert large_margin_loss(q, th.tensor([-1, -1]), model.SAFETY_MARGIN).item() == 0.0
     # row 0: the supervisor chose action 0, whose Q is below action 1's: 2 + 0.8 - 1
-    assert model.safety_loss(q, th.tensor([0, -1])).item() == pytest.approx(1.8)
+    assert large_margin_loss(q, th.tensor([0, -1]), model.SAFETY_MARGIN).item() == pytest.approx(1.8)
     # row 1: action 0 already beats the others by more than the margin
-    assert model.safety_loss(q, th.tensor([-1, 0])).item() == pytest.approx(0.0)
+    assert large_margin_loss(q, th.tensor([-1, 0]), model.SAFETY_MARGIN).item() == pytest.approx(0.0)
     model.learn(300)
     replayed = model.replay_buffer.executed_actions[: model.replay_buffer.pos]
     assert (replayed >= 0).any() and (replayed[replayed >= 0] < 5).all()
