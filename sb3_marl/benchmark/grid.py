@@ -114,6 +114,7 @@ EXPERIMENTS: dict[str, dict[str, tuple[str, str]]] = {
     "rule-prior": {
         "MA2C, rule prior": ("ma2c", "rule-prior"),
         "MAPPO, rule prior": ("mappo", "rule-prior"),
+        "MADQN, rule prior": ("madqn", "rule-prior"),
         "MA2C, rule prior, no entropy bonus": ("ma2c", "rule-prior-sharp"),
         "MA2C, rule prior, supervisor dropout": ("ma2c", "rule-prior-dropout"),
         "MA2C, rule prior kept strong": ("ma2c", "rule-prior-strong"),
