@@ -110,7 +110,7 @@ class MaskableDQN(MaskingLearner, DQN):
         if not self.action_masking:
             return super()._sample_action(learning_starts, action_noise, n_envs)
         assert self.env is not None and self._last_obs is not None, "the DQN collects on its env"
-        if self.num_timesteps < self.rule_prior.warm_start:  # the rule driver drives (0 when off)
+        if self.prior is not None and self.num_timesteps < self.prior_warm_start:  # the rule driver drives
             actions = np.asarray(self.env.env_method("rule_actions"), dtype=np.int64)
             return actions, actions
         masks = get_action_masks(self.env)
