@@ -107,12 +107,12 @@ class MaskableDQN(MaskingLearner, DQN):
         return (actions if vectorized else actions[0]), state
 
     def _sample_action(self, learning_starts: int, action_noise: Any = None, n_envs: int = 1) -> tuple[np.ndarray, np.ndarray]:
-        if not self.action_masking:
-            return super()._sample_action(learning_starts, action_noise, n_envs)
         assert self.env is not None and self._last_obs is not None, "the DQN collects on its env"
         if self.prior is not None and self.num_timesteps < self.prior_warm_start:  # the rule driver drives
             actions = np.asarray(self.env.env_method("rule_actions"), dtype=np.int64)
             return actions, actions
+        if not self.action_masking:
+            return super()._sample_action(learning_starts, action_noise, n_envs)
         masks = get_action_masks(self.env)
         if self.num_timesteps < learning_starts:
             actions = _random_available(masks)
