@@ -299,6 +299,7 @@ HEADLINE_ROWS: dict[str, tuple[str, str]] = {
     "MA2C, separate actor and critic": ("ma2c", "separate-networks"),
     "MA2C, safety training": ("ma2c", "safety-training"),
     "MA2C, rule prior": ("ma2c", "rule-prior"),
+    "MA2C, rule prior as disagreement (floor 0.5)": ("ma2c", "rule-prior-agreement-0.5"),
 }
 
 
