@@ -81,6 +81,9 @@ def test_grids_hold_each_trial_once():
         ("ma2c", "rule-prior-sharpen-0.2"),
         ("ma2c", "rule-prior-sharpen-free"),
         ("ma2c", "rule-prior-agreement"),
+        ("ma2c", "rule-prior-agreement-0.5"),
+        ("ma2c", "rule-prior-agreement-shadow"),
+        ("madqn", "rule-prior"),
     }
     merge = make_grid("merge", densities=(2,), seeds=1)
     assert [spec.env_id for spec in merge] == ["sb3_marl/Merge-density2-v0"] * 4
