@@ -70,6 +70,7 @@ VARIANTS["rule-prior-agreement"] = {**VARIANTS["rule-prior-sharpen-0.1"], "prior
 # the same with the prior's floor at 0.5: a stronger pull toward the rule action where the policy still
 # gives it probability
 VARIANTS["rule-prior-agreement-0.5"] = {**VARIANTS["rule-prior-agreement"], "prior_coef_final": 0.5}
+VARIANTS["rule-prior-agreement-0.75"] = {**VARIANTS["rule-prior-agreement"], "prior_coef_final": 0.75}
 # the disagreement prior with the safety supervisor in shadow in the episodes run without it and a
 # 4x intervention penalty: every unsafe proposal costs, supervised or not (docs/safety.md)
 VARIANTS["rule-prior-agreement-shadow"] = {
@@ -126,6 +127,10 @@ EXPERIMENTS: dict[str, dict[str, tuple[str, str]]] = {
         "MA2C, rule prior as disagreement (floor 0.5), supervisor dropout, entropy penalty 0.1": (
             "ma2c",
             "rule-prior-agreement-0.5",
+        ),
+        "MA2C, rule prior as disagreement (floor 0.75), supervisor dropout, entropy penalty 0.1": (
+            "ma2c",
+            "rule-prior-agreement-0.75",
         ),
         "MA2C, rule prior as disagreement, supervisor dropout and shadow, penalty 20, entropy penalty 0.1": (
             "ma2c",

@@ -82,6 +82,7 @@ def test_grids_hold_each_trial_once():
         ("ma2c", "rule-prior-sharpen-free"),
         ("ma2c", "rule-prior-agreement"),
         ("ma2c", "rule-prior-agreement-0.5"),
+        ("ma2c", "rule-prior-agreement-0.75"),
         ("ma2c", "rule-prior-agreement-shadow"),
         ("madqn", "rule-prior"),
     }
