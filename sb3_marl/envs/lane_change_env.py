@@ -229,12 +229,12 @@ class LaneChangeEnv(AbstractEnv):
             raise RuntimeError("The episode is over (terminated or truncated): call reset() before step().")
         n = self.n_avs
         proposed = meta_actions.check_actions(action, n)
-        actions, braking, shadow = proposed, np.zeros(n, dtype=bool), None
-        if self.config["safety_supervisor"]:
-            actions, _, braking = self.supervisor(self.state, n, proposed, self.action_masks())
-        elif self.config["supervisor_shadow"]:
-            supervised, _, would_brake = self.supervisor(self.state, n, proposed, self.action_masks())
-            shadow = (supervised != proposed) | would_brake
+        actions, braking, intervened = proposed, np.zeros(n, dtype=bool), None
+        if self.config["safety_supervisor"] or self.config["supervisor_shadow"]:
+            supervised, _, brake = self.supervisor(self.state, n, proposed, self.action_masks())
+            intervened = (supervised != proposed) | brake  # in shadow: where it would have
+            if self.config["safety_supervisor"]:
+                actions, braking = supervised, brake
         speed_before = self.state[:n, kernel.SPEED].copy()
         targets_before = self.state[:n, kernel.TARGET_LANE].copy()
 
@@ -244,9 +244,7 @@ class LaneChangeEnv(AbstractEnv):
         state = self.state
         acceleration = (state[:n, kernel.SPEED] - speed_before) * self.config["policy_frequency"]
         changed = lanes.lane_changes(self.horizon.lanes, targets_before, state)
-        obs, info = self._observe(acceleration, changed, proposed, actions, braking)
-        if shadow is not None:
-            info["intervened"] = shadow
+        obs, info = self._observe(acceleration, changed, proposed, actions, braking, intervened)
         terminated = bool(info["crashed"].any())
         truncated = not terminated and (self.steps_done >= self.max_steps or bool(info["exited"].all()))
         self.done = terminated or truncated
@@ -338,6 +336,7 @@ class LaneChangeEnv(AbstractEnv):
         proposed: np.ndarray,
         executed: np.ndarray | None = None,
         braking: np.ndarray | None = None,
+        intervened: np.ndarray | None = None,
     ) -> tuple[np.ndarray, dict[str, Any]]:
         """The observation of :attr:`state` and the step's info, per-AV arrays of shape (n_avs,) unless stated.
 
@@ -374,7 +373,7 @@ class LaneChangeEnv(AbstractEnv):
             "proposed_action": proposed,
             "executed_action": executed,
             "emergency_brake": braking,
-            "intervened": (proposed != executed) | braking,
+            "intervened": np.zeros(n, dtype=bool) if intervened is None else np.asarray(intervened, dtype=bool),
             "rule_action": self.rule_actions(),
             "n_avs": n,
             "n_hdvs": self.n_hdvs,
