@@ -78,6 +78,9 @@ VARIANTS["rule-prior-agreement-shadow"] = {
     "env_config": {"supervisor_shadow": True},
     "intervention_penalty": 20.0,
 }
+# the floor-0.5 recipe storing the supervisor's executed action instead of the proposal in the episodes
+# it supervises: the brake it applied is credited, not the IDLE the policy proposed
+VARIANTS["rule-prior-agreement-0.5-executed"] = {**VARIANTS["rule-prior-agreement-0.5"], "stored_actions": "executed"}
 # the on-ramp merge (sb3_marl/Merge-density<d>-v0) with its zoo config as it is
 VARIANTS["merge"] = {}
 # the merging paper's curriculum: density 2 starts from density 1's model, density 3 from density 2's
@@ -135,6 +138,14 @@ EXPERIMENTS: dict[str, dict[str, tuple[str, str]]] = {
         "MA2C, rule prior as disagreement, supervisor dropout and shadow, penalty 20, entropy penalty 0.1": (
             "ma2c",
             "rule-prior-agreement-shadow",
+        ),
+        "MA2C, rule prior as disagreement (floor 0.5), executed actions stored": (
+            "ma2c",
+            "rule-prior-agreement-0.5-executed",
+        ),
+        "MAPPO, rule prior as disagreement (floor 0.5), supervisor dropout, entropy penalty 0.1": (
+            "mappo",
+            "rule-prior-agreement-0.5",
         ),
     },
     # the merging paper's scenario (Chen et al. 2021, docs/merge.md): its four learners

@@ -84,6 +84,8 @@ def test_grids_hold_each_trial_once():
         ("ma2c", "rule-prior-agreement-0.5"),
         ("ma2c", "rule-prior-agreement-0.75"),
         ("ma2c", "rule-prior-agreement-shadow"),
+        ("ma2c", "rule-prior-agreement-0.5-executed"),
+        ("mappo", "rule-prior-agreement-0.5"),
         ("madqn", "rule-prior"),
     }
     merge = make_grid("merge", densities=(2,), seeds=1)
