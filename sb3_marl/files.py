@@ -16,7 +16,10 @@ import yaml
 
 @contextmanager
 def replaced_atomically(path: str | Path) -> Iterator[Path]:
-    """Yield a temporary path beside ``path`` (``.<stem>.partial<suffix>``) to write to.
+    """Yield a temporary path beside ``path`` (``.<stem>.<pid>.partial<suffix>``) to write to.
+
+    The process id in the name keeps two processes that write the same file (two benchmark
+    launchers on one folder) from renaming each other's temporary file away.
 
     When the block ends normally, the temporary file replaces ``path`` in one rename. When it
     raises (an error, Ctrl-C, SIGTERM turned into KeyboardInterrupt), the temporary file is
@@ -24,7 +27,7 @@ def replaced_atomically(path: str | Path) -> Iterator[Path]:
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = path.with_name(f".{path.stem}.partial{path.suffix}")
+    temporary = path.with_name(f".{path.stem}.{os.getpid()}.partial{path.suffix}")
     try:
         yield temporary
         os.replace(temporary, path)

@@ -276,6 +276,20 @@ def test_atomic_save_keeps_the_previous_file_when_saving_fails(tmp_path, monkeyp
     assert not list(tmp_path.glob(".*partial*")), "the half-written temporary file is removed"
 
 
+def test_two_processes_writing_one_file_do_not_collide(tmp_path):
+    """Two benchmark launchers on one folder both rewrite ``benchmark.json``: neither may rename
+    the other's temporary file away (a FileNotFoundError that ended a launcher)."""
+    path = tmp_path / "benchmark.json"
+    writer = (
+        "import sys\nfrom sb3_marl.files import write_text\n"
+        "for i in range(300):\n    write_text(sys.argv[1], sys.argv[2] * 1000)\n"
+    )
+    processes = [subprocess.Popen([sys.executable, "-c", writer, str(path), tag]) for tag in "ab"]
+    assert [process.wait(timeout=120) for process in processes] == [0, 0]
+    assert path.read_text() in ("a" * 1000, "b" * 1000)
+    assert not list(tmp_path.glob(".*partial*"))
+
+
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
