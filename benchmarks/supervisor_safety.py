@@ -9,7 +9,8 @@ supervisor versions on the same episodes.
 
     python benchmarks/supervisor_safety.py [--episodes 1000] [--densities 1 2 3] [--policies random idle] [--seed 200000]
 
-``--scenario merge`` runs the on-ramp merge (its ``--priority``: the supervisor's order of service).
+``--scenario merge`` runs the on-ramp merge (its ``--priority``: the supervisor's order of service);
+``--config key:value ...`` sets env config keys (e.g. ``supervisor_min_gap:3.0``), as ``--env-kwargs``.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from sb3_marl.baselines import CruisePolicy
 from sb3_marl.envs import ENV_IDS, MERGE_ENV_IDS, make_scenario
 from sb3_marl.envs.config import LANE_CHANGE, MERGE, SCENARIO_DENSITIES, SUPERVISOR_PRIORITIES
 from sb3_marl.evaluation import run_episodes, summarize
+from sb3_marl.literals import parse_literal
 
 
 class MaskedRandomPolicy:
@@ -48,9 +50,16 @@ def main() -> None:
     parser.add_argument("--no-rear-avs", action="store_true", help="supervisor_rear_avs: false (see the config)")
     parser.add_argument("--scenario", default=LANE_CHANGE, choices=[LANE_CHANGE, MERGE])
     parser.add_argument("--priority", default=None, choices=SUPERVISOR_PRIORITIES, help="merge only: supervisor_priority")
+    parser.add_argument("--config", nargs="+", default=[], metavar="KEY:VALUE", help="env config keys to set")
     args = parser.parse_args()
+    overrides = {key: parse_literal(value, key) for key, value in (item.split(":", 1) for item in args.config)}
     ids = MERGE_ENV_IDS if args.scenario == MERGE else ENV_IDS
-    print(f"scenario {args.scenario}" + (f", supervisor_priority {args.priority}" if args.priority else ""), flush=True)
+    print(
+        f"scenario {args.scenario}"
+        + (f", supervisor_priority {args.priority}" if args.priority else "")
+        + "".join(f", {key} {value}" for key, value in overrides.items()),
+        flush=True,
+    )
     for density in args.densities:
         low, high = SCENARIO_DENSITIES[args.scenario][density]["avs"]
         for n_avs in [n for n in range(low, high + 1) if args.n_avs is None or n in args.n_avs]:
@@ -59,6 +68,7 @@ def main() -> None:
                 config = {"safety_supervisor": True, "n_avs": n_avs, "supervisor_rear_avs": not args.no_rear_avs}
                 if args.priority is not None:
                     config["supervisor_priority"] = args.priority
+                config.update(overrides)
                 env = make_scenario(ids[density], config)
                 policy = MaskedRandomPolicy(args.seed) if name == "random" else CruisePolicy()
                 crashes: list[str] = []
