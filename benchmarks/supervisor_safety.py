@@ -24,10 +24,10 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 from sb3_marl.baselines import CruisePolicy
+from sb3_marl.cli.common import StoreHyperparams
 from sb3_marl.envs import ENV_IDS, MERGE_ENV_IDS, make_scenario
 from sb3_marl.envs.config import LANE_CHANGE, MERGE, SCENARIO_DENSITIES, SUPERVISOR_PRIORITIES
 from sb3_marl.evaluation import run_episodes, summarize
-from sb3_marl.literals import parse_literal
 
 
 class MaskedRandomPolicy:
@@ -40,17 +40,6 @@ class MaskedRandomPolicy:
         return np.array([self.rng.choice(np.flatnonzero(mask)) for mask in env.action_masks()])
 
 
-def key_value(text: str) -> tuple[str, object]:
-    """``key:value`` (``--config``) as (key, the value read as a literal, never evaluated)."""
-    key, colon, value = text.partition(":")
-    if not colon or not key:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected KEY:VALUE, e.g. supervisor_min_gap:3.0")
-    try:
-        return key, parse_literal(value, key)
-    except ValueError as error:
-        raise argparse.ArgumentTypeError(str(error)) from None
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=1000)
@@ -61,9 +50,11 @@ def main() -> None:
     parser.add_argument("--no-rear-avs", action="store_true", help="supervisor_rear_avs: false (see the config)")
     parser.add_argument("--scenario", default=LANE_CHANGE, choices=[LANE_CHANGE, MERGE])
     parser.add_argument("--priority", default=None, choices=SUPERVISOR_PRIORITIES, help="merge only: supervisor_priority")
-    parser.add_argument("--config", nargs="+", default=[], type=key_value, metavar="KEY:VALUE", help="env config keys to set")
+    parser.add_argument(
+        "--config", nargs="+", default={}, action=StoreHyperparams, metavar="KEY:VALUE", help="env config keys to set"
+    )
     args = parser.parse_args()
-    overrides = dict(args.config)
+    overrides = args.config
     ids = MERGE_ENV_IDS if args.scenario == MERGE else ENV_IDS
     print(
         f"scenario {args.scenario}"
