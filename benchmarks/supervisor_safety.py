@@ -1,6 +1,7 @@
 """How safe the safety supervisor keeps simple policies, per density and AV count (one process).
 
-Each policy (``random``: uniform over each AV's available meta-actions, from a seeded generator;
+Each policy (``random``: uniform over each AV's available meta-actions, from a generator seeded with the
+episode's seed, so every episode is the same whatever the others did;
 ``idle``: always IDLE) drives ``--episodes`` seeded episodes at every AV count of each density
 (the largest included) with the safety supervisor on; prints, per count, the share of episodes
 with a crash, the supervisor's interventions per AV-step, and for each crash the step it happened
@@ -72,7 +73,6 @@ def main() -> None:
                     config["supervisor_priority"] = args.priority
                 config.update(overrides)
                 env = make_scenario(ids[density], config)
-                policy = MaskedRandomPolicy(args.seed) if name == "random" else CruisePolicy()
                 crashes: list[str] = []
                 records = []
                 for episode in range(args.episodes):
@@ -85,6 +85,7 @@ def main() -> None:
                                 f"proposed {info['proposed_action'].tolist()}, executed {info['executed_action'].tolist()}"
                             )
 
+                    policy = MaskedRandomPolicy(seed) if name == "random" else CruisePolicy()
                     records += run_episodes(env, policy, 1, seed, on_step)
                 summary = summarize(records)
                 print(

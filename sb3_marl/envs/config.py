@@ -111,6 +111,9 @@ def default_config() -> dict[str, Any]:
         # speed of 0 m/s, below the speed ladder) if that leaves more; on for the merge, whose AVs
         # meet stalled vehicles and a dead end they cannot stop for at the ladder's 10 m/s
         "supervisor_emergency_brake": False,
+        # when AVs are still short of supervisor_min_gap of room after the passes, search their
+        # actions in pairs with the other AVs' (the whole road predicted for each pair)
+        "supervisor_joint_search": False,
         # with the safety supervisor off, compute its decision all the same and report in
         # info["intervened"] where it would have replaced or braked an action (nothing applied):
         # training's intervention penalty then reaches the episodes run without it
@@ -245,6 +248,7 @@ _SCHEMA: dict[str, tuple[Check, str]] = {
     "supervisor_repeat_actions": _boolean(),
     "supervisor_rear_avs": _boolean(),
     "supervisor_emergency_brake": _boolean(),
+    "supervisor_joint_search": _boolean(),
     "supervisor_shadow": _boolean(),
     "screen_width": _integer(1),
     "screen_height": _integer(1),

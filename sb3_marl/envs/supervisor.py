@@ -32,7 +32,11 @@ in two passes (:data:`PASSES`): the second re-checks each AV against the actions
 with in the first (an AV served early was checked against proposals that may have been replaced
 since). Served one at a time, two AVs whose lane changes conflict can still each find every option
 unsafe and cross each other; a joint fallback then makes the AVs left short of room after a lane
-change keep their lanes together (IDLE), when that leaves every AV more room.
+change keep their lanes together (IDLE), when that leaves every AV more room. With
+``supervisor_joint_search`` (off by default), the AVs still short of room then have their options
+searched in pairs with every other AV's, the whole road predicted for each pair
+(:func:`_joint_search`): it finds the joint moves one-at-a-time service cannot (an AV on the
+merging lane keeping its speed while the AV closing from behind brakes).
 
 A lane an obstacle ends (the merge's merging lane) is a constraint of its own: an AV cannot stop on
 it (its lowest target speed is 10 m/s), so an action is also replaced when it leaves the AV on
@@ -67,6 +71,8 @@ PREFERENCE = np.array([1, 4, 3, 0, 2], dtype=np.int64)
 #: Speed-index change of each meta-action (FASTER +1, SLOWER -1) when actions repeat over the horizon.
 SPEED_STEP = np.array([0, 0, 0, 1, -1], dtype=np.int64)
 LANE_LEFT, IDLE, LANE_RIGHT = 0, 1, 2
+#: The emergency brake as an option of the joint search (after the five meta-actions).
+BRAKE = 5
 #: Passes over the AVs in priority order (the second checks against the first pass's final actions).
 PASSES = 2
 #: [s] the time an AV is given to leave a lane an obstacle ends (see :func:`dead_end_margin`)
@@ -122,6 +128,7 @@ def supervise_arrays(
     repeat_actions: bool,
     rear_avs: bool = True,
     emergency_brake: bool = False,
+    joint_search: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The supervisor on the road's state array (the kernel's layout, AVs first). Returns the
     executed actions, each AV's room [m] under them (NaN for AVs not served: past the road end) and
@@ -137,6 +144,8 @@ def supervise_arrays(
         :func:`_counted`)
     :param emergency_brake: when no meta-action leaves an AV ``min_gap`` of room, try braking to a
         stop (target speed 0 m/s, below the speed ladder) and take it if it leaves more room
+    :param joint_search: when AVs are still short of room at the end, search their actions in
+        pairs with the other AVs' (:func:`_joint_search`)
     """
     n_avs = proposed.size
     executed = proposed.copy()
@@ -218,8 +227,149 @@ def supervise_arrays(
             for i in range(n_avs):
                 if stuck[i]:
                     executed[i] = IDLE
-            rooms = trial_rooms
+            rooms, state, speed_step = trial_rooms, trial, trial_step
+    if joint_search:
+        executed, braking, rooms = _joint_search(
+            state0,
+            state,
+            speed_step,
+            executed,
+            braking,
+            rooms,
+            order,
+            candidate_lane,
+            candidate_speed,
+            available,
+            horizon,
+            min_gap,
+            repeat_actions,
+            rear_avs,
+            emergency_brake,
+            obstacles,
+        )
     return executed, rooms, braking
+
+
+@numba.njit(cache=True)
+def _set_option(
+    state: np.ndarray,
+    i: int,
+    option: int,
+    speed_step: np.ndarray,
+    candidate_lane: np.ndarray,
+    candidate_speed: np.ndarray,
+    repeat_actions: bool,
+) -> None:
+    """Option ``option`` of AV ``i``: a meta-action index, or ``BRAKE`` (the emergency brake)."""
+    if option == BRAKE:
+        _set_brake(state, i, speed_step, candidate_lane)
+    else:
+        _set_action(state, i, option, speed_step, candidate_lane, candidate_speed, repeat_actions)
+
+
+@numba.njit(cache=True)
+def _joint_score(
+    state: np.ndarray,
+    speed_step: np.ndarray,
+    horizon: Horizon,
+    counted: np.ndarray,
+    collidable: np.ndarray,
+    obstacles: np.ndarray,
+    min_gap: float,
+    n_avs: int,
+) -> tuple[float, float, float, np.ndarray]:
+    """(worst room shortfall, worst dead-end shortfall, summed room shortfall) [m] of the AVs' set
+    actions (each 0 when every AV has room / a way off), and the AVs' rooms [m]."""
+    path = predict(state, horizon, speed_step, -1, collidable, -np.inf)[0]
+    rooms = np.full(n_avs, np.nan)
+    worst, dead, total = 0.0, 0.0, 0.0
+    for i in range(n_avs):
+        if collidable[i]:
+            rooms[i] = path_room(i, path, counted[i], horizon.dt)
+            short = min(rooms[i] - min_gap, 0.0)
+            worst, total = min(worst, short), total + short
+            dead = min(dead, dead_end_margin(state, i, path, horizon.lanes, obstacles), 0.0)
+    return worst, dead, total, rooms
+
+
+@numba.njit(cache=True)
+def _joint_search(
+    state0: np.ndarray,
+    state: np.ndarray,
+    speed_step: np.ndarray,
+    executed: np.ndarray,
+    braking: np.ndarray,
+    rooms: np.ndarray,
+    order: np.ndarray,
+    candidate_lane: np.ndarray,
+    candidate_speed: np.ndarray,
+    available: np.ndarray,
+    horizon: Horizon,
+    min_gap: float,
+    repeat_actions: bool,
+    rear_avs: bool,
+    emergency_brake: bool,
+    obstacles: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Joint search (``supervisor_joint_search``): while AVs are left short of ``min_gap`` m of room
+    after the passes, try each such AV's options (its available meta-actions and, with
+    ``emergency_brake``, the brake) together with each other AV's, the whole road predicted for
+    every pair, and keep the pair that leaves the worst-off AV the most room (then the most time to
+    leave a dead end, then the least summed shortfall); repeated while it improves, at most once
+    per AV. Returns the executed actions, which AVs brake, and the AVs' rooms [m]."""
+    n_avs = executed.size
+    collidable = state0[:, COLLIDABLE] > 0
+    counted = np.zeros((n_avs, collidable.size), dtype=np.bool_)
+    for i in range(n_avs):
+        counted[i] = _counted(state0, i, n_avs, collidable, rear_avs)
+    options = np.zeros((n_avs, PREFERENCE.size + 1), dtype=np.bool_)
+    for i in range(n_avs):
+        for a in range(PREFERENCE.size):
+            options[i, a] = available[i, a]
+        options[i, BRAKE] = emergency_brake
+    option = executed.copy()
+    for i in range(n_avs):
+        if braking[i]:
+            option[i] = BRAKE
+    best = _joint_score(state, speed_step, horizon, counted, collidable, obstacles, min_gap, n_avs)
+    for _ in range(n_avs):
+        if best[0] >= 0.0 and best[1] >= 0.0:
+            break
+        improved = False
+        for i in order:
+            if not collidable[i] or rooms[i] >= min_gap:
+                continue
+            best_pair = (-1, -1, -1, -1)
+            for j in order:
+                if not collidable[j]:
+                    continue
+                for a in range(PREFERENCE.size + 1):
+                    if not options[i, a]:
+                        continue
+                    for b in range(PREFERENCE.size + 1):
+                        if not options[j, b] or (j == i and b != a):
+                            continue
+                        if a == option[i] and b == option[j]:
+                            continue
+                        trial, trial_step = state.copy(), speed_step.copy()
+                        _set_option(trial, i, a, trial_step, candidate_lane, candidate_speed, repeat_actions)
+                        _set_option(trial, j, b, trial_step, candidate_lane, candidate_speed, repeat_actions)
+                        score = _joint_score(trial, trial_step, horizon, counted, collidable, obstacles, min_gap, n_avs)
+                        if (score[0], score[1], score[2]) > (best[0], best[1], best[2]):
+                            best, best_pair = score, (i, a, j, b)
+            if best_pair[0] >= 0:
+                i_, a, j, b = best_pair
+                _set_option(state, i_, a, speed_step, candidate_lane, candidate_speed, repeat_actions)
+                _set_option(state, j, b, speed_step, candidate_lane, candidate_speed, repeat_actions)
+                option[i_], option[j] = a, b
+                rooms = best[3]
+                improved = True
+        if not improved:
+            break
+    for i in range(n_avs):
+        braking[i] = option[i] == BRAKE
+        executed[i] = IDLE if braking[i] else option[i]
+    return executed, braking, rooms
 
 
 @numba.njit(cache=True)
@@ -258,6 +408,7 @@ class Supervisor:
         (``supervisor_repeat_actions``)
     :param rear_avs: protect each AV from the AVs behind it too (``supervisor_rear_avs``)
     :param emergency_brake: brake to a stop when no meta-action leaves room (``supervisor_emergency_brake``)
+    :param joint_search: search the actions of AVs left short of room in pairs (``supervisor_joint_search``)
     :param priorities: (state, n_avs, supervisor) -> (n_avs,) the order of service, the smallest
         first; by default the headway margin (:func:`headway_margins`)
     """
@@ -268,6 +419,7 @@ class Supervisor:
     repeat_actions: bool
     rear_avs: bool
     emergency_brake: bool = False
+    joint_search: bool = False
     priorities: Callable[[np.ndarray, int, Supervisor], np.ndarray] | None = None
 
     @classmethod
@@ -286,6 +438,7 @@ class Supervisor:
             bool(config["supervisor_repeat_actions"]),
             bool(config["supervisor_rear_avs"]),
             bool(config["supervisor_emergency_brake"]),
+            bool(config["supervisor_joint_search"]),
             priorities,
         )
 
@@ -317,4 +470,5 @@ class Supervisor:
             self.repeat_actions,
             self.rear_avs,
             self.emergency_brake,
+            self.joint_search,
         )

@@ -201,6 +201,25 @@ def test_the_emergency_brake_stops_an_av_for_a_stalled_vehicle(simulator):
     )
 
 
+def test_the_joint_search_avoids_a_crash_that_serving_one_av_at_a_time_leaves():
+    """Density 3, 5 AVs, each AV's meta-action drawn among its available ones (episode 200101 of
+    benchmarks/supervisor_safety.py): served one at a time, the AVs end in a crash at step 77; with
+    ``supervisor_joint_search`` the short AV's options are searched with each other AV's and the
+    episode runs to its end without one."""
+    from sb3_marl.evaluation import run_episodes
+
+    seed, crashes = 200101, {}
+    for joint in (False, True):
+        rng = np.random.default_rng(seed)
+
+        def policy(env, obs, rng=rng):
+            return np.array([rng.choice(np.flatnonzero(mask)) for mask in env.action_masks()])
+
+        env = make(3, n_avs=5, safety_supervisor=True, supervisor_joint_search=joint)
+        crashes[joint] = run_episodes(env, policy, 1, seed)[0].crashed
+    assert crashes == {False: True, True: False}
+
+
 def test_merge_metrics_count_the_ramp_avs_that_merge():
     from sb3_marl.baselines import IDMMobilPolicy
     from sb3_marl.evaluation import run_episodes, summarize

@@ -187,6 +187,7 @@ def test_supervised_episodes_are_reproducible():
         ("supervisor_min_gap", float("inf")),
         ("supervisor_repeat_actions", 1),
         ("supervisor_shadow", "yes"),
+        ("supervisor_joint_search", "yes"),
     ],
 )
 def test_bad_supervisor_keys_name_the_key(key, value):
