@@ -113,9 +113,10 @@ def merge_spawn(config: dict[str, Any], n_avs: int, n_hdvs: int, np_random: np.r
     [m/s]. Rows: the AVs, the HDVs, then the obstacle."""
     main_avs = np_random.choice(len(MAIN_SPAWN), n_avs // 2, replace=False)
     ramp_avs = np_random.choice(len(RAMP_SPAWN), n_avs - n_avs // 2, replace=False)
-    # the points left, in order (a list: np.setdiff1d costs more than the rest of the spawn)
-    main_left = np.array([k for k in range(len(MAIN_SPAWN)) if k not in main_avs], dtype=np.int64)
-    ramp_left = np.array([k for k in range(len(RAMP_SPAWN)) if k not in ramp_avs], dtype=np.int64)
+    # the points left, in order (sets: np.setdiff1d, or `in` on the arrays, cost more than the rest)
+    main_taken, ramp_taken = set(main_avs.tolist()), set(ramp_avs.tolist())
+    main_left = np.array([k for k in range(len(MAIN_SPAWN)) if k not in main_taken], dtype=np.int64)
+    ramp_left = np.array([k for k in range(len(RAMP_SPAWN)) if k not in ramp_taken], dtype=np.int64)
     main_hdvs = np_random.choice(main_left, n_hdvs // 2, replace=False)
     ramp_hdvs = np_random.choice(ramp_left, n_hdvs - n_hdvs // 2, replace=False)
     n = n_avs + n_hdvs
