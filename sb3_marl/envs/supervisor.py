@@ -319,6 +319,8 @@ def _joint_search(
     per AV. Returns the executed actions, which AVs brake, and the AVs' rooms [m]."""
     n_avs = executed.size
     collidable = state0[:, COLLIDABLE] > 0
+    if not (collidable[:n_avs] & (rooms < min_gap)).any():
+        return executed, braking, rooms  # nobody short: no prediction needed
     counted = np.zeros((n_avs, collidable.size), dtype=np.bool_)
     for i in range(n_avs):
         counted[i] = _counted(state0, i, n_avs, collidable, rear_avs)
