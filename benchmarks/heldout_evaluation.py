@@ -9,7 +9,9 @@ same episodes.
     python benchmarks/heldout_evaluation.py -f results/paper-grid --algo ma2c mappo --variants rule-prior \
         --densities 1 2 3 --seeds 3 --greedy -o results/rule-prior
 
-writes ``<output>/heldout.json`` (every trial's and IDM/MOBIL's summaries with each episode's return;
+``--config key:value ...`` sets env config keys for every policy (e.g. ``supervisor_joint_search:True``:
+a supervisor variant on the same episodes; give it another ``--output``). It writes
+``<output>/heldout.json`` (every trial's and IDM/MOBIL's summaries with each episode's return;
 finished entries are kept and skipped on a rerun) and ``<output>/heldout.md`` (per algorithm, variant,
 action protocol and density: mean ± std over seeds of the return, its IQM with a 95 % stratified-bootstrap
 CI over seeds, the pooled collision count with its 95 % Clopper–Pearson upper bound, agreement with the
@@ -30,7 +32,9 @@ from tqdm import tqdm
 from sb3_marl.baselines import IDMMobilPolicy
 from sb3_marl.benchmark.grid import MERGE_VARIANTS, TrialSpec
 from sb3_marl.benchmark.statistics import clopper_pearson_upper, iqm_with_ci
+from sb3_marl.cli.common import StoreHyperparams
 from sb3_marl.envs import ENV_IDS, MERGE_ENV_IDS
+from sb3_marl.envs.config import LANE_CHANGE, MERGE, scenario_default_config, validate_config
 from sb3_marl.envs.supervisor import VERSION as SUPERVISOR_VERSION
 from sb3_marl.evaluation import evaluate_protocols, model_policy
 from sb3_marl.runs import find_run
@@ -42,23 +46,30 @@ def slim(result: dict) -> dict:
 
 
 def evaluate_all(args: argparse.Namespace) -> dict:
+    merge = [v in MERGE_VARIANTS for v in args.variants]
+    if any(merge) and not all(merge):
+        raise SystemExit(f"--variants {args.variants}: the lane change's and the merge's variants go to separate outputs.")
+    scenario = MERGE if all(merge) else LANE_CHANGE
+    try:
+        validate_config({**scenario_default_config(scenario), **args.config}, scenario)
+    except ValueError as error:
+        raise SystemExit(f"--config: {error}") from None
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
     path = out / "heldout.json"
     results = json.loads(path.read_text()) if path.is_file() else {}
-    if results.get("protocol", {}).get("supervisor_version") != SUPERVISOR_VERSION:
-        results = {}  # evaluated under another safety supervisor: start afresh
+    earlier = results.get("protocol", {})
+    if earlier.get("supervisor_version") != SUPERVISOR_VERSION or earlier.get("config", {}) != args.config:
+        results = {}  # evaluated under another safety supervisor or env config: start afresh
     results["protocol"] = {
         "episodes": args.episodes,
         "seeds": [args.seed, args.seed + args.episodes - 1],
         "actions": "sampled (the authors' protocol)" + (" and greedy (argmax)" if args.greedy else "") + ", action masks",
         "supervisor": "on (top level) and off (supervisor_off)",
         "supervisor_version": SUPERVISOR_VERSION,
+        **({"config": args.config} if args.config else {}),
     }
-    merge = [v in MERGE_VARIANTS for v in args.variants]
-    if any(merge) and not all(merge):
-        raise SystemExit(f"--variants {args.variants}: the lane change's and the merge's variants go to separate outputs.")
-    ids = MERGE_ENV_IDS if all(merge) else ENV_IDS  # the scenario of IDM/MOBIL's reference rows
+    ids = MERGE_ENV_IDS if scenario == MERGE else ENV_IDS  # the scenario of IDM/MOBIL's reference rows
     jobs = [(f"idm-mobil_density{d}", None, d) for d in args.densities]
     jobs += [
         (TrialSpec(algo, d, v, s).trial_id, TrialSpec(algo, d, v, s), d)
@@ -72,7 +83,7 @@ def evaluate_all(args: argparse.Namespace) -> dict:
             continue
         start = time.perf_counter()
         if spec is None:
-            policies, config = {"sampled": IDMMobilPolicy()}, {"safety_supervisor": True}
+            policies, config = {"sampled": IDMMobilPolicy()}, {"safety_supervisor": True, **args.config}
         else:
             folder = Path(args.log_folder) / "trials" / spec.trial_id
             if not (folder / "result.json").is_file():
@@ -80,7 +91,7 @@ def evaluate_all(args: argparse.Namespace) -> dict:
                 continue
             run = find_run(folder, spec.algo, spec.env_id)
             model = run.load_model("cpu")
-            policies, config = {"sampled": model_policy(model)}, run.env_config
+            policies, config = {"sampled": model_policy(model)}, {**run.env_config, **args.config}
             if args.greedy:
                 policies["greedy"] = model_policy(model, deterministic=True)
         entry: dict = {}
@@ -104,7 +115,9 @@ def table(results: dict, variants: list[str], densities: list[int], seeds: int, 
     lines = [
         f"Held-out evaluation: {episodes} episodes, seeds {results['protocol']['seeds'][0]}.."
         f"{results['protocol']['seeds'][1]}, {results['protocol']['actions']}, safety supervisor "
-        f"v{results['protocol']['supervisor_version']} on and off; learners: mean ± std over training seeds; "
+        f"v{results['protocol']['supervisor_version']} on and off"
+        + "".join(f", {key}: {value}" for key, value in results["protocol"].get("config", {}).items())
+        + "; learners: mean ± std over training seeds; "
         "IQM over every (seed, episode) return, its CI by stratified bootstrap over seeds (IDM/MOBIL, one "
         "policy: over episodes); collisions pooled over seeds with the 95 % Clopper–Pearson upper bound; "
         "agreement: share of AV-steps whose proposed action is the rule driver's (IDM/MOBIL).",
@@ -163,6 +176,9 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--episodes", type=int, default=300)
     parser.add_argument("--seed", type=int, default=100_000, help="first episode seed (default: 100000)")
+    parser.add_argument(
+        "--config", nargs="+", default={}, action=StoreHyperparams, metavar="KEY:VALUE", help="env config keys to set"
+    )
     parser.add_argument("-o", "--output", default="results/safety")
     args = parser.parse_args()
     torch.set_num_threads(1)

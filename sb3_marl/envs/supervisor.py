@@ -116,6 +116,26 @@ def _counted(state0: np.ndarray, ego: int, n_avs: int, collidable: np.ndarray, r
 
 
 @numba.njit(cache=True)
+def _all_counted(state0: np.ndarray, n_avs: int, collidable: np.ndarray, rear_avs: bool) -> np.ndarray:
+    """(n_avs, n_vehicles): row ``i`` the vehicles the room of AV ``i`` counts (:func:`_counted`)."""
+    counted = np.zeros((n_avs, collidable.size), dtype=np.bool_)
+    for i in range(n_avs):
+        counted[i] = _counted(state0, i, n_avs, collidable, rear_avs)
+    return counted
+
+
+@numba.njit(cache=True)
+def _rooms(path: np.ndarray, counted: np.ndarray, collidable: np.ndarray, dt: float) -> np.ndarray:
+    """(n_avs,) each collidable AV's room [m] along the predicted road ``path`` (NaN for the others),
+    counting the vehicles of its row of ``counted`` (:func:`_all_counted`)."""
+    rooms = np.full(counted.shape[0], np.nan)
+    for i in range(rooms.size):
+        if collidable[i]:
+            rooms[i] = path_room(i, path, counted[i], dt)
+    return rooms
+
+
+@numba.njit(cache=True)
 def supervise_arrays(
     state0: np.ndarray,
     candidate_lane: np.ndarray,
@@ -217,11 +237,10 @@ def supervise_arrays(
             if stuck[i]:
                 _set_action(trial, i, IDLE, trial_step, candidate_lane, candidate_speed, repeat_actions)
         trial_path = predict(trial, horizon, trial_step, -1, collidable, -np.inf)[0]
-        trial_rooms = rooms.copy()
+        trial_rooms = _rooms(trial_path, _all_counted(state0, n_avs, collidable, rear_avs), collidable, dt)
         before, after = np.inf, np.inf
-        for i in order:
+        for i in range(n_avs):
             if collidable[i]:
-                trial_rooms[i] = path_room(i, trial_path, _counted(state0, i, n_avs, collidable, rear_avs), dt)
                 before, after = min(before, rooms[i]), min(after, trial_rooms[i])
         if after > before:
             for i in range(n_avs):
@@ -281,11 +300,10 @@ def _joint_score(
     """(worst room shortfall, worst dead-end shortfall, summed room shortfall) [m] of the AVs' set
     actions (each 0 when every AV has room / a way off), and the AVs' rooms [m]."""
     path = predict(state, horizon, speed_step, -1, collidable, -np.inf)[0]
-    rooms = np.full(n_avs, np.nan)
+    rooms = _rooms(path, counted, collidable, horizon.dt)
     worst, dead, total = 0.0, 0.0, 0.0
     for i in range(n_avs):
         if collidable[i]:
-            rooms[i] = path_room(i, path, counted[i], horizon.dt)
             short = min(rooms[i] - min_gap, 0.0)
             worst, total = min(worst, short), total + short
             dead = min(dead, dead_end_margin(state, i, path, horizon.lanes, obstacles), 0.0)
@@ -321,9 +339,7 @@ def _joint_search(
     collidable = state0[:, COLLIDABLE] > 0
     if not (collidable[:n_avs] & (rooms < min_gap)).any():
         return executed, braking, rooms  # nobody short: no prediction needed
-    counted = np.zeros((n_avs, collidable.size), dtype=np.bool_)
-    for i in range(n_avs):
-        counted[i] = _counted(state0, i, n_avs, collidable, rear_avs)
+    counted = _all_counted(state0, n_avs, collidable, rear_avs)
     options = np.zeros((n_avs, PREFERENCE.size + 1), dtype=np.bool_)
     for i in range(n_avs):
         for a in range(PREFERENCE.size):
