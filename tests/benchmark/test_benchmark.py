@@ -373,3 +373,26 @@ def test_the_clopper_pearson_upper_bound_matches_the_beta_quantile():
     assert clopper_pearson_upper(5, 5) == 1.0
     with pytest.raises(ValueError, match="events=6, trials=5"):
         clopper_pearson_upper(6, 5)
+
+
+HELDOUT = Path(__file__).parents[2] / "benchmarks" / "heldout_evaluation.py"
+
+
+def test_heldout_evaluation_runs_a_supervisor_variant_and_rejects_a_bad_key_before_any_folder(tiny_benchmark, tmp_path):
+    def heldout(*argv: str) -> subprocess.CompletedProcess:
+        command = [sys.executable, str(HELDOUT), "-f", str(tiny_benchmark), "--densities", "1", "--seeds", "1", *argv]
+        return subprocess.run(command, capture_output=True, text=True, timeout=600)
+
+    bad = heldout("--variants", "merge", "--config", "supervisor_joint_serch:True", "-o", str(tmp_path / "bad"))
+    assert bad.returncode == 1
+    assert "--config: Unknown config key(s) ['supervisor_joint_serch'] for the merge scenario" in bad.stderr
+    assert not (tmp_path / "bad").exists()
+
+    out = tmp_path / "joint"
+    done = heldout("--episodes", "2", "--config", "supervisor_joint_search:True", "-o", str(out))
+    assert done.returncode == 0, done.stderr[-3000:]
+    results = json.loads((out / "heldout.json").read_text())
+    assert results["protocol"]["config"] == {"supervisor_joint_search": True}
+    assert sorted(results["entries"]) == ["idm-mobil_density1", "ma2c_density1_default_seed0"]
+    assert results["entries"]["ma2c_density1_default_seed0"]["episodes"] == 2
+    assert "on and off, supervisor_joint_search: True;" in (out / "heldout.md").read_text()
