@@ -36,7 +36,9 @@ change keep their lanes together (IDLE), when that leaves every AV more room. Wi
 ``supervisor_joint_search`` (off by default), the AVs still short of room then have their options
 searched in pairs with every other AV's, the whole road predicted for each pair
 (:func:`_joint_search`): it finds the joint moves one-at-a-time service cannot (an AV on the
-merging lane keeping its speed while the AV closing from behind brakes).
+merging lane keeping its speed while the AV closing from behind brakes). It first takes every AV's
+room again under the actions the passes ended with: an AV served early in the second pass was
+checked against actions that later AVs of that pass replaced.
 
 A lane an obstacle ends (the merge's merging lane) is a constraint of its own: an AV cannot stop on
 it (its lowest target speed is 10 m/s), so an action is also replaced when it leaves the AV on
@@ -181,6 +183,7 @@ def supervise_arrays(
     # the road predicted under the AVs' current actions, shared by every AV's room until one changes
     path = predict(state, horizon, speed_step, -1, collidable, -np.inf)[0]
     obstacles = np.flatnonzero(state0[:, IS_OBSTACLE] > 0)
+    settled = False  # whether the last pass changed nothing (every room then under the final actions)
     for _ in range(PASSES):
         changed = False
         for i in order:
@@ -223,6 +226,7 @@ def supervise_arrays(
                     _set_action(state, i, best, speed_step, candidate_lane, candidate_speed, repeat_actions)
             rooms[i] = room
         if not changed:
+            settled = True
             break  # another pass would see the same actions and find the same rooms
     # Joint fallback: the passes serve one AV at a time against the others' current actions, so two
     # AVs whose lane changes conflict can each find every option unsafe and end up crossing each
@@ -265,6 +269,7 @@ def supervise_arrays(
             rear_avs,
             emergency_brake,
             obstacles,
+            settled,
         )
     return executed, rooms, braking
 
@@ -328,16 +333,18 @@ def _joint_search(
     rear_avs: bool,
     emergency_brake: bool,
     obstacles: np.ndarray,
+    settled: bool,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Joint search (``supervisor_joint_search``): while AVs are left short of ``min_gap`` m of room
-    after the passes, try each such AV's options (its available meta-actions and, with
+    after the passes (every room taken again under the final actions unless the last pass was
+    ``settled``: changed nothing), try each such AV's options (its available meta-actions and, with
     ``emergency_brake``, the brake) together with each other AV's, the whole road predicted for
     every pair, and keep the pair that leaves the worst-off AV the most room (then the most time to
     leave a dead end, then the least summed shortfall); repeated while it improves, at most once
     per AV. Returns the executed actions, which AVs brake, and the AVs' rooms [m]."""
     n_avs = executed.size
     collidable = state0[:, COLLIDABLE] > 0
-    if not (collidable[:n_avs] & (rooms < min_gap)).any():
+    if settled and not (collidable[:n_avs] & (rooms < min_gap)).any():
         return executed, braking, rooms  # nobody short: no prediction needed
     counted = _all_counted(state0, n_avs, collidable, rear_avs)
     options = np.zeros((n_avs, PREFERENCE.size + 1), dtype=np.bool_)
@@ -350,6 +357,7 @@ def _joint_search(
         if braking[i]:
             option[i] = BRAKE
     best = _joint_score(state, speed_step, horizon, counted, collidable, obstacles, min_gap, n_avs)
+    rooms = best[3]  # under the final actions (an AV served early in the last pass was checked against others')
     for _ in range(n_avs):
         if best[0] >= 0.0 and best[1] >= 0.0:
             break

@@ -1,6 +1,8 @@
 """The on-ramp merging scenario (sb3_marl/Merge-density{1,2,3}-v0): MARL_CAVs' road, spawn, reward and
 neighbour sets on the lane change's kernel, held to highway-env's own classes on the same road."""
 
+from pathlib import Path
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -217,6 +219,26 @@ def test_the_joint_search_avoids_a_crash_that_serving_one_av_at_a_time_leaves():
 
         env = make(3, n_avs=5, safety_supervisor=True, supervisor_joint_search=joint)
         crashes[joint] = run_episodes(env, policy, 1, seed)[0].crashed
+    assert crashes == {False: True, True: False}
+
+
+def test_the_joint_search_checks_every_room_under_the_actions_the_passes_end_with():
+    """The committed MA2C model of the merge grid (density 2, seed 1), greedy, held-out episode
+    100287 with 4 AVs: the second pass brakes an AV whose follower was served earlier in that pass
+    against its proposal, so the follower's room is stale and, served one at a time, it drives into
+    the AV at step 95. The joint search takes every AV's room under the final actions and brakes it."""
+    from sb3_marl.benchmark.trial import RUN_ID
+    from sb3_marl.evaluation import model_policy, run_episodes
+    from sb3_marl.runs import find_run
+
+    trial = Path(__file__).parents[2] / "results" / "paper-grid" / "trials" / "ma2c_density2_merge_seed1"
+    run = find_run(trial, "ma2c", MERGE_ENV_IDS[2], RUN_ID)
+    policy = model_policy(run.load_model("cpu"), deterministic=True)
+    crashes = {}
+    for joint in (False, True):
+        config = {**run.env_config, "n_avs": 4, "safety_supervisor": True, "supervisor_joint_search": joint}
+        env = gym.make(MERGE_ENV_IDS[2], config=config).unwrapped
+        crashes[joint] = run_episodes(env, policy, 1, seed=100287)[0].crashed
     assert crashes == {False: True, True: False}
 
 
