@@ -183,7 +183,7 @@ def _pair(lo: float, integer: bool = False) -> tuple[Check, str]:
 
 
 def _boolean() -> tuple[Check, str]:
-    return (lambda v: isinstance(v, bool)), "true or false"
+    return (lambda v: isinstance(v, bool)), "a boolean: true or false (True or False in a key:value on the command line)"
 
 
 def _speeds() -> tuple[Check, str]:
