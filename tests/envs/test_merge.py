@@ -236,8 +236,7 @@ def test_the_joint_search_checks_every_room_under_the_actions_the_passes_end_wit
     policy = model_policy(run.load_model("cpu"), deterministic=True)
     crashes = {}
     for joint in (False, True):
-        config = {**run.env_config, "n_avs": 4, "safety_supervisor": True, "supervisor_joint_search": joint}
-        env = gym.make(MERGE_ENV_IDS[2], config=config).unwrapped
+        env = make(2, **{**run.env_config, "n_avs": 4, "safety_supervisor": True, "supervisor_joint_search": joint})
         crashes[joint] = run_episodes(env, policy, 1, seed=100287)[0].crashed
     assert crashes == {False: True, True: False}
 
