@@ -260,7 +260,10 @@ def validate_hyperparams(algo: str, hyperparams: dict[str, Any], env_id: str | N
             check(hyperparams[key])
     masking = hyperparams.get("action_masking", True)
     if not isinstance(masking, bool):
-        raise ValueError(f"Invalid action_masking={masking!r} for {algo!r}: expected true or false.")
+        raise ValueError(
+            f"Invalid action_masking={masking!r} for {algo!r}: expected true or false "
+            "(True or False in a key:value on the command line)."
+        )
     architecture = hyperparams.get("architecture", "default")
     q_learning = is_q_learning(algo)
     allowed_architectures = ["default", "shared"] if q_learning else ["default", *ARCHITECTURES]

@@ -74,6 +74,7 @@ def test_bad_numbers_are_usage_errors(argv, message, capsys):
         ("gamma:0.99.", "Invalid hyperparameter gamma='0.99.': expected a finite number >= 0 and <= 1"),
         ("gamma:nan", "Invalid hyperparameter gamma=nan"),
         ("action_masking:'yes'", "Invalid action_masking='yes'"),
+        ("action_masking:true", "expected true or false (True or False in a key:value on the command line)"),
         ("stored_actions:'both'", "Invalid stored_actions='both'"),
         ("env_config:dict(headway_time=inf)", "config['headway_time'] = inf: expected a finite number"),
     ],
