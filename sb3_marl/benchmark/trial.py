@@ -229,12 +229,13 @@ def _record_attempt(folder: Path, spec: TrialSpec, config: dict[str, Any], resum
 def paper_evaluation(model: Any, env_id: str, config: dict[str, Any] | None) -> dict[str, Any]:
     """The paper's final evaluation of a trained model: :data:`FINAL_EVAL_EPISODES` seeded
     episodes (seeds 10000..), sampled actions, under both supervisor protocols."""
-    from sb3_marl.envs.supervisor import VERSION
+    from sb3_marl.envs import scenario_of
+    from sb3_marl.envs.supervisor import VERSIONS
     from sb3_marl.evaluation import evaluate_protocols, model_policy, protocol_label
     from sb3_marl.experiment import EVAL_SEED_OFFSET
 
     return {
-        "supervisor_version": VERSION,
+        "supervisor_version": VERSIONS[scenario_of(env_id)],
         "episodes": FINAL_EVAL_EPISODES,
         "seeds": [EVAL_SEED_OFFSET, EVAL_SEED_OFFSET + FINAL_EVAL_EPISODES - 1],
         "protocol": protocol_label(False, model),
@@ -248,16 +249,18 @@ def reevaluate_trial(folder: Path) -> bool:
     policy-alone protocol or the yields, or was made under another version of the safety
     supervisor; the supervisor-on return of an earlier evaluation is kept in ``note`` if it
     differs. Returns whether the trial was re-evaluated."""
-    from sb3_marl.envs.supervisor import VERSION
+    from sb3_marl.envs import scenario_of
+    from sb3_marl.envs.supervisor import VERSIONS
     from sb3_marl.runs import find_run
 
     result = read_json_object(folder / RESULT)
     if "trial" not in result:
         raise ValueError(f"{folder / RESULT} has no 'trial' entry: not a finished trial's result.")
-    earlier = result.get("paper_evaluation") or {}
-    if earlier.get("supervisor_version") == VERSION and "yields_per_episode" in earlier.get("supervisor_off", {}):
-        return False
     spec = TrialSpec(**result["trial"])
+    earlier = result.get("paper_evaluation") or {}
+    version = VERSIONS[scenario_of(spec.env_id)]
+    if earlier.get("supervisor_version") == version and "yields_per_episode" in earlier.get("supervisor_off", {}):
+        return False
     run = find_run(folder, spec.algo, spec.env_id, RUN_ID)
     evaluation = paper_evaluation(run.load_model("cpu"), spec.env_id, run.env_config)
     if "note" in earlier:

@@ -137,6 +137,7 @@ def merge_default_config() -> dict[str, Any]:
             "merging_lane_weight": 4.0,
             "supervisor_priority": "merging",  # see SUPERVISOR_PRIORITIES
             "supervisor_emergency_brake": True,
+            "supervisor_joint_search": True,
         }
     )
     return config

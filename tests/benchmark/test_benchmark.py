@@ -396,3 +396,34 @@ def test_heldout_evaluation_runs_a_supervisor_variant_and_rejects_a_bad_key_befo
     assert sorted(results["entries"]) == ["idm-mobil_density1", "ma2c_density1_default_seed0"]
     assert results["entries"]["ma2c_density1_default_seed0"]["episodes"] == 2
     assert "on and off, supervisor_joint_search: True;" in (out / "heldout.md").read_text()
+
+
+def test_benchmark_evaluate_redoes_the_trials_evaluated_under_another_version_of_their_roads_supervisor(tmp_path):
+    """Committed trials of both roads, their final evaluations marked as made under the previous
+    supervisor version: ``benchmark evaluate`` redoes the merge trial's (``supervisor_joint_search``
+    became the merge's default in its version 4) and leaves the lane change's, whose version is
+    unchanged; a second call redoes nothing."""
+    from sb3_marl.envs.config import LANE_CHANGE, MERGE
+    from sb3_marl.envs.supervisor import VERSIONS
+
+    grid = Path(__file__).resolve().parents[2] / "results" / "paper-grid"
+    copy = tmp_path / "grid"
+    (copy / "trials").mkdir(parents=True)
+    (copy / "benchmark.json").write_text((grid / "benchmark.json").read_text())
+    trials = {LANE_CHANGE: "ma2c_density1_default_seed0", MERGE: "ma2c_density1_merge_seed0"}
+    for scenario, name in trials.items():
+        subprocess.run(["cp", "-r", str(grid / "trials" / name), str(copy / "trials" / name)], check=True)
+        result = json.loads((copy / "trials" / name / "result.json").read_text())
+        assert result["paper_evaluation"]["supervisor_version"] == VERSIONS[scenario]
+        result["paper_evaluation"]["supervisor_version"] = VERSIONS[scenario] - (scenario == MERGE)
+        (copy / "trials" / name / "result.json").write_text(json.dumps(result))
+    stamp = {name: (copy / "trials" / name / "result.json").stat().st_mtime_ns for name in trials.values()}
+    assert main(["benchmark", "evaluate", "-f", str(copy)]) == 0
+    redone = json.loads((copy / "trials" / trials[MERGE] / "result.json").read_text())["paper_evaluation"]
+    committed = json.loads((grid / "trials" / trials[MERGE] / "result.json").read_text())["paper_evaluation"]
+    assert redone["supervisor_version"] == VERSIONS[MERGE] == 4
+    assert redone["return_mean"] == pytest.approx(committed["return_mean"], abs=1e-9)
+    assert (copy / "trials" / trials[LANE_CHANGE] / "result.json").stat().st_mtime_ns == stamp[trials[LANE_CHANGE]]
+    stamp = (copy / "trials" / trials[MERGE] / "result.json").stat().st_mtime_ns
+    assert main(["benchmark", "evaluate", "-f", str(copy)]) == 0
+    assert (copy / "trials" / trials[MERGE] / "result.json").stat().st_mtime_ns == stamp
