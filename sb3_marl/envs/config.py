@@ -109,7 +109,8 @@ def default_config() -> dict[str, Any]:
         "supervisor_rear_avs": True,
         # when no meta-action leaves an AV supervisor_min_gap of room, brake it to a stop (a target
         # speed of 0 m/s, below the speed ladder) if that leaves more; on for the merge, whose AVs
-        # meet stalled vehicles and a dead end they cannot stop for at the ladder's 10 m/s
+        # meet stalled vehicles and a dead end they cannot stop for at the ladder's 10 m/s; a braked
+        # AV may then be released by the supervisor with SLOWER (to the ladder's lowest speed)
         "supervisor_emergency_brake": False,
         # when AVs are still short of supervisor_min_gap of room after the passes, search their
         # actions in pairs with the other AVs' (the whole road predicted for each pair)

@@ -38,7 +38,10 @@ searched in pairs with every other AV's, the whole road predicted for each pair
 (:func:`_joint_search`): it finds the joint moves one-at-a-time service cannot (an AV on the
 merging lane keeping its speed while the AV closing from behind brakes). It first takes every AV's
 room again under the actions the passes ended with: an AV served early in the second pass was
-checked against actions that later AVs of that pass replaced.
+checked against actions that later AVs of that pass replaced. With ``supervisor_emergency_brake``
+(on by default on the merge), an AV that no meta-action leaves room is braked to a stop (a target
+speed of 0 m/s, below the speed ladder), and an AV so braked may be released by SLOWER, to the
+ladder's lowest speed, which the policy's mask leaves out there (:meth:`Supervisor.choices`).
 
 A lane an obstacle ends (the merge's merging lane) is a constraint of its own: an AV cannot stop on
 it (its lowest target speed is 10 m/s), so an action is also replaced when it leaves the AV on
@@ -75,7 +78,7 @@ NO_LEADER_GAP = 1e6  # [m], headway of an AV without leader (priority only)
 PREFERENCE = np.array([1, 4, 3, 0, 2], dtype=np.int64)
 #: Speed-index change of each meta-action (FASTER +1, SLOWER -1) when actions repeat over the horizon.
 SPEED_STEP = np.array([0, 0, 0, 1, -1], dtype=np.int64)
-LANE_LEFT, IDLE, LANE_RIGHT = 0, 1, 2
+LANE_LEFT, IDLE, LANE_RIGHT, SLOWER = 0, 1, 2, 4
 #: The emergency brake as an option of the joint search (after the five meta-actions).
 BRAKE = 5
 #: Passes over the AVs in priority order (the second checks against the first pass's final actions).
@@ -471,6 +474,17 @@ class Supervisor:
             priorities,
         )
 
+    def choices(self, state: np.ndarray, n_avs: int, available: np.ndarray) -> np.ndarray:
+        """(n_avs, 5) the meta-actions the supervisor may execute: the policy's mask ``available``
+        and, with the emergency brake, SLOWER for an AV braked below the speed ladder (the brake's
+        release: highway-env's SLOWER at the ladder's bottom step sets its lowest speed, but its mask
+        leaves SLOWER out there, so the AV could otherwise only keep braking or take FASTER to the
+        ladder's second speed)."""
+        choices = np.array(available, dtype=np.bool_)
+        if self.emergency_brake:
+            choices[:, SLOWER] |= state[:n_avs, TARGET_SPEED] < self.horizon.ladder[0]
+        return choices
+
     def __call__(
         self, state: np.ndarray, n_avs: int, proposed: np.ndarray, available: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -491,7 +505,7 @@ class Supervisor:
             state,
             candidate_lane,
             candidate_speed,
-            np.asarray(available, dtype=np.bool_),
+            self.choices(state, n_avs, available),
             np.asarray(proposed, dtype=np.int64),
             priority,
             horizon,

@@ -204,20 +204,20 @@ def test_the_emergency_brake_stops_an_av_for_a_stalled_vehicle(simulator):
 
 
 def test_the_joint_search_avoids_a_crash_that_serving_one_av_at_a_time_leaves():
-    """Density 3, 5 AVs, each AV's meta-action drawn among its available ones (episode 200101 of
-    benchmarks/supervisor_safety.py): served one at a time, the AVs end in a crash at step 77; with
-    ``supervisor_joint_search`` the short AV's options are searched with each other AV's and the
-    episode runs to its end without one."""
+    """Density 3, 6 AVs, each AV's meta-action drawn among its available ones (episode 200614 of
+    benchmarks/supervisor_safety.py): served one at a time, the AVs end in a crash at step 78; with
+    ``supervisor_joint_search`` (the merge's default) the short AV's options are searched with each
+    other AV's and the episode runs to its end without one."""
     from sb3_marl.evaluation import run_episodes
 
-    seed, crashes = 200101, {}
+    seed, crashes = 200614, {}
     for joint in (False, True):
         rng = np.random.default_rng(seed)
 
         def policy(env, obs, rng=rng):
             return np.array([rng.choice(np.flatnonzero(mask)) for mask in env.action_masks()])
 
-        env = make(3, n_avs=5, safety_supervisor=True, supervisor_joint_search=joint)
+        env = make(3, n_avs=6, safety_supervisor=True, supervisor_joint_search=joint)
         crashes[joint] = run_episodes(env, policy, 1, seed)[0].crashed
     assert crashes == {False: True, True: False}
 
@@ -239,6 +239,34 @@ def test_the_joint_search_checks_every_room_under_the_actions_the_passes_end_wit
         env = make(2, **{**run.env_config, "n_avs": 4, "safety_supervisor": True, "supervisor_joint_search": joint})
         crashes[joint] = run_episodes(env, policy, 1, seed=100287)[0].crashed
     assert crashes == {False: True, True: False}
+
+
+def test_the_supervisor_releases_an_av_it_braked_when_braking_on_would_be_run_into():
+    """Density 3, 5 AVs, random available meta-actions (episode 200523 of
+    benchmarks/supervisor_safety.py): an AV braked to a stop behind a slow HDV has an HDV 1 m
+    behind it; FASTER runs into the HDV ahead, braking on is run into from behind. The policy's mask
+    has no SLOWER below the speed ladder, but the supervisor may choose it (the brake's release, to
+    the ladder's lowest speed): it does, and the episode runs to its end (it crashed at step 92
+    without the release)."""
+    from sb3_marl.evaluation import run_episodes
+
+    seed, masks, released = 200523, [], []
+    rng = np.random.default_rng(seed)
+
+    def policy(env, obs):
+        masks.append(env.action_masks().copy())
+        return np.array([rng.choice(np.flatnonzero(mask)) for mask in masks[-1]])
+
+    def on_step(env, info):
+        if info["step"] == 0:
+            return
+        executed = np.asarray(info["executed_action"])
+        released.append(not masks[-1][executed == 4, 4].all())
+
+    env = make(3, n_avs=5, safety_supervisor=True)
+    assert env.config["supervisor_emergency_brake"] and env.config["supervisor_joint_search"]
+    episode = run_episodes(env, policy, 1, seed, on_step)[0]
+    assert not episode.crashed and episode.length == 100 and any(released)
 
 
 def test_merge_metrics_count_the_ramp_avs_that_merge():
