@@ -33,8 +33,8 @@ with in the first (an AV served early was checked against proposals that may hav
 since). Served one at a time, two AVs whose lane changes conflict can still each find every option
 unsafe and cross each other; a joint fallback then makes the AVs left short of room after a lane
 change keep their lanes together (IDLE), when that leaves every AV more room. With
-``supervisor_joint_search`` (on by default on the merge), the AVs still short of room then have their options
-searched in pairs with every other AV's, the whole road predicted for each pair
+``supervisor_joint_search`` (on by default on the merge), the AVs still short of room then have
+their options searched in pairs with every other AV's, the whole road predicted for each pair
 (:func:`_joint_search`): it finds the joint moves one-at-a-time service cannot (an AV on the
 merging lane keeping its speed while the AV closing from behind brakes). It first takes every AV's
 room again under the actions the passes ended with: an AV served early in the second pass was
@@ -70,7 +70,7 @@ from sb3_marl.envs.rooms import Horizon, dead_end_margin, path_room, predict
 #: Version of the supervisor's decisions on each road (:data:`~sb3_marl.envs.config.LANE_CHANGE`,
 #: ``MERGE``); evaluations record it, and ``sb3-marl benchmark evaluate`` re-evaluates trials
 #: evaluated under another (history in CHANGELOG.md; 3: the road's own equations; 4, the merge:
-#: ``supervisor_joint_search`` on by default).
+#: the emergency brake's release, :meth:`Supervisor.choices`, and ``supervisor_joint_search`` on).
 VERSIONS = {LANE_CHANGE: 3, MERGE: 4}
 NO_LEADER_GAP = 1e6  # [m], headway of an AV without leader (priority only)
 #: Replacement candidates in tie order: IDLE, SLOWER, FASTER, LANE_LEFT, LANE_RIGHT
