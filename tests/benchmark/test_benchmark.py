@@ -400,9 +400,9 @@ def test_heldout_evaluation_runs_a_supervisor_variant_and_rejects_a_bad_key_befo
 
 def test_benchmark_evaluate_redoes_the_trials_evaluated_under_another_version_of_their_roads_supervisor(tmp_path):
     """Committed trials of both roads, their final evaluations marked as made under the previous
-    supervisor version: ``benchmark evaluate`` redoes the merge trial's (``supervisor_joint_search``
-    became the merge's default in its version 4) and leaves the lane change's, whose version is
-    unchanged; a second call redoes nothing."""
+    supervisor version: ``benchmark evaluate`` redoes the merge trial's (its version 4 added the
+    emergency brake's release and made ``supervisor_joint_search`` the default) and leaves the lane
+    change's, whose version is unchanged; a second call redoes nothing."""
     from sb3_marl.envs.config import LANE_CHANGE, MERGE
     from sb3_marl.envs.supervisor import VERSIONS
 
