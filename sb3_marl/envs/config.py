@@ -115,6 +115,11 @@ def default_config() -> dict[str, Any]:
         # when AVs are still short of supervisor_min_gap of room after the passes, search their
         # actions in pairs with the other AVs' (the whole road predicted for each pair)
         "supervisor_joint_search": False,
+        # an AV's lane change counts as short of room when its new follower, an HDV on the target
+        # lane or on the lane leading into it, would brake harder behind it (IDM) than its MOBIL
+        # safe braking (hdv_b_safe): the check MOBIL makes for the HDVs' own lane changes (the
+        # merge's HDVs see no vehicle past the start of the lane they are about to enter)
+        "supervisor_mobil_safety": False,
         # with the safety supervisor off, compute its decision all the same and report in
         # info["intervened"] where it would have replaced or braked an action (nothing applied):
         # training's intervention penalty then reaches the episodes run without it
@@ -251,6 +256,7 @@ _SCHEMA: dict[str, tuple[Check, str]] = {
     "supervisor_rear_avs": _boolean(),
     "supervisor_emergency_brake": _boolean(),
     "supervisor_joint_search": _boolean(),
+    "supervisor_mobil_safety": _boolean(),
     "supervisor_shadow": _boolean(),
     "screen_width": _integer(1),
     "screen_height": _integer(1),

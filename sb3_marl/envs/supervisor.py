@@ -42,6 +42,12 @@ checked against actions that later AVs of that pass replaced. With ``supervisor_
 (on by default on the merge), an AV that no meta-action leaves room is braked to a stop (a target
 speed of 0 m/s, below the speed ladder), and an AV so braked may be released by SLOWER, to the
 ladder's lowest speed, which the policy's mask leaves out there (:meth:`Supervisor.choices`).
+With ``supervisor_mobil_safety`` (off by default), an AV's lane change is held to the
+check MOBIL makes for the HDVs' own: it counts as short of room when the HDV it would cut in front
+of, on the target lane or on the lane leading into it, would have to brake harder than its safe
+braking (:func:`unsafe_cut_ins`). highway-env's HDVs see no vehicle past the start of the lane they
+are about to enter, so an HDV closing at full speed on the main road cannot stop for an AV that
+merged just past the ramp's end; the room over the horizon does not show it yet.
 
 A lane an obstacle ends (the merge's merging lane) is a constraint of its own: an AV cannot stop on
 it (its lowest target speed is 10 m/s), so an action is also replaced when it leaves the AV on
@@ -62,8 +68,21 @@ import numba
 import numpy as np
 
 from sb3_marl.envs.config import LANE_CHANGE, MERGE
-from sb3_marl.envs.drivers import lane_distance, lane_occupancy, leader
-from sb3_marl.envs.kernel import COLLIDABLE, IS_OBSTACLE, LANE, SPEED, TARGET_LANE, TARGET_SPEED, X
+from sb3_marl.envs.drivers import idm, lane_distance, lane_occupancy, leader
+from sb3_marl.envs.kernel import (
+    COLLIDABLE,
+    IS_HDV,
+    IS_OBSTACLE,
+    LANE,
+    MAX_BRAKING_IMPOSED,
+    PRESENT,
+    SPEED,
+    TARGET_LANE,
+    TARGET_SPEED,
+    X,
+    Y,
+)
+from sb3_marl.envs.lanes import NEXT_COUNT, NEXT_FIRST, local_coordinates
 from sb3_marl.envs.meta_actions import meta_action_targets
 from sb3_marl.envs.rooms import Horizon, dead_end_margin, path_room, predict
 
@@ -144,6 +163,37 @@ def _rooms(path: np.ndarray, counted: np.ndarray, collidable: np.ndarray, dt: fl
 
 
 @numba.njit(cache=True)
+def unsafe_cut_ins(
+    state: np.ndarray, n_avs: int, lanes: np.ndarray, candidate_lane: np.ndarray, speed_limit: float
+) -> np.ndarray:
+    """(n_avs, 5) the meta-actions that take an AV into a lane (or on into the lane it is changing
+    to) in front of an HDV that would then have to brake harder than its MOBIL safe braking
+    [m/s²]: IDM's acceleration of the nearest HDV behind the AV on that lane, or on a lane leading
+    into it (whose HDVs do not see the AV yet), with the AV as its leader (MOBIL's safety check)."""
+    unsafe = np.zeros((n_avs, candidate_lane.shape[1]), dtype=np.bool_)
+    for i in range(n_avs):
+        for a in range(candidate_lane.shape[1]):
+            lane = int(candidate_lane[i, a])
+            if lane == int(state[i, LANE]):
+                continue
+            s_i = local_coordinates(lanes, lane, state[i, X], state[i, Y])[0]
+            follower, s_follower = -1, -np.inf
+            for j in range(n_avs, state.shape[0]):
+                if state[j, IS_HDV] <= 0 or state[j, PRESENT] <= 0:
+                    continue
+                own = int(state[j, LANE])
+                first = int(lanes[own, NEXT_FIRST])
+                if own != lane and not first <= lane < first + int(lanes[own, NEXT_COUNT]):
+                    continue
+                s_j = local_coordinates(lanes, lane, state[j, X], state[j, Y])[0]
+                if s_follower < s_j < s_i:
+                    follower, s_follower = j, s_j
+            if follower >= 0:
+                unsafe[i, a] = idm(state, lanes, follower, i, speed_limit) < -state[follower, MAX_BRAKING_IMPOSED]
+    return unsafe
+
+
+@numba.njit(cache=True)
 def supervise_arrays(
     state0: np.ndarray,
     candidate_lane: np.ndarray,
@@ -157,6 +207,7 @@ def supervise_arrays(
     rear_avs: bool = True,
     emergency_brake: bool = False,
     joint_search: bool = False,
+    mobil_safety: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The supervisor on the road's state array (the kernel's layout, AVs first). Returns the
     executed actions, each AV's room [m] under them (NaN for AVs not served: past the road end) and
@@ -174,6 +225,8 @@ def supervise_arrays(
         stop (target speed 0 m/s, below the speed ladder) and take it if it leaves more room
     :param joint_search: when AVs are still short of room at the end, search their actions in
         pairs with the other AVs' (:func:`_joint_search`)
+    :param mobil_safety: an action of :func:`unsafe_cut_ins` counts as short of room (below
+        ``min_gap``), and the joint search leaves such actions out
     """
     n_avs = proposed.size
     executed = proposed.copy()
@@ -186,6 +239,10 @@ def supervise_arrays(
     for i in range(n_avs):
         _set_action(state, i, proposed[i], speed_step, candidate_lane, candidate_speed, repeat_actions)
     order = np.argsort(priority, kind="mergesort")
+    unsafe = np.zeros(candidate_lane.shape, dtype=np.bool_)
+    if mobil_safety:
+        unsafe = unsafe_cut_ins(state0, n_avs, horizon.lanes, candidate_lane, horizon.speed_limit)
+    short = min_gap - 1e-6  # [m] the room an unsafe cut-in counts at most
     # the road predicted under the AVs' current actions, shared by every AV's room until one changes
     path = predict(state, horizon, speed_step, -1, collidable, -np.inf)[0]
     obstacles = np.flatnonzero(state0[:, IS_OBSTACLE] > 0)
@@ -198,6 +255,8 @@ def supervise_arrays(
             counted = _counted(state0, i, n_avs, collidable, rear_avs)
             current = executed[i]
             room = path_room(i, path, counted, dt)
+            if unsafe[i, current] and not braking[i]:
+                room = min(room, short)
             dead_end = dead_end_margin(state, i, path, horizon.lanes, obstacles)
             if room < min_gap or dead_end < 0:
                 best, best_brake, best_room, best_dead_end, best_path = current, braking[i], room, dead_end, path
@@ -221,6 +280,8 @@ def supervise_arrays(
                     seen = _counted(state0, i, n_avs, collidable, False) if brake else counted
                     candidate_path, candidate_room = predict(state, horizon, speed_step, i, seen, floor)
                     candidate_dead_end = dead_end_margin(state, i, candidate_path, horizon.lanes, obstacles)
+                    if unsafe[i, a]:
+                        candidate_room = min(candidate_room, short)
                     if _better(candidate_room, candidate_dead_end, best_room, best_dead_end, min_gap):
                         best, best_brake = a, brake
                         best_room, best_dead_end, best_path = candidate_room, candidate_dead_end, candidate_path
@@ -268,7 +329,7 @@ def supervise_arrays(
             order,
             candidate_lane,
             candidate_speed,
-            available,
+            available & ~unsafe,
             horizon,
             min_gap,
             repeat_actions,
@@ -441,6 +502,7 @@ class Supervisor:
     :param rear_avs: protect each AV from the AVs behind it too (``supervisor_rear_avs``)
     :param emergency_brake: brake to a stop when no meta-action leaves room (``supervisor_emergency_brake``)
     :param joint_search: search the actions of AVs left short of room in pairs (``supervisor_joint_search``)
+    :param mobil_safety: hold the AVs' lane changes to MOBIL's safety check (``supervisor_mobil_safety``)
     :param priorities: (state, n_avs, supervisor) -> (n_avs,) the order of service, the smallest
         first; by default the headway margin (:func:`headway_margins`)
     """
@@ -452,6 +514,7 @@ class Supervisor:
     rear_avs: bool
     emergency_brake: bool = False
     joint_search: bool = False
+    mobil_safety: bool = False
     priorities: Callable[[np.ndarray, int, Supervisor], np.ndarray] | None = None
 
     @classmethod
@@ -471,6 +534,7 @@ class Supervisor:
             bool(config["supervisor_rear_avs"]),
             bool(config["supervisor_emergency_brake"]),
             bool(config["supervisor_joint_search"]),
+            bool(config["supervisor_mobil_safety"]),
             priorities,
         )
 
@@ -514,4 +578,5 @@ class Supervisor:
             self.rear_avs,
             self.emergency_brake,
             self.joint_search,
+            self.mobil_safety,
         )

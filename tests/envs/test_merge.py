@@ -269,6 +269,45 @@ def test_the_supervisor_releases_an_av_it_braked_when_braking_on_would_be_run_in
     assert not episode.crashed and episode.length == 100 and any(released)
 
 
+def test_mobil_safety_flags_a_merge_in_front_of_an_hdv_still_on_the_lane_before():
+    """An AV on the merging lane at 15 m/s, an HDV at 23 m/s 20 m behind it on the main road's
+    section before the merging lane: highway-env's IDM does not see the AV until it enters the
+    section beside it, then would have to brake harder than its safe braking, so merging (LANE_LEFT)
+    is flagged; with the HDV 80 m back it is not. Keeping the merging lane (IDLE) never is."""
+    from sb3_marl.envs.meta_actions import meta_action_targets
+    from sb3_marl.envs.supervisor import unsafe_cut_ins
+
+    env = make(1, n_avs=1, safety_supervisor=True)
+    env.reset(seed=0)
+    flagged = {}
+    for behind in (20.0, 80.0):
+        env.place([(330.0, MERGING_LANE, 15.0)], hdvs=[(330.0 - behind, MAIN_BEFORE, 23.0)])
+        lanes = env.supervisor.horizon.lanes
+        candidate_lane = meta_action_targets(env.state, 1, lanes, env.supervisor.horizon.ladder)[0]
+        flagged[behind] = unsafe_cut_ins(env.state, 1, lanes, candidate_lane, env.config["speed_limit"])[0]
+    assert flagged[20.0][0] and not flagged[80.0][0]  # LANE_LEFT
+    assert not flagged[20.0][1] and not flagged[80.0][1]  # IDLE
+
+
+def test_mobil_safety_avoids_a_crash_of_random_meta_actions():
+    """Density 3, 5 AVs, random available meta-actions (episode 200563 of
+    benchmarks/supervisor_safety.py, one of the two crashes the merge's supervisor leaves): an AV
+    merges at 9 m/s 20 m in front of an HDV closing at 22 m/s, brakes for a slow queue and is run
+    into at step 81; with ``supervisor_mobil_safety`` the merge waits and the episode runs to its end."""
+    from sb3_marl.evaluation import run_episodes
+
+    seed, crashed = 200563, {}
+    for check in (False, True):
+        rng = np.random.default_rng(seed)
+
+        def policy(env, obs, rng=rng):
+            return np.array([rng.choice(np.flatnonzero(mask)) for mask in env.action_masks()])
+
+        env = make(3, n_avs=5, safety_supervisor=True, supervisor_mobil_safety=check)
+        crashed[check] = run_episodes(env, policy, 1, seed)[0].crashed
+    assert crashed == {False: True, True: False} and not make(3).config["supervisor_mobil_safety"]
+
+
 def test_merge_metrics_count_the_ramp_avs_that_merge():
     from sb3_marl.baselines import IDMMobilPolicy
     from sb3_marl.evaluation import run_episodes, summarize

@@ -188,6 +188,7 @@ def test_supervised_episodes_are_reproducible():
         ("supervisor_repeat_actions", 1),
         ("supervisor_shadow", "yes"),
         ("supervisor_joint_search", "yes"),
+        ("supervisor_mobil_safety", "yes"),
     ],
 )
 def test_bad_supervisor_keys_name_the_key(key, value):
