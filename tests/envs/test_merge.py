@@ -203,22 +203,25 @@ def test_the_emergency_brake_stops_an_av_for_a_stalled_vehicle(simulator):
     )
 
 
+def random_episode_crashes(seed: int, n_avs: int, **config) -> bool:
+    """Whether episode ``seed`` of benchmarks/supervisor_safety.py's random policy (each AV's
+    meta-action drawn among its available ones) at density 3, behind the supervisor, crashes."""
+    from sb3_marl.evaluation import run_episodes
+
+    rng = np.random.default_rng(seed)
+
+    def policy(env, obs):
+        return np.array([rng.choice(np.flatnonzero(mask)) for mask in env.action_masks()])
+
+    return run_episodes(make(3, n_avs=n_avs, safety_supervisor=True, **config), policy, 1, seed)[0].crashed
+
+
 def test_the_joint_search_avoids_a_crash_that_serving_one_av_at_a_time_leaves():
     """Density 3, 6 AVs, each AV's meta-action drawn among its available ones (episode 200614 of
     benchmarks/supervisor_safety.py): served one at a time, the AVs end in a crash at step 78; with
     ``supervisor_joint_search`` (the merge's default) the short AV's options are searched with each
     other AV's and the episode runs to its end without one."""
-    from sb3_marl.evaluation import run_episodes
-
-    seed, crashes = 200614, {}
-    for joint in (False, True):
-        rng = np.random.default_rng(seed)
-
-        def policy(env, obs, rng=rng):
-            return np.array([rng.choice(np.flatnonzero(mask)) for mask in env.action_masks()])
-
-        env = make(3, n_avs=6, safety_supervisor=True, supervisor_joint_search=joint)
-        crashes[joint] = run_episodes(env, policy, 1, seed)[0].crashed
+    crashes = {joint: random_episode_crashes(200614, 6, supervisor_joint_search=joint) for joint in (False, True)}
     assert crashes == {False: True, True: False}
 
 
@@ -294,17 +297,7 @@ def test_mobil_safety_avoids_a_crash_of_random_meta_actions():
     benchmarks/supervisor_safety.py, one of the two crashes the merge's supervisor leaves): an AV
     merges at 9 m/s 20 m in front of an HDV closing at 22 m/s, brakes for a slow queue and is run
     into at step 81; with ``supervisor_mobil_safety`` the merge waits and the episode runs to its end."""
-    from sb3_marl.evaluation import run_episodes
-
-    seed, crashed = 200563, {}
-    for check in (False, True):
-        rng = np.random.default_rng(seed)
-
-        def policy(env, obs, rng=rng):
-            return np.array([rng.choice(np.flatnonzero(mask)) for mask in env.action_masks()])
-
-        env = make(3, n_avs=5, safety_supervisor=True, supervisor_mobil_safety=check)
-        crashed[check] = run_episodes(env, policy, 1, seed)[0].crashed
+    crashed = {check: random_episode_crashes(200563, 5, supervisor_mobil_safety=check) for check in (False, True)}
     assert crashed == {False: True, True: False} and not make(3).config["supervisor_mobil_safety"]
 
 
