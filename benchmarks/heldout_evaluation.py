@@ -37,6 +37,7 @@ from sb3_marl.envs import ENV_IDS, MERGE_ENV_IDS
 from sb3_marl.envs.config import LANE_CHANGE, MERGE, scenario_default_config, validate_config
 from sb3_marl.envs.supervisor import VERSIONS
 from sb3_marl.evaluation import evaluate_protocols, model_policy
+from sb3_marl.files import write_text
 from sb3_marl.runs import find_run
 
 
@@ -102,7 +103,7 @@ def evaluate_all(args: argparse.Namespace) -> dict:
             entry.update(evaluated if actions == "sampled" else {actions: evaluated})
         entry["wall_time_s"] = round(time.perf_counter() - start, 1)
         results.setdefault("entries", {})[name] = entry
-        path.write_text(json.dumps(results, indent=2) + "\n")
+        write_text(path, json.dumps(results, indent=2) + "\n")  # atomic: a kill keeps the finished entries
     return results
 
 
@@ -184,7 +185,7 @@ def main() -> None:
     torch.set_num_threads(1)
     results = evaluate_all(args)
     text = table(results, args.variants, args.densities, args.seeds, args.algo)
-    (Path(args.output) / "heldout.md").write_text(text)
+    write_text(Path(args.output) / "heldout.md", text)
     print(text)
 
 
