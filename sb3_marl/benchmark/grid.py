@@ -85,8 +85,11 @@ VARIANTS["rule-prior-agreement-0.5-executed"] = {**VARIANTS["rule-prior-agreemen
 VARIANTS["merge"] = {}
 # the merging paper's curriculum: density 2 starts from density 1's model, density 3 from density 2's
 VARIANTS["merge-curriculum"] = {}
+# the merge trained (and evaluated) with the supervisor holding the AVs' lane changes to MOBIL's
+# safety check for the HDV they cut in front of (docs/safety.md)
+VARIANTS["merge-mobil-safety"] = {"env_config": {"supervisor_mobil_safety": True}}
 #: Variants trained on the merge scenario's ids instead of the lane change's.
-MERGE_VARIANTS = ("merge", "merge-curriculum")
+MERGE_VARIANTS = ("merge", "merge-curriculum", "merge-mobil-safety")
 #: Curriculum variants -> the variant of their density-1 start: the trial at density d > 1 starts from
 #: the final model of the same learner and seed at density d - 1 and trains its own full budget
 #: (no curriculum trial at density 1: that is the start's).
@@ -160,6 +163,11 @@ EXPERIMENTS: dict[str, dict[str, tuple[str, str]]] = {
         "MA2C, merge, from scratch": ("ma2c", "merge"),
         "MA2C, merge, curriculum": ("ma2c", "merge-curriculum"),
     },
+    # beyond the merging paper: MA2C trained with the supervisor's MOBIL safety check on
+    "mobil-safety": {
+        "MA2C, merge (default supervisor)": ("ma2c", "merge"),
+        "MA2C, merge, MOBIL safety check": ("ma2c", "merge-mobil-safety"),
+    },
     # beyond the paper: CTDE, a critic that sees every AV of the copy (same networks otherwise)
     "ctde": {
         "local critic (separate networks)": ("ma2c", "separate-networks"),
@@ -170,7 +178,7 @@ EXPERIMENTS: dict[str, dict[str, tuple[str, str]]] = {
 #: Grid name -> the experiments it runs.
 #: The "paper" grid: the paper's five experiments and our intervention-penalty one (81 trials with 3 seeds).
 GRIDS: dict[str, tuple[str, ...]] = {
-    "paper": tuple(e for e in EXPERIMENTS if e not in ("safety", "ctde", "rule-prior", "merge", "curriculum")),
+    "paper": tuple(e for e in EXPERIMENTS if e not in ("safety", "ctde", "rule-prior", "merge", "curriculum", "mobil-safety")),
     **{name: (name,) for name in EXPERIMENTS},
 }
 

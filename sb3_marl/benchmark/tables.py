@@ -56,6 +56,10 @@ PAPER_FINDINGS = {
         "The merging paper's curriculum: MA2C at densities 2 and 3 from the easier density's model, on the merge",
         "how its MA2C is trained; the gain over training from scratch is not in the sources this project reads",
     ),
+    "mobil-safety": (
+        "Beyond the merging paper: MA2C on the merge trained and evaluated with the supervisor's MOBIL safety check",
+        "not studied (the merging paper's supervisor checks the AVs' own headway only)",
+    ),
     "rule-prior": (
         "Beyond the paper: MA2C and MAPPO started from the IDM/MOBIL rule driver and regularised toward it",
         "not studied (the authors' learners start from scratch); IDM/MOBIL's own row is in the reference section",

@@ -65,6 +65,7 @@ def test_grids_hold_each_trial_once():
         "rule-prior",
         "merge",
         "curriculum",
+        "mobil-safety",
     }
     from sb3_marl.benchmark.grid import EXPERIMENTS
     from sb3_marl.benchmark.tables import PAPER_FINDINGS
@@ -91,6 +92,9 @@ def test_grids_hold_each_trial_once():
     merge = make_grid("merge", densities=(2,), seeds=1)
     assert [spec.env_id for spec in merge] == ["sb3_marl/Merge-density2-v0"] * 4
     assert merge[1].trial_id == "ma2c_density2_merge_seed0" and merge[1].n_timesteps(1.0) == 3_000_000
+    mobil = make_grid("mobil-safety", densities=(3,), seeds=1)[-1]
+    assert mobil.env_id == "sb3_marl/Merge-density3-v0"
+    assert mobil.hyperparams == {"env_config": {"supervisor_mobil_safety": True}}
     safety = make_grid("safety", seeds=1)
     assert [spec.variant for spec in safety] == ["default"] * 3 + ["safety-training"] * 3
     assert safety[-1].hyperparams == VARIANTS["safety-training"] and safety[-1].hyperparams["supervisor_dropout"] > 0
