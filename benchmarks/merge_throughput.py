@@ -5,11 +5,13 @@ and gym 0.x): highway-env's ``AbstractEnv`` with its multi-agent ``Kinematics`` 
 ``DiscreteMetaAction``, the same road, obstacle and spawn, their reward and regional reward
 computed on highway-env's objects each step. Both take uniformly random meta-actions for every AV
 (seeded) at each density's maximum counts, resetting when an episode ends (resets included), on
-one process, ours after 20 untimed steps that load its compiled code and over 10 × ``--steps`` (at
-2,000 steps it would be timed over a fraction of a second, within the machine's noise). Prints
-``name: value unit`` lines.
+one process, ours after 20 untimed steps that load its compiled code. The two alternate over
+``--rounds`` rounds (the machine's speed drifts between them), each timing ``--steps / --rounds``
+stock steps and ten times as many of ours (at the stock's count ours would be timed over a fraction
+of a second, within the machine's noise); each line is the median over the rounds, the speedup's
+the median of the rounds' own ratios. Prints ``name: value unit`` lines.
 
-    python benchmarks/merge_throughput.py [--steps 2000] [--densities 1 2 3]
+    python benchmarks/merge_throughput.py [--steps 2000] [--rounds 5] [--densities 1 2 3]
 """
 
 from __future__ import annotations
@@ -89,7 +91,8 @@ class StockMergeEnv(AbstractEnv):
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--steps", type=int, default=2000, help="env steps per measurement")
+    parser.add_argument("--steps", type=int, default=2000, help="stock env steps per density, over all rounds")
+    parser.add_argument("--rounds", type=int, default=5, help="alternating measurements of the two envs")
     parser.add_argument("--densities", type=int, nargs="+", default=sorted(MERGE_DENSITIES))
     args = parser.parse_args()
     for density in args.densities:
@@ -97,13 +100,19 @@ def main() -> None:
         ours = gym.make(MERGE_ENV_IDS[density], config={"n_avs": n_avs, "hdv_count_range": [n_hdvs, n_hdvs]})
         stock = StockMergeEnv(config={"n_avs": n_avs, "n_hdvs": n_hdvs})
         steps_per_second(ours, 20)  # untimed: loads the compiled code from its cache
-        ours_sps, ours_step_only = steps_per_second(ours, 10 * args.steps)
-        stock_sps, stock_step_only = steps_per_second(stock, args.steps)
+        steps = args.steps // args.rounds
+        rounds = np.array(
+            [
+                steps_per_second(ours, 10 * steps, seed=1000 * r) + steps_per_second(stock, steps, seed=1000 * r)
+                for r in range(args.rounds)
+            ]
+        )  # per round: ours (resets included, step only), stock (the same)
+        speedup, step_only = rounds[:, 0] / rounds[:, 2], rounds[:, 1] / rounds[:, 3]
         tag = f"merge_density{density}_{n_avs}av_{n_hdvs}hdv"
-        print(f"{tag}_ours_env_steps: {ours_sps:.1f} steps/s")
-        print(f"{tag}_stock_env_steps: {stock_sps:.1f} steps/s")
-        print(f"{tag}_speedup: {ours_sps / stock_sps:.2f} x")
-        print(f"{tag}_step_only_speedup: {ours_step_only / stock_step_only:.2f} x")
+        print(f"{tag}_ours_env_steps: {np.median(rounds[:, 0]):.1f} steps/s")
+        print(f"{tag}_stock_env_steps: {np.median(rounds[:, 2]):.1f} steps/s")
+        print(f"{tag}_speedup: {np.median(speedup):.2f} x (rounds {speedup.min():.0f}-{speedup.max():.0f} x)")
+        print(f"{tag}_step_only_speedup: {np.median(step_only):.2f} x")
 
 
 if __name__ == "__main__":
