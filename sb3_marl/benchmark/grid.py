@@ -178,7 +178,7 @@ EXPERIMENTS: dict[str, dict[str, tuple[str, str]]] = {
 #: Grid name -> the experiments it runs.
 #: The "paper" grid: the paper's five experiments and our intervention-penalty one (81 trials with 3 seeds).
 GRIDS: dict[str, tuple[str, ...]] = {
-    "paper": tuple(e for e in EXPERIMENTS if e not in ("safety", "ctde", "rule-prior", "merge", "curriculum", "mobil-safety")),
+    "paper": ("reward", "sharing", "comfort", "politeness", "baselines", "penalty"),
     **{name: (name,) for name in EXPERIMENTS},
 }
 
