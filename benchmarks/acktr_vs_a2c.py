@@ -34,11 +34,11 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.evaluation import evaluate_policy
 
 from sb3_marl.algos.acktr import ACKTR
+from sb3_marl.algos.common.policies import model_policy, unchecked_distributions
 from sb3_marl.envs import ENV_IDS
-from sb3_marl.evaluation import evaluate_on_density, model_policy
-from sb3_marl.hyperparams import load_hyperparams
-from sb3_marl.policies import unchecked_distributions
-from sb3_marl.training import make_model, make_venv
+from sb3_marl.evaluation import evaluate_on_density
+from sb3_marl.runs.hyperparams import load_hyperparams
+from sb3_marl.runs.training import make_model, make_venv
 
 
 def cartpole_learner(algo: str, seed: int) -> tuple[BaseAlgorithm, Callable[[BaseAlgorithm, int], float], int]:

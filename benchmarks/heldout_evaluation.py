@@ -29,16 +29,17 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from sb3_marl.baselines import IDMMobilPolicy
+from sb3_marl.algos.common.policies import model_policy
 from sb3_marl.benchmark.grid import MERGE_VARIANTS, TrialSpec
 from sb3_marl.benchmark.statistics import clopper_pearson_upper, iqm_with_ci
 from sb3_marl.cli.common import StoreHyperparams
+from sb3_marl.common.files import write_text
 from sb3_marl.envs import ENV_IDS, MERGE_ENV_IDS
 from sb3_marl.envs.config import LANE_CHANGE, MERGE, scenario_default_config, validate_config
-from sb3_marl.envs.supervisor import VERSIONS
-from sb3_marl.evaluation import evaluate_protocols, model_policy
-from sb3_marl.files import write_text
-from sb3_marl.runs import find_run
+from sb3_marl.evaluation import evaluate_protocols
+from sb3_marl.evaluation.baselines import IDMMobilPolicy
+from sb3_marl.runs.folders import find_run
+from sb3_marl.safety.supervisor import VERSIONS
 
 
 def slim(result: dict) -> dict:

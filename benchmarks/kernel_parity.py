@@ -2,8 +2,8 @@
 
 For each density and action mix (uniform random, mostly-IDLE "cruise", and cruise with the safety
 supervisor on, whose episodes run to the time limit), the same seeded episodes run under
-:data:`~sb3_marl.envs.simulator.STOCK` (highway-env's own classes, frame by frame) and
-:data:`~sb3_marl.envs.simulator.COMPILED` (the default); prints the largest
+:data:`~sb3_marl.sim.simulator.STOCK` (highway-env's own classes, frame by frame) and
+:data:`~sb3_marl.sim.simulator.COMPILED` (the default); prints the largest
 state and observation differences, the episodes whose events (crashes, lane changes, HDV lane
 decisions, lengths) differ, and what the episodes exercised. ``name: value unit`` lines.
 
@@ -21,7 +21,7 @@ from pathlib import Path
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 from sb3_marl.envs import DENSITIES, ENV_IDS
-from sb3_marl.envs.simulator import COMPILED, STOCK
+from sb3_marl.sim.simulator import COMPILED, STOCK
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "envs"))  # the parity helpers (test support)
 from parity import compare

@@ -18,10 +18,11 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import torch
 
+from sb3_marl.algos.common.policies import model_policy
 from sb3_marl.envs import ENV_IDS, av_steps_per_env_step
-from sb3_marl.evaluation import evaluate_on_density, model_policy
-from sb3_marl.hyperparams import load_hyperparams
-from sb3_marl.training import make_model, make_venv
+from sb3_marl.evaluation import evaluate_on_density
+from sb3_marl.runs.hyperparams import load_hyperparams
+from sb3_marl.runs.training import make_model, make_venv
 
 
 def main() -> None:

@@ -31,8 +31,8 @@ from highway_env.envs.common.abstract import AbstractEnv
 import sb3_marl  # noqa: F401  (registers our ids)
 from sb3_marl.envs import MERGE_ENV_IDS
 from sb3_marl.envs.config import MERGE_DENSITIES, merge_default_config
-from sb3_marl.envs.merge_road import ENDS, make_merge_road, merge_spawn
-from sb3_marl.envs.simulator import vehicle_objects
+from sb3_marl.sim.merge_road import ENDS, make_merge_road, merge_spawn
+from sb3_marl.sim.simulator import vehicle_objects
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from env_throughput import steps_per_second

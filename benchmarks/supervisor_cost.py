@@ -23,7 +23,7 @@ import numpy as np
 
 import sb3_marl  # noqa: F401  (registers our ids)
 from sb3_marl.envs import DENSITIES, ENV_IDS
-from sb3_marl.envs.supervisor import Supervisor
+from sb3_marl.safety.supervisor import Supervisor
 
 
 def measure(density: int, steps: int, supervisor: bool, seed: int = 0) -> dict[str, float]:

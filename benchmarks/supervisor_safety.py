@@ -24,11 +24,11 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np
 
-from sb3_marl.baselines import CruisePolicy
 from sb3_marl.cli.common import StoreHyperparams
 from sb3_marl.envs import ENV_IDS, MERGE_ENV_IDS, make_scenario
 from sb3_marl.envs.config import LANE_CHANGE, MERGE, SCENARIO_DENSITIES, SUPERVISOR_PRIORITIES
 from sb3_marl.evaluation import run_episodes, summarize
+from sb3_marl.evaluation.baselines import CruisePolicy
 
 
 class MaskedRandomPolicy:

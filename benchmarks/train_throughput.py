@@ -28,11 +28,11 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import torch
 
 from sb3_marl.algos import ALGOS
+from sb3_marl.algos.common.policies import unchecked_distributions
 from sb3_marl.benchmark.grid import PAPER_EVAL_EPISODES, PAPER_EVAL_EVERY_EPISODES, make_grid
 from sb3_marl.envs import ENV_IDS
-from sb3_marl.hyperparams import load_hyperparams, merge_hyperparams
-from sb3_marl.policies import unchecked_distributions
-from sb3_marl.training import make_model, make_venv
+from sb3_marl.runs.hyperparams import load_hyperparams, merge_hyperparams
+from sb3_marl.runs.training import make_model, make_venv
 
 PAPER_ENV_STEPS = 1_000_000
 

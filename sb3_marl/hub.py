@@ -29,12 +29,12 @@ from rl_zoo3.utils import EnvironmentName, get_latest_run_id
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 from sb3_marl.algos import get_algo
+from sb3_marl.algos.common.policies import model_policy
+from sb3_marl.common.files import write_text
 from sb3_marl.envs import scenario_of
 from sb3_marl.envs.config import LANE_CHANGE, MERGE
-from sb3_marl.evaluation import model_policy
-from sb3_marl.files import write_text
-from sb3_marl.runs import Run
-from sb3_marl.video import record_video
+from sb3_marl.evaluation.video import record_video
+from sb3_marl.runs.folders import Run
 
 CITATION = """@article{zhou2022multi,
   title   = {Multi-agent reinforcement learning for cooperative lane changing of connected and
@@ -167,7 +167,8 @@ from huggingface_hub import hf_hub_download
 from sb3_marl.algos import get_algo
 from sb3_marl.envs import scenario_of
 from sb3_marl.envs.config import LANE_CHANGE, MERGE
-from sb3_marl.evaluation import model_policy, run_episodes
+from sb3_marl.evaluation import run_episodes
+from sb3_marl.algos.common.policies import model_policy
 
 model = get_algo("{algo}").load(hf_hub_download(repo_id="{repo_id}", filename="{model_file}"))
 env = gym.make("{env_id}", config={env_config}).unwrapped

@@ -5,10 +5,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from sb3_marl.algos.common.policies import model_policy
 from sb3_marl.envs.lane_change_env import ACTION_INDEX
-from sb3_marl.evaluation import YIELD_GAP_M, EpisodeTrace, model_policy
-from sb3_marl.interpretation import find_cooperative_lane_change, plot_cooperative_lane_change
-from sb3_marl.runs import find_run
+from sb3_marl.evaluation import EpisodeTrace
+from sb3_marl.evaluation.interpretation import find_cooperative_lane_change, plot_cooperative_lane_change
+from sb3_marl.evaluation.metrics import YIELD_GAP_M
+from sb3_marl.runs.folders import find_run
 
 #: A committed full-budget MA2C model at density 3 trained without the intervention penalty (it
 #: weaves: dozens of yields in 30 episodes; results/README.md)

@@ -9,7 +9,7 @@ import pytest
 from documents import markdown_tables
 
 from sb3_marl.cli import main
-from sb3_marl.runs import find_run
+from sb3_marl.runs.folders import find_run
 
 RESULTS = Path(__file__).resolve().parent.parent / "results"
 LOG_FOLDERS = sorted(RESULTS.glob("*/logs"))

@@ -1,7 +1,7 @@
 """VecCentralisedState: each AV slot also observes its scenario copy's global state (CTDE).
 
 Centralised training with decentralised execution: the actor keeps the AV's own view, a
-centralised critic (:class:`sb3_marl.policies.CentralisedCriticPolicy`) reads the global state.
+centralised critic (:class:`sb3_marl.algos.common.policies.CentralisedCriticPolicy`) reads the global state.
 """
 
 from __future__ import annotations

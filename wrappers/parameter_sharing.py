@@ -23,7 +23,7 @@ from stable_baselines3.common.vec_env.base_vec_env import (
     VecEnvStepReturn,
 )
 
-from sb3_marl.checks import check_choice, check_integer, check_number
+from sb3_marl.common.checks import check_choice, check_integer, check_number
 from sb3_marl.envs import (  # importing sb3_marl.envs registers the scenario ids
     av_counts,
     copy_av_counts,

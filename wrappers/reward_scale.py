@@ -9,7 +9,7 @@ import numpy as np
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvStepReturn
 
-from sb3_marl.checks import check_number
+from sb3_marl.common.checks import check_number
 
 
 def check_penalty(penalty: float, name: str = "penalty") -> None:

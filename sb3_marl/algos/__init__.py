@@ -3,7 +3,7 @@
 With :class:`~wrappers.ParameterSharingVecEnv` every AV is a slot of one VecEnv, so each SB3
 algorithm trains one policy shared by all AVs: A2C acts as MA2C, PPO as MAPPO, and so on; our
 own :class:`~sb3_marl.algos.acktr.ACKTR` (K-FAC) acts as MAACKTR. MA2C, MAPPO, MAACKTR and MADQN mask
-unavailable meta-actions (:mod:`sb3_marl.algos.base`), as the authors' MA2C does.
+unavailable meta-actions (:mod:`sb3_marl.algos.common.base`), as the authors' MA2C does.
 """
 
 from __future__ import annotations

@@ -12,8 +12,8 @@ from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
 
-from sb3_marl.algos.base import ACTOR_CRITIC_POLICIES
-from sb3_marl.algos.buffers import PerAgentDictRolloutBuffer, PerAgentRolloutBuffer
+from sb3_marl.algos.common.base import ACTOR_CRITIC_POLICIES
+from sb3_marl.algos.common.buffers import PerAgentDictRolloutBuffer, PerAgentRolloutBuffer
 from sb3_marl.algos.ppo import MaskableActorCritic
 
 
@@ -25,7 +25,7 @@ class MaskableA2C(MaskableActorCritic):
     :param use_rms_prop: RMSprop (A2C's original optimiser) rather than Adam
     :param safety_loss_coef: weight of the safety supervisor's teaching loss (:class:`SupervisorTeacher`; 0: off)
     :param prior: ``idm-mobil``: start from the rule driver and regularise toward it
-        (:mod:`sb3_marl.algos.rule_prior`, with ``prior_warm_start``, ``prior_coef``,
+        (:mod:`sb3_marl.algos.common.rule_prior`, with ``prior_warm_start``, ``prior_coef``,
         ``prior_coef_final``, ``prior_decay_steps``, ``prior_smoothing``, ``prior_form``); None: off
     :param per_agent_updates: one optimiser step per AV slot on that slot's ``n_steps`` transitions
         (the authors' cadence: as many steps per rollout as slots; each later step's loss is the

@@ -6,7 +6,7 @@ update per rollout) whose optimiser is K-FAC (Martens and Grosse 2015; Grosse an
 for convolutions): natural-gradient steps under a Kronecker-factored Fisher, scaled down to a
 trust region on the KL divergence between successive policies.
 
-The optimiser is :class:`~sb3_marl.algos.kfac.KFAC` (curvature statistics, preconditioning, trust
+The optimiser is :class:`~sb3_marl.algos.common.kfac.KFAC` (curvature statistics, preconditioning, trust
 region, update); :class:`ACKTR` is the SB3 algorithm (rollouts as A2C, ``train`` feeds K-FAC its
 statistics), :class:`MaskableACKTR` the learner ``maacktr`` on the maskable machinery.
 
@@ -44,8 +44,8 @@ from stable_baselines3.common.policies import (
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.utils import explained_variance
 
-from sb3_marl.algos.base import ACTOR_CRITIC_POLICIES, ActionMaskingMixin
-from sb3_marl.algos.kfac import KFAC
+from sb3_marl.algos.common.base import ACTOR_CRITIC_POLICIES, ActionMaskingMixin
+from sb3_marl.algos.common.kfac import KFAC
 
 SelfACKTR = TypeVar("SelfACKTR", bound="ACKTR")
 

@@ -12,10 +12,10 @@ from sb3_contrib.common.maskable.utils import get_action_masks
 from stable_baselines3 import DQN
 from stable_baselines3.common.type_aliases import GymEnv
 
-from sb3_marl.algos.base import MaskingLearner
-from sb3_marl.algos.buffers import MaskedReplayBuffer
-from sb3_marl.algos.rule_prior import RulePrior
-from sb3_marl.algos.teacher import check_safety_loss_coef
+from sb3_marl.algos.common.base import MaskingLearner
+from sb3_marl.algos.common.buffers import MaskedReplayBuffer
+from sb3_marl.algos.common.rule_prior import RulePrior
+from sb3_marl.algos.common.teacher import check_safety_loss_coef
 
 
 def large_margin_loss(q_values: th.Tensor, labels: th.Tensor, margin: float) -> th.Tensor:
@@ -41,7 +41,7 @@ class MaskableDQN(MaskingLearner, DQN):
     becomes the supervisor's.
 
     With ``prior: idm-mobil`` the rule driver is the starting point (as the actor-critics'
-    :mod:`~sb3_marl.algos.rule_prior`, here in DQfD's way): for the first ``prior_warm_start``
+    :mod:`~sb3_marl.algos.common.rule_prior`, here in DQfD's way): for the first ``prior_warm_start``
     AV-steps it drives (its actions fill the replay buffer, in place of ε-greedy exploration), and
     every update adds ``w · `` the large-margin loss toward the rule action on the replayed next
     observations (the scenario labels each one, ``info["rule_action"]``), ``w`` falling from
@@ -50,7 +50,7 @@ class MaskableDQN(MaskingLearner, DQN):
     :param action_masking: use the env's action masks (True) or SB3's DQN unchanged (False)
     :param safety_loss_coef: weight of the supervisor's large-margin loss (0: off)
     :param prior: ``idm-mobil`` or None (off), with ``prior_warm_start``, ``prior_coef``,
-        ``prior_coef_final`` and ``prior_decay_steps`` (:class:`~sb3_marl.algos.rule_prior.RulePrior`)
+        ``prior_coef_final`` and ``prior_decay_steps`` (:class:`~sb3_marl.algos.common.rule_prior.RulePrior`)
 
     Other parameters: as SB3's ``DQN`` (the replay buffer is :class:`MaskedReplayBuffer`).
     """

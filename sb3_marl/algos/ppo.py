@@ -16,8 +16,8 @@ from sb3_contrib.common.maskable.buffers import MaskableDictRolloutBuffer, Maska
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.utils import explained_variance
 
-from sb3_marl.algos.base import ACTOR_CRITIC_POLICIES, ActionMaskingMixin
-from sb3_marl.algos.teacher import SupervisorTeacher
+from sb3_marl.algos.common.base import ACTOR_CRITIC_POLICIES, ActionMaskingMixin
+from sb3_marl.algos.common.teacher import SupervisorTeacher
 
 
 class MaskableActorCritic(SupervisorTeacher, ActionMaskingMixin, MaskablePPO):  # type: ignore[misc]

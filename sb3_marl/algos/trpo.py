@@ -4,8 +4,9 @@ from __future__ import annotations
 
 from sb3_contrib import TRPO
 
-from sb3_marl.loading import SafeLoading
+from sb3_marl.algos.common.loading import SafeLoading
 
 
 class SafeTRPO(SafeLoading, TRPO):
-    """sb3-contrib's ``TRPO`` (``matrpo``) whose ``load`` never unpickles (:class:`~sb3_marl.loading.SafeLoading`)."""
+    """sb3-contrib's ``TRPO`` (``matrpo``) whose ``load`` never unpickles
+    (:class:`~sb3_marl.algos.common.loading.SafeLoading`)."""

@@ -15,9 +15,9 @@ from matplotlib.patches import Patch
 from sb3_marl.benchmark.grid import EXPERIMENTS
 from sb3_marl.benchmark.statistics import TrialLog, select_trials
 from sb3_marl.benchmark.tables import PAPER_ACCELERATION_STD, PAPER_FINDINGS, PAPER_RETURNS
+from sb3_marl.common.files import save_figure, write_text
 from sb3_marl.envs import DENSITIES
-from sb3_marl.files import save_figure, write_text
-from sb3_marl.plotting import with_default_style
+from sb3_marl.evaluation.plotting import with_default_style
 
 #: Experiments whose learning curves also show the collision rate of the policy alone (the
 #: periodic evaluations without the supervisor).
@@ -152,9 +152,10 @@ def plot_final_returns(
 def acceleration_traces(trial: TrialLog, log_folder: str | Path, seed: int) -> np.ndarray:
     """Accelerations [m/s²] of each AV (columns) at each step (rows) of one evaluation episode of the
     trial's final model, with the density's largest AV count and episode seed ``seed``."""
+    from sb3_marl.algos.common.policies import model_policy
     from sb3_marl.envs import av_counts, make_scenario
-    from sb3_marl.evaluation import model_policy, run_episodes
-    from sb3_marl.runs import find_run
+    from sb3_marl.evaluation import run_episodes
+    from sb3_marl.runs.folders import find_run
 
     run = find_run(Path(log_folder) / "trials" / trial.spec.trial_id, trial.spec.algo, trial.spec.env_id)
     policy = model_policy(run.load_model("cpu"))
@@ -222,10 +223,10 @@ def plot_comfort(trials: list[TrialLog], log_folder: str | Path, out_dir: str | 
 def plot_interpretation(trials: list[TrialLog], log_folder: str | Path, out_dir: str | Path, seed: int) -> list[Path]:
     """``cooperative_lane_change.json`` and, if an AV yielded, ``.png`` (see module doc); nothing
     without a finished MA2C trial at density 2 or 3."""
+    from sb3_marl.algos.common.policies import model_policy
     from sb3_marl.benchmark.trial import FINAL_EVAL_EPISODES
-    from sb3_marl.evaluation import model_policy
-    from sb3_marl.interpretation import describe, find_cooperative_lane_change, plot_cooperative_lane_change
-    from sb3_marl.runs import find_run
+    from sb3_marl.evaluation.interpretation import describe, find_cooperative_lane_change, plot_cooperative_lane_change
+    from sb3_marl.runs.folders import find_run
 
     candidates = [t for density in (3, 2) for t in select_trials(trials, "ma2c", "default", density) if t.result is not None]
     if not candidates:

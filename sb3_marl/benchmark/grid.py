@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 from typing import Any
 
-from sb3_marl.checks import check_choice, check_number
+from sb3_marl.common.checks import check_choice, check_number
 from sb3_marl.envs import DENSITIES, ENV_IDS, MERGE_ENV_IDS, av_steps_per_env_step
 
 #: The paper's budget: 1M env steps (10,000 episodes of 100 steps) per trial.
@@ -37,7 +37,7 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "safety-training": {"architecture": "separate", "supervisor_dropout": 0.5},
     # centralised training, decentralised execution: the critic reads the copy's global state
     "centralised-critic": {"architecture": "separate", "critic": "centralised"},
-    # the rule driver as the starting point (sb3_marl/algos/rule_prior.py): a DAgger warm start of
+    # the rule driver as the starting point (sb3_marl/algos/common/rule_prior.py): a DAgger warm start of
     # 300k AV-steps (counted in the budget), then the RL loss plus a prior term whose weight falls
     # from 1 to 0.1 over the next 1M AV-steps
     "rule-prior": {

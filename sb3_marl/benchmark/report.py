@@ -19,7 +19,7 @@
   off, and the acceleration std of the final evaluations;
 - ``cooperative_lane_change.png`` / ``.json`` (the paper's experiment 6, policy interpretation):
   among the final evaluation episodes of the finished MA2C trials at densities 2 and 3, the
-  lane change an AV yielded to with the largest speed drop (:mod:`sb3_marl.interpretation`),
+  lane change an AV yielded to with the largest speed drop (:mod:`sb3_marl.evaluation.interpretation`),
   as road snapshots and speed traces; the json says which, or that no AV yielded.
 
 Only finished trials (with ``result.json``) enter the table; curves also show unfinished ones.
@@ -35,7 +35,7 @@ from sb3_marl.benchmark.figures import plot_comfort, plot_final_returns, plot_in
 from sb3_marl.benchmark.runner import SETTINGS_FILE
 from sb3_marl.benchmark.statistics import curve_summaries, load_trials, reference_summaries
 from sb3_marl.benchmark.tables import headline_table, paper_table
-from sb3_marl.files import read_json_object, write_text
+from sb3_marl.common.files import read_json_object, write_text
 
 #: Names (glob patterns) of the files a report writes into its output folder.
 REPORT_OUTPUTS = (

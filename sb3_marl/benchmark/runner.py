@@ -29,9 +29,9 @@ from sb3_marl.benchmark.grid import (
     make_grid,
 )
 from sb3_marl.benchmark.trial import CHECKPOINT, RESULT, checkpoint_timesteps, final_evaluation, run_trial, trial_folder
-from sb3_marl.checks import check_integer, check_number, is_number
+from sb3_marl.common.checks import check_integer, check_number, is_number
+from sb3_marl.common.files import read_json_object, write_text
 from sb3_marl.envs import DENSITIES
-from sb3_marl.files import read_json_object, write_text
 
 SETTINGS_FILE = "benchmark.json"
 

@@ -13,8 +13,8 @@ import numpy as np
 
 from sb3_marl.benchmark.grid import EPISODE_STEPS, EXPERIMENTS, TrialSpec
 from sb3_marl.benchmark.trial import RESULT, TRIAL, final_evaluation
+from sb3_marl.common.files import read_evaluations, read_json_object
 from sb3_marl.envs import DENSITIES
-from sb3_marl.files import read_evaluations, read_json_object
 
 #: Driving metrics of the final evaluation, averaged over seeds in the table.
 DRIVING_METRICS = ("collision_rate", "lane_changes_per_episode", "speed_mean", "acceleration_std", "intervention_rate")
@@ -149,17 +149,17 @@ def curve_summaries(trials: list[TrialLog]) -> dict[tuple[str, str, int], dict[s
 
 
 def reference_summaries(trials: list[TrialLog], log_folder: str | Path, seed: int) -> dict[tuple[str, int], dict[str, Any]]:
-    """Each hand-written policy of :data:`sb3_marl.baselines.BASELINES`, keyed by (name, density), on
+    """Each hand-written policy of :data:`sb3_marl.evaluation.baselines.BASELINES`, keyed by (name, density), on
     the final evaluation's episodes (seeds ``seed ..``, the same AV counts) at each density with a
     finished default MA2C trial, in that trial's scenario config (the zoo's: safety supervisor on);
     on the merge (keyed by ``"<name>, merge"``) where a ``merge`` MA2C trial has finished.
 
     The IQM's confidence interval resamples the 30 episodes (a fixed policy: its only randomness
     is the episodes'), where the learners' resamples seeds."""
-    from sb3_marl.baselines import BASELINES
     from sb3_marl.benchmark.trial import FINAL_EVAL_EPISODES
     from sb3_marl.evaluation import protocol_records, summarize
-    from sb3_marl.runs import find_run
+    from sb3_marl.evaluation.baselines import BASELINES
+    from sb3_marl.runs.folders import find_run
 
     summaries = {}
     for (variant, suffix), density in itertools.product((("default", ""), ("merge", ", merge")), DENSITIES):

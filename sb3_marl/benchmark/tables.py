@@ -182,7 +182,7 @@ def _reference_section(
     lines = [
         "## Beyond the paper: hand-written reference policies",
         "",
-        "Not learned (`sb3_marl/baselines.py`): IDM/MOBIL picks the meta-action a human driver of the scenario "
+        "Not learned (`sb3_marl/evaluation/baselines.py`): IDM/MOBIL picks the meta-action a human driver of the scenario "
         "would; cruise always IDLE; random uniform. The same 30 episodes as the final evaluations, in the "
         "default MA2C trial's scenario config (`, merge`: the merge MA2C trial's, on the merge), with the "
         "safety supervisor and without it. Return: mean ± std "

@@ -31,7 +31,7 @@ from typing import Any
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_marl.benchmark.grid import TrialSpec
-from sb3_marl.files import REPLAY_BUFFER_FILE, read_json_object, write_replay_buffer, write_text
+from sb3_marl.common.files import REPLAY_BUFFER_FILE, read_json_object, write_replay_buffer, write_text
 
 RUN_ID = 1
 CHECKPOINT = "checkpoint"
@@ -127,9 +127,9 @@ def run_trial(config: dict[str, Any]) -> None:
     import torch
     from ray import tune
 
-    from sb3_marl.callbacks import ScenarioEvalCallback
-    from sb3_marl.experiment import MARLExperimentManager
-    from sb3_marl.runs import RunSpec
+    from sb3_marl.runs.callbacks import ScenarioEvalCallback
+    from sb3_marl.runs.experiment import MARLExperimentManager
+    from sb3_marl.runs.folders import RunSpec
 
     torch.set_num_threads(1)  # one core per trial: Ray schedules trials by CPU
     spec = TrialSpec(**config["spec"])
@@ -183,9 +183,9 @@ def run_trial(config: dict[str, Any]) -> None:
 
 def start_model(log_folder: str | Path, start: TrialSpec) -> Path:
     """The final model zip of the finished trial ``start`` (a curriculum's easier density), checked
-    as a model of its learner (:func:`~sb3_marl.runs.check_model_file`); its tensors are read as
+    as a model of its learner (:func:`~sb3_marl.runs.folders.check_model_file`); its tensors are read as
     data (SB3's ``set_parameters``)."""
-    from sb3_marl.runs import check_model_file, find_run
+    from sb3_marl.runs.folders import check_model_file, find_run
 
     path = find_run(trial_folder(log_folder, start), start.algo, start.env_id, RUN_ID).model_path
     check_model_file(path, start.algo)
@@ -229,16 +229,17 @@ def _record_attempt(folder: Path, spec: TrialSpec, config: dict[str, Any], resum
 def paper_evaluation(model: Any, env_id: str, config: dict[str, Any] | None) -> dict[str, Any]:
     """The paper's final evaluation of a trained model: :data:`FINAL_EVAL_EPISODES` seeded
     episodes (seeds 10000..), sampled actions, under both supervisor protocols."""
+    from sb3_marl.algos.common.policies import model_policy, uses_action_masks
     from sb3_marl.envs import scenario_of
-    from sb3_marl.envs.supervisor import VERSIONS
-    from sb3_marl.evaluation import evaluate_protocols, model_policy, protocol_label
-    from sb3_marl.experiment import EVAL_SEED_OFFSET
+    from sb3_marl.evaluation import evaluate_protocols, protocol_label
+    from sb3_marl.runs.experiment import EVAL_SEED_OFFSET
+    from sb3_marl.safety.supervisor import VERSIONS
 
     return {
         "supervisor_version": VERSIONS[scenario_of(env_id)],
         "episodes": FINAL_EVAL_EPISODES,
         "seeds": [EVAL_SEED_OFFSET, EVAL_SEED_OFFSET + FINAL_EVAL_EPISODES - 1],
-        "protocol": protocol_label(False, model),
+        "protocol": protocol_label(False, uses_action_masks(model)),
         **evaluate_protocols(model_policy(model), env_id, FINAL_EVAL_EPISODES, EVAL_SEED_OFFSET, config),
     }
 
@@ -250,8 +251,8 @@ def reevaluate_trial(folder: Path) -> bool:
     supervisor; the supervisor-on return of an earlier evaluation is kept in ``note`` if it
     differs. Returns whether the trial was re-evaluated."""
     from sb3_marl.envs import scenario_of
-    from sb3_marl.envs.supervisor import VERSIONS
-    from sb3_marl.runs import find_run
+    from sb3_marl.runs.folders import find_run
+    from sb3_marl.safety.supervisor import VERSIONS
 
     result = read_json_object(folder / RESULT)
     if "trial" not in result:

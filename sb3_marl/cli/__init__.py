@@ -53,7 +53,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"sb3-marl {args.command}: error: {error}", file=sys.stderr)
         return 2 if isinstance(error, UsageError) else 1
     except (KeyboardInterrupt, SystemError) as error:  # numba reports Ctrl-C in compiled code as a SystemError
-        from sb3_marl.experiment import interrupted_by_user
+        from sb3_marl.runs.experiment import interrupted_by_user
 
         if not interrupted_by_user(error):
             raise

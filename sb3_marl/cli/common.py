@@ -21,14 +21,14 @@ EXIT_INTERRUPTED = {signal.SIGINT: 130, signal.SIGTERM: 143}
 
 class StoreHyperparams(argparse.Action):
     """rl-zoo's ``-params key:value ...``: each value is a literal, never evaluated as code
-    (:func:`sb3_marl.literals.parse_literal`: ``n_steps:20``, ``env_config:"dict(comfort=False)"``,
+    (:func:`sb3_marl.common.literals.parse_literal`: ``n_steps:20``, ``env_config:"dict(comfort=False)"``,
     ``policy_kwargs:"dict(activation_fn=nn.Tanh)"``); a bare word stays a string
     (``reward_mode:global``); anything else (a call, an operator) exits 2 naming the key."""
 
     def __call__(
         self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any, option_string: Any = None
     ) -> None:
-        from sb3_marl.literals import parse_literal
+        from sb3_marl.common.literals import parse_literal
 
         parsed = {}
         for item in values:
@@ -214,7 +214,7 @@ class DefaultsHelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
 
 
 def find_run_of(args: argparse.Namespace) -> Any:
-    from sb3_marl.runs import find_run
+    from sb3_marl.runs.folders import find_run
 
     check_seed(args.seed)
     try:

@@ -23,9 +23,9 @@ from sb3_marl.cli.common import (
     load_model_of,
     positive,
 )
+from sb3_marl.common.files import write_text
 from sb3_marl.envs import DENSITIES, ENV_IDS, MERGE_ENV_IDS, SCENARIO_IDS, make_scenario
 from sb3_marl.envs.config import LANE_CHANGE, MERGE, SCENARIO_DENSITIES
-from sb3_marl.files import write_text
 
 
 def add_parsers(commands: Any) -> None:
@@ -90,7 +90,7 @@ def add_parsers(commands: Any) -> None:
 
 def evaluate_command(args: argparse.Namespace) -> int:
     from sb3_marl.evaluation import evaluate_protocols, markdown_table, protocol_rows
-    from sb3_marl.experiment import EVAL_SEED_OFFSET
+    from sb3_marl.runs.experiment import EVAL_SEED_OFFSET
 
     check_file("-o/--output", args.output)
     run = find_run_of(args)
@@ -100,7 +100,7 @@ def evaluate_command(args: argparse.Namespace) -> int:
     result = {"model": str(run.model_path), **run.evaluate(model, args.eval_episodes, seed, args.deterministic, progress=True)}
     rows = protocol_rows({"policy": args.algo, "timesteps": model.num_timesteps}, result)
     if args.with_baselines is not None:
-        from sb3_marl.baselines import BASELINES
+        from sb3_marl.evaluation.baselines import BASELINES
 
         result["baselines"] = {}
         for name, policy_class in BASELINES.items():
@@ -124,9 +124,9 @@ def evaluate_command(args: argparse.Namespace) -> int:
 
 
 def record_video_command(args: argparse.Namespace) -> int:
-    from sb3_marl.evaluation import model_policy
-    from sb3_marl.experiment import EVAL_SEED_OFFSET
-    from sb3_marl.video import record_video
+    from sb3_marl.algos.common.policies import model_policy
+    from sb3_marl.evaluation.video import record_video
+    from sb3_marl.runs.experiment import EVAL_SEED_OFFSET
 
     run = find_run_of(args)
     model = load_model_of(run, args)
@@ -152,8 +152,8 @@ def record_video_command(args: argparse.Namespace) -> int:
 
 
 def plot_command(args: argparse.Namespace) -> int:
-    from sb3_marl.plotting import plot_runs
-    from sb3_marl.runs import run_folders, run_id, run_overrides
+    from sb3_marl.evaluation.plotting import plot_runs
+    from sb3_marl.runs.folders import run_folders, run_id, run_overrides
 
     runs = {}
     for algo in args.algos:
@@ -176,7 +176,7 @@ def plot_command(args: argparse.Namespace) -> int:
 
 
 def summary_command(args: argparse.Namespace) -> int:
-    from sb3_marl.runs import summary_table
+    from sb3_marl.runs.folders import summary_table
 
     if not os.path.isdir(args.folder):
         raise UsageError(f"-f/--folder: {args.folder!r} is not a folder.")
@@ -196,8 +196,8 @@ def summary_command(args: argparse.Namespace) -> int:
 
 def baselines_command(args: argparse.Namespace) -> int:
     check_file("--out", args.out)
-    from sb3_marl.baselines import BASELINES
     from sb3_marl.evaluation import markdown_table, run_episodes, summarize
+    from sb3_marl.evaluation.baselines import BASELINES
 
     env_id = (MERGE_ENV_IDS if args.scenario == MERGE else ENV_IDS)[args.density]
     lo, hi = SCENARIO_DENSITIES[args.scenario][args.density]["avs"]

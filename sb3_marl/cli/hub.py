@@ -44,8 +44,8 @@ def add_parsers(commands: Any) -> None:
 def push_to_hub(args: argparse.Namespace) -> int:
     from rl_zoo3.utils import EnvironmentName
 
-    from sb3_marl.experiment import EVAL_SEED_OFFSET
     from sb3_marl.hub import HubError, build_model_folder, push_folder
+    from sb3_marl.runs.experiment import EVAL_SEED_OFFSET
 
     repo_id = f"{args.organization}/{args.repo_name or f'{args.algo}-{EnvironmentName(args.env)}'}"
     _check_repo_id("-orga/--organization and --repo-name", repo_id)

@@ -149,8 +149,8 @@ class _StopTraining:
 def _check_train_args(args: argparse.Namespace) -> None:
     """Everything about ``train``'s flags that can be checked before any work or folder."""
     from sb3_marl.algos import get_algo
-    from sb3_marl.loading import safe_custom_objects
-    from sb3_marl.runs import check_model_file
+    from sb3_marl.algos.common.loading import safe_custom_objects
+    from sb3_marl.runs.folders import check_model_file
 
     check_seed(args.seed)
     check_folder("-f/--log-folder", args.log_folder)
@@ -183,10 +183,10 @@ def _check_trained_agent(args: argparse.Namespace) -> None:
     """The ``-i`` model loads (its tensors readable) and observes what ``--env`` with the run's
     hyperparameters shows each AV: a ValueError naming the file otherwise."""
     from sb3_marl.algos import get_algo
-    from sb3_marl.files import read_run_yaml
-    from sb3_marl.hyperparams import load_hyperparams, merge_hyperparams
-    from sb3_marl.loading import UnsafeModelError
-    from sb3_marl.runs import check_observation_shape
+    from sb3_marl.algos.common.loading import UnsafeModelError
+    from sb3_marl.common.files import read_run_yaml
+    from sb3_marl.runs.folders import check_observation_shape
+    from sb3_marl.runs.hyperparams import load_hyperparams, merge_hyperparams
 
     try:
         model = get_algo(args.algo).load(args.trained_agent, device="cpu", trust_remote_code=args.trust_remote_code)
@@ -216,8 +216,8 @@ def _check_trained_agent(args: argparse.Namespace) -> None:
 
 
 def train_command(args: argparse.Namespace) -> int:
-    from sb3_marl.experiment import MARLExperimentManager
-    from sb3_marl.runs import RunSpec
+    from sb3_marl.runs.experiment import MARLExperimentManager
+    from sb3_marl.runs.folders import RunSpec
 
     _check_train_args(args)
     set_num_threads(args.num_threads)
@@ -272,7 +272,7 @@ def train_command(args: argparse.Namespace) -> int:
 
 def _write_failure(manager: Any, model: Any, error: OSError) -> str:
     """One message for a file training could not write (e.g. a full disk): what, and how to resume."""
-    from sb3_marl.runs import latest_checkpoint
+    from sb3_marl.runs.folders import latest_checkpoint
 
     where = f" ({error.filename})" if error.filename else ""
     checkpoint = latest_checkpoint(manager.save_path)

@@ -13,7 +13,8 @@ import itertools
 from collections.abc import Callable
 from typing import Any
 
-from sb3_marl.checks import is_integer, is_number
+from sb3_marl.common.checks import is_integer, is_number
+from sb3_marl.sim import LANE_CHANGE, MERGE
 
 #: Traffic densities of the paper: inclusive (min, max) counts of AVs and of HDVs per episode.
 DENSITIES: dict[int, dict[str, tuple[int, int]]] = {
@@ -28,9 +29,8 @@ MERGE_DENSITIES: dict[int, dict[str, tuple[int, int]]] = {
     3: {"avs": (4, 6), "hdvs": (3, 5)},
 }
 #: The scenarios and their densities.
-LANE_CHANGE, MERGE = "lane-change", "merge"
 SCENARIO_DENSITIES = {LANE_CHANGE: DENSITIES, MERGE: MERGE_DENSITIES}
-#: Keys of the lane-change highway's road and spawn grid (the merge road is fixed: sb3_marl/envs/merge_road.py).
+#: Keys of the lane-change highway's road and spawn grid (the merge road is fixed: sb3_marl/sim/merge_road.py).
 HIGHWAY_KEYS = ("road_length", "lanes_count", "lane_width", "spawn_start", "spawn_spacing", "spawn_slots_per_lane")
 #: Keys of the merge scenario only.
 MERGE_KEYS = ("merging_lane_weight", "supervisor_priority")
@@ -98,7 +98,7 @@ def default_config() -> dict[str, Any]:
         "headway_max_distance": 60.0,  # [m] headway used when no leader is nearer
         "reward_speed_range": [10.0, 30.0],  # [m/s] (v_min, v_max) of r_v
         "harsh_acceleration_threshold": 3.0,  # [m/s²] a_th: |a| >= a_th is harsh
-        # Safety supervisor of the authors' MA2C (sb3_marl/envs/supervisor.py); on in the zoo configs
+        # Safety supervisor of the authors' MA2C (sb3_marl/safety/supervisor.py); on in the zoo configs
         "safety_supervisor": False,
         "supervisor_horizon": 1.4,  # [s] prediction horizon (7 policy steps at 5 Hz)
         "supervisor_min_gap": 2.0,  # [m] smallest predicted bumper-to-bumper gap accepted
@@ -353,7 +353,7 @@ def _check_highway(config: dict[str, Any]) -> None:
 
 
 def _check_merge_spawn(config: dict[str, Any]) -> None:
-    from sb3_marl.envs.merge_road import RAMP_SPAWN, SPAWN_SPACING
+    from sb3_marl.sim.merge_road import RAMP_SPAWN, SPAWN_SPACING
 
     n_avs, most = resolved_n_avs(config, MERGE), resolved_hdv_range(config, MERGE)[1]
     if -(-n_avs // 2) + -(-most // 2) > len(RAMP_SPAWN):  # half the vehicles (rounded up) start on the ramp
@@ -385,3 +385,13 @@ def resolved_hdv_range(config: dict[str, Any], scenario: str = LANE_CHANGE) -> t
         lo, hi = config["hdv_count_range"]
         return int(lo), int(hi)
     return SCENARIO_DENSITIES[scenario][config["density"]]["hdvs"]
+
+
+#: The two evaluation protocols of every evaluation: name -> the scenario's ``safety_supervisor``.
+#: ``on``: the proposals pass the safety supervisor (the authors' protocol); ``off``: the policy alone.
+SUPERVISOR_PROTOCOLS: dict[str, bool] = {"on": True, "off": False}
+
+
+def with_supervisor(config: dict | None, protocol: str) -> dict:
+    """``config`` with the safety supervisor of ``protocol`` (a key of :data:`SUPERVISOR_PROTOCOLS`)."""
+    return {**(config or {}), "safety_supervisor": SUPERVISOR_PROTOCOLS[protocol]}

@@ -14,14 +14,14 @@ from highway_env.road.road import Road
 from highway_env.vehicle.controller import MDPVehicle
 
 from sb3_marl.envs import config as cfg
-from sb3_marl.envs import drivers, dynamics, kernel, lanes, meta_actions
-from sb3_marl.envs.meta_actions import ACTION_INDEX, ACTIONS
 from sb3_marl.envs.observation import observation_space, observe
 from sb3_marl.envs.reward import neighbour_matrix, reward_terms, total_reward
-from sb3_marl.envs.road import highway_lanes, make_road, spawn, vehicle_state
-from sb3_marl.envs.simulator import COMPILED, SIMULATORS, STOCK, capture, step_objects, vehicle_objects
-from sb3_marl.envs.supervisor import Supervisor
-from sb3_marl.envs.traffic import TrafficSnapshot
+from sb3_marl.safety.supervisor import Supervisor
+from sb3_marl.sim import drivers, dynamics, kernel, lanes, meta_actions
+from sb3_marl.sim.meta_actions import ACTION_INDEX, ACTIONS
+from sb3_marl.sim.road import highway_lanes, make_road, spawn, vehicle_state
+from sb3_marl.sim.simulator import COMPILED, SIMULATORS, STOCK, capture, step_objects, vehicle_objects
+from sb3_marl.sim.traffic import TrafficSnapshot
 
 __all__ = ["ACTIONS", "ACTION_INDEX", "LaneChangeEnv"]
 
@@ -30,7 +30,7 @@ class LaneChangeEnv(AbstractEnv):
     """One-way highway where ``n_avs`` AVs share the road with IDM/MOBIL human drivers.
 
     - ``reset`` spawns ``n_avs`` AVs and a number of HDVs sampled from the density's range in
-      random grid slots (see :func:`~sb3_marl.envs.road.spawn`) and returns
+      random grid slots (see :func:`~sb3_marl.sim.road.spawn`) and returns
       observations of shape ``(n_avs, obs_vehicles_count, 5)``.
     - ``step(actions)`` takes an int array ``(n_avs,)`` of meta-actions
       (0 LANE_LEFT, 1 IDLE, 2 LANE_RIGHT, 3 FASTER, 4 SLOWER), simulates
@@ -38,7 +38,7 @@ class LaneChangeEnv(AbstractEnv):
       the observations, the mean AV reward (the global reward, a scalar for gymnasium),
       ``terminated``, ``truncated`` and an info dict of per-AV arrays (see :meth:`_info`).
     - With ``safety_supervisor``, the proposed actions pass the priority-based safety supervisor
-      (:mod:`sb3_marl.envs.supervisor`) first, which replaces those predicted to collide; with
+      (:mod:`sb3_marl.safety.supervisor`) first, which replaces those predicted to collide; with
       ``supervisor_shadow`` and the supervisor off, it only reports where it would have
       (``info["intervened"]``).
     - The episode terminates for all AVs as soon as any AV crashes. It is truncated after
@@ -51,7 +51,7 @@ class LaneChangeEnv(AbstractEnv):
     goes on producing real transitions (its observation then shows no other vehicle ahead); the
     episode is truncated early once every AV has left, since nothing remains to decide.
 
-    State: :attr:`state`, one row per vehicle on the road (:mod:`~sb3_marl.envs.kernel`'s columns,
+    State: :attr:`state`, one row per vehicle on the road (:mod:`~sb3_marl.sim.kernel`'s columns,
     the AVs first), stepped by compiled code. :attr:`road` shows it as highway-env objects, built
     when read; highway-env's own classes step those objects frame by frame instead while frames are
     drawn (a viewer, ``show_trajectories``) or with ``simulator = "stock"`` (the parity reference,
@@ -63,7 +63,7 @@ class LaneChangeEnv(AbstractEnv):
     metadata = {"render_modes": ["human", "rgb_array"]}
     #: the config's scenario (:mod:`~sb3_marl.envs.config`: keys, densities)
     scenario: str = cfg.LANE_CHANGE
-    #: ``"compiled"`` (default) or ``"stock"`` (see :mod:`~sb3_marl.envs.simulator`)
+    #: ``"compiled"`` (default) or ``"stock"`` (see :mod:`~sb3_marl.sim.simulator`)
     simulator: str = COMPILED
     _state: np.ndarray = np.zeros((0, kernel.COLUMNS))  # AbstractEnv.__init__ resets the env
     _road: Road | None = None
@@ -187,7 +187,7 @@ class LaneChangeEnv(AbstractEnv):
 
     @property
     def state(self) -> np.ndarray:
-        """(vehicles, :data:`~sb3_marl.envs.kernel.COLUMNS`) the road's vehicles, the AVs first."""
+        """(vehicles, :data:`~sb3_marl.sim.kernel.COLUMNS`) the road's vehicles, the AVs first."""
         return self._state
 
     @state.setter
@@ -309,7 +309,7 @@ class LaneChangeEnv(AbstractEnv):
     def rule_actions(self) -> np.ndarray:
         """(n_avs,) int: the meta-action the scenario's human driver (IDM + MOBIL, the config's MOBIL
         parameters, aiming at ``speed_limit``) would pick in each AV's place now
-        (:func:`~sb3_marl.envs.drivers.rule_actions`; the ``idm-mobil`` reference policy and the
+        (:func:`~sb3_marl.sim.drivers.rule_actions`; the ``idm-mobil`` reference policy and the
         learners' rule prior)."""
         config = self.config
         return drivers.rule_actions(

@@ -1,6 +1,6 @@
 """The multi-agent on-ramp merging scenario of Chen et al. (2021, arXiv 2105.05701; MARL_CAVs'
 ``merge_env_v1``) on the lane-change scenario's machinery: the same kernel, meta-actions, masks,
-observation, supervisor and info, on the merging road (:mod:`sb3_marl.envs.merge_road`)."""
+observation, supervisor and info, on the merging road (:mod:`sb3_marl.sim.merge_road`)."""
 
 from __future__ import annotations
 
@@ -12,10 +12,12 @@ import numpy as np
 from highway_env.road.road import Road
 
 from sb3_marl.envs import config as cfg
-from sb3_marl.envs import kernel
-from sb3_marl.envs.drivers import nearer
 from sb3_marl.envs.lane_change_env import LaneChangeEnv
-from sb3_marl.envs.merge_road import (
+from sb3_marl.envs.reward import total_reward
+from sb3_marl.safety.supervisor import Supervisor
+from sb3_marl.sim import kernel
+from sb3_marl.sim.drivers import nearer
+from sb3_marl.sim.merge_road import (
     CONVERGING,
     ENDS,
     MAIN_AFTER,
@@ -30,9 +32,7 @@ from sb3_marl.envs.merge_road import (
     merge_spawn,
     obstacle_rows,
 )
-from sb3_marl.envs.reward import total_reward
-from sb3_marl.envs.supervisor import Supervisor
-from sb3_marl.envs.traffic import TrafficSnapshot
+from sb3_marl.sim.traffic import TrafficSnapshot
 
 #: The ramp's lanes: the straight section, the converging section, the merging lane.
 RAMP_SIDE = (RAMP, CONVERGING, MERGING_LANE)
@@ -67,7 +67,7 @@ class MergeEnv(LaneChangeEnv):
 
     Everything of :class:`~sb3_marl.envs.lane_change_env.LaneChangeEnv` holds (actions, masks,
     observation, supervisor, info, ``place`` with the road's lane numbers), with the merging
-    paper's differences: the spawn (:func:`~sb3_marl.envs.merge_road.merge_spawn`), its densities
+    paper's differences: the spawn (:func:`~sb3_marl.sim.merge_road.merge_spawn`), its densities
     (:data:`~sb3_marl.envs.config.MERGE_DENSITIES`), no road end (vehicles drive on past the road,
     as in MARL_CAVs), the reward ``200·safety + 4·headway + 1·speed + 4·merging-lane cost`` (no
     comfort term by default) and the regional neighbour sets of MARL_CAVs' ``_regional_reward``.

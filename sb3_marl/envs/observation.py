@@ -24,8 +24,8 @@ import numba
 import numpy as np
 from gymnasium import spaces
 
-from sb3_marl.envs.kernel import clip
-from sb3_marl.envs.traffic import TrafficSnapshot
+from sb3_marl.sim.kernel import clip
+from sb3_marl.sim.traffic import TrafficSnapshot
 
 FEATURES = ("presence", "x", "y", "vx", "vy")
 TARGET_SPEED_FEATURE = "target_speed"

@@ -194,7 +194,7 @@ def test_second_invocation_skips_finished_trials_and_resumes_unfinished(tiny_ben
 def test_a_curriculum_trial_starts_from_the_easier_densitys_model(local_ray, tmp_path):
     """The curriculum's density-2 trial runs after density 1's (added to the grid), from its final
     weights: its first evaluation is of a trained model, not of a fresh one."""
-    from sb3_marl.runs import find_run
+    from sb3_marl.runs.folders import find_run
 
     grid = make_grid("curriculum", densities=(2,), seeds=1)
     assert [spec.trial_id for spec in grid] == [
@@ -408,7 +408,7 @@ def test_benchmark_evaluate_redoes_the_trials_evaluated_under_another_version_of
     emergency brake's release and made ``supervisor_joint_search`` the default) and leaves the lane
     change's, whose version is unchanged; a second call redoes nothing."""
     from sb3_marl.envs.config import LANE_CHANGE, MERGE
-    from sb3_marl.envs.supervisor import VERSIONS
+    from sb3_marl.safety.supervisor import VERSIONS
 
     grid = Path(__file__).resolve().parents[2] / "results" / "paper-grid"
     copy = tmp_path / "grid"

@@ -18,8 +18,8 @@ from stable_baselines3 import A2C
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from sb3_marl.algos.a2c import MaskableA2C
-from sb3_marl.callbacks import atomic_save
 from sb3_marl.cli import main
+from sb3_marl.runs.callbacks import atomic_save
 
 ENV = "sb3_marl/LaneChange-density1-v0"
 ENV_NAME = "sb3_marl-LaneChange-density1-v0"
@@ -195,7 +195,7 @@ def test_a_signal_during_compiled_code_counts_as_an_interruption():
     import gymnasium as gym
 
     from sb3_marl.envs import ENV_IDS
-    from sb3_marl.experiment import interrupted_by_user
+    from sb3_marl.runs.experiment import interrupted_by_user
 
     def interrupt(signum, frame):
         raise KeyboardInterrupt
@@ -281,7 +281,7 @@ def test_two_processes_writing_one_file_do_not_collide(tmp_path):
     the other's temporary file away (a FileNotFoundError that ended a launcher)."""
     path = tmp_path / "benchmark.json"
     writer = (
-        "import sys\nfrom sb3_marl.files import write_text\n"
+        "import sys\nfrom sb3_marl.common.files import write_text\n"
         "for i in range(300):\n    write_text(sys.argv[1], sys.argv[2] * 1000)\n"
     )
     processes = [subprocess.Popen([sys.executable, "-c", writer, str(path), tag]) for tag in "ab"]

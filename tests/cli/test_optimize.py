@@ -9,11 +9,11 @@ import pandas as pd
 import pytest
 import yaml
 
-from sb3_marl.callbacks import ScenarioEvalCallback
 from sb3_marl.cli import main
-from sb3_marl.hyperparams import load_hyperparams
-from sb3_marl.training import make_model, make_venv
-from sb3_marl.tuning import TrialPruningCallback
+from sb3_marl.runs.callbacks import ScenarioEvalCallback
+from sb3_marl.runs.hyperparams import load_hyperparams
+from sb3_marl.runs.training import make_model, make_venv
+from sb3_marl.runs.tuning import TrialPruningCallback
 
 ENV = "sb3_marl/LaneChange-density1-v0"
 ENV_NAME = "sb3_marl-LaneChange-density1-v0"

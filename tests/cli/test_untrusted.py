@@ -20,10 +20,10 @@ import numpy as np
 import pytest
 
 from sb3_marl.algos import get_algo
+from sb3_marl.algos.common.loading import UnsafeModelError
 from sb3_marl.cli import main
-from sb3_marl.files import read_run_yaml
-from sb3_marl.literals import parse_literal
-from sb3_marl.loading import UnsafeModelError
+from sb3_marl.common.files import read_run_yaml
+from sb3_marl.common.literals import parse_literal
 
 ENV = "sb3_marl/LaneChange-density1-v0"
 ENV_NAME = "sb3_marl-LaneChange-density1-v0"
@@ -346,7 +346,7 @@ def test_a_foreign_checkpoint_resumes_its_replay_buffer_as_data_never_its_pickle
     message; an npz whose arrays do not fit the model's buffer is named."""
     import pickle
 
-    from sb3_marl.files import REPLAY_BUFFER_FILE, read_replay_buffer, write_replay_buffer
+    from sb3_marl.common.files import REPLAY_BUFFER_FILE, read_replay_buffer, write_replay_buffer
 
     argv = ["train", "--algo", "madqn", "-n", "400", "--eval-freq", "1000", "--eval-episodes", "1"]
     assert main([*argv, "-f", str(tmp_path / "own"), "-params", "learning_starts:100", "buffer_size:2000"]) == 0

@@ -1,8 +1,8 @@
 """Seeded episodes of the scenario under two simulators, side by side (parity checks of the kernel).
 
-The env's default, :data:`~sb3_marl.envs.simulator.COMPILED` (the kernel on the state array),
-agrees with :data:`~sb3_marl.envs.simulator.STOCK` (highway-env's own classes stepping frame by
-frame) within a rounding tolerance (see :mod:`sb3_marl.envs.kernel`). :func:`compare` runs the
+The env's default, :data:`~sb3_marl.sim.simulator.COMPILED` (the kernel on the state array),
+agrees with :data:`~sb3_marl.sim.simulator.STOCK` (highway-env's own classes stepping frame by
+frame) within a rounding tolerance (see :mod:`sb3_marl.sim.kernel`). :func:`compare` runs the
 same seeded episodes, with the same actions, under two simulators and reports the largest state
 difference and every episode whose outcome differs. Used by tests/envs/test_kernel.py and
 benchmarks/kernel_parity.py.
@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sb3_marl.envs import make_scenario
-from sb3_marl.envs.kernel import ACCELERATION, CRASHED, HEADING, LANE, SPEED, STEERING, TARGET_LANE, X, Y
+from sb3_marl.sim.kernel import ACCELERATION, CRASHED, HEADING, LANE, SPEED, STEERING, TARGET_LANE, X, Y
 
 #: Meta-action probabilities (LANE_LEFT, IDLE, LANE_RIGHT, FASTER, SLOWER). Uniform random actions
 #: end most episodes in a crash within a few steps; "cruise" is mostly IDLE, so that episodes last
@@ -119,14 +119,14 @@ def compare(reference: str, candidate: str, env_id: str, seeds: range, policy: s
 
 def stock_rule_actions(env, acceleration_threshold: float = 1.0) -> np.ndarray:
     """The rule driver with highway-env's own objects (the parity reference of
-    :func:`sb3_marl.envs.drivers.rule_actions`): for each AV, an ``IDMVehicle`` with the AV's state
+    :func:`sb3_marl.sim.drivers.rule_actions`): for each AV, an ``IDMVehicle`` with the AV's state
     and the config's MOBIL parameters, aiming at ``speed_limit``, takes the AV's place on the road;
     a lane change MOBIL accepts becomes LANE_LEFT / LANE_RIGHT, else the IDM acceleration gives
     FASTER / SLOWER beyond +- ``acceleration_threshold`` [m/s²], else IDLE."""
     from highway_env.vehicle.behavior import IDMVehicle
 
     from sb3_marl.envs.lane_change_env import ACTION_INDEX
-    from sb3_marl.envs.road import configure_hdv
+    from sb3_marl.sim.road import configure_hdv
 
     road, masks, actions = env.road, env.action_masks(), []
     for av, mask in zip(env.avs, masks):

@@ -12,7 +12,7 @@ from helpers import make
 from parity import compare, run_episode
 
 from sb3_marl.envs import ENV_IDS
-from sb3_marl.envs.simulator import COMPILED, STOCK
+from sb3_marl.sim.simulator import COMPILED, STOCK
 
 #: [m, rad, m/s, m/s²] largest state difference accepted: numpy's SIMD arcsin / arctan / tan /
 #: power differ from the C library's in the last bit; measured up to ~1e-13 over 200 episodes.

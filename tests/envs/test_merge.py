@@ -10,8 +10,8 @@ from parity import compare, run_episode, stock_rule_actions
 from pettingzoo.test import parallel_api_test
 
 from sb3_marl.envs import ENV_IDS, MERGE_ENV_IDS, av_counts, kernel, parallel_env
-from sb3_marl.envs.lanes import lane_table
-from sb3_marl.envs.merge_road import (
+from sb3_marl.sim.lanes import lane_table
+from sb3_marl.sim.merge_road import (
     CONVERGING,
     MAIN_BEFORE,
     MAIN_BESIDE,
@@ -24,7 +24,7 @@ from sb3_marl.envs.merge_road import (
     make_merge_road,
     merge_lanes,
 )
-from sb3_marl.envs.simulator import COMPILED, STOCK, capture, lane_indices
+from sb3_marl.sim.simulator import COMPILED, STOCK, capture, lane_indices
 from wrappers import ParameterSharingVecEnv
 
 TOLERANCE = 1e-9  # [m, rad, m/s, m/s²], as tests/envs/test_kernel.py
@@ -230,9 +230,10 @@ def test_the_joint_search_checks_every_room_under_the_actions_the_passes_end_wit
     100287 with 4 AVs: the second pass brakes an AV whose follower was served earlier in that pass
     against its proposal, so the follower's room is stale and, served one at a time, it drives into
     the AV at step 95. The joint search takes every AV's room under the final actions and brakes it."""
+    from sb3_marl.algos.common.policies import model_policy
     from sb3_marl.benchmark.trial import RUN_ID
-    from sb3_marl.evaluation import model_policy, run_episodes
-    from sb3_marl.runs import find_run
+    from sb3_marl.evaluation import run_episodes
+    from sb3_marl.runs.folders import find_run
 
     trial = Path(__file__).parents[2] / "results" / "paper-grid" / "trials" / "ma2c_density2_merge_seed1"
     run = find_run(trial, "ma2c", MERGE_ENV_IDS[2], RUN_ID)
@@ -277,8 +278,8 @@ def test_mobil_safety_flags_a_merge_in_front_of_an_hdv_still_on_the_lane_before(
     section before the merging lane: highway-env's IDM does not see the AV until it enters the
     section beside it, then would have to brake harder than its safe braking, so merging (LANE_LEFT)
     is flagged; with the HDV 80 m back it is not. Keeping the merging lane (IDLE) never is."""
-    from sb3_marl.envs.meta_actions import meta_action_targets
-    from sb3_marl.envs.supervisor import unsafe_cut_ins
+    from sb3_marl.safety.supervisor import unsafe_cut_ins
+    from sb3_marl.sim.meta_actions import meta_action_targets
 
     env = make(1, n_avs=1, safety_supervisor=True)
     env.reset(seed=0)
@@ -302,8 +303,8 @@ def test_mobil_safety_avoids_a_crash_of_random_meta_actions():
 
 
 def test_merge_metrics_count_the_ramp_avs_that_merge():
-    from sb3_marl.baselines import IDMMobilPolicy
     from sb3_marl.evaluation import run_episodes, summarize
+    from sb3_marl.evaluation.baselines import IDMMobilPolicy
 
     summary = summarize(run_episodes(make(1, safety_supervisor=True), IDMMobilPolicy(), 10, seed=0))
     assert summary["merge_rate"] > 0.9 and 5.0 < summary["time_to_merge_mean"] < 20.0  # [s]

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from sb3_marl.baselines import IDMMobilPolicy
 from sb3_marl.envs import ENV_IDS, make_scenario
 from sb3_marl.envs.lane_change_env import ACTION_INDEX
+from sb3_marl.evaluation.baselines import IDMMobilPolicy
 from tests.envs.parity import ACTION_PROBABILITIES, stock_rule_actions
 
 

@@ -8,8 +8,8 @@ from highway_env.road.lane import StraightLane
 from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.controller import MDPVehicle
 
-from sb3_marl.envs.road import configure_hdv, make_road, vehicle_state
-from sb3_marl.envs.simulator import capture, vehicle_objects
+from sb3_marl.sim.road import configure_hdv, make_road, vehicle_state
+from sb3_marl.sim.simulator import capture, vehicle_objects
 
 
 def highway_env_vehicles(env, x, lane, speed) -> list:

@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 from helpers import make
 
-from sb3_marl.envs.kernel import HEADING, LANE, SPEED, TARGET_SPEED, X, Y
 from sb3_marl.envs.lane_change_env import ACTION_INDEX
-from sb3_marl.envs.meta_actions import speed_index
-from sb3_marl.envs.supervisor import Supervisor
+from sb3_marl.safety.supervisor import Supervisor
+from sb3_marl.sim.kernel import HEADING, LANE, SPEED, TARGET_SPEED, X, Y
+from sb3_marl.sim.meta_actions import speed_index
 
 FASTER, IDLE, SLOWER = ACTION_INDEX["FASTER"], ACTION_INDEX["IDLE"], ACTION_INDEX["SLOWER"]
 

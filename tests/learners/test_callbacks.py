@@ -3,9 +3,9 @@
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sb3_marl.callbacks import ScenarioEvalCallback
 from sb3_marl.envs import ENV_IDS
-from sb3_marl.training import make_model, make_venv
+from sb3_marl.runs.callbacks import ScenarioEvalCallback
+from sb3_marl.runs.training import make_model, make_venv
 
 
 class RecordEvaluations(BaseCallback):

@@ -7,13 +7,13 @@ import pytest
 import torch as th
 
 from sb3_marl.algos import get_algo
+from sb3_marl.algos.common.policies import CentralisedCriticPolicy, GlobalStateExtractor, LocalViewExtractor, model_policy
 from sb3_marl.benchmark.grid import EXPERIMENTS, make_grid
 from sb3_marl.envs import ENV_IDS
 from sb3_marl.envs.observation import LOCAL_KEY, STATE_KEY, centralised_observations
-from sb3_marl.evaluation import evaluate_protocols, model_policy
-from sb3_marl.hyperparams import load_hyperparams, validate_hyperparams
-from sb3_marl.policies import CentralisedCriticPolicy, GlobalStateExtractor, LocalViewExtractor
-from sb3_marl.training import make_model, make_venv
+from sb3_marl.evaluation import evaluate_protocols
+from sb3_marl.runs.hyperparams import load_hyperparams, validate_hyperparams
+from sb3_marl.runs.training import make_model, make_venv
 
 CTDE = {"architecture": "separate", "critic": "centralised"}
 

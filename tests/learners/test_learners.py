@@ -6,10 +6,10 @@ import torch as th
 from gymnasium import spaces
 
 from sb3_marl.algos import ALGOS, get_algo
+from sb3_marl.algos.common.policies import MA2CFeaturesExtractor, ma2c_policy_kwargs
 from sb3_marl.envs import ENV_IDS
-from sb3_marl.hyperparams import config_file, load_hyperparams, validate_hyperparams
-from sb3_marl.policies import MA2CFeaturesExtractor, ma2c_policy_kwargs
-from sb3_marl.training import make_model, make_venv
+from sb3_marl.runs.hyperparams import config_file, load_hyperparams, validate_hyperparams
+from sb3_marl.runs.training import make_model, make_venv
 from wrappers import VecRewardScale
 
 
@@ -140,14 +140,13 @@ def test_save_load_gives_the_same_actions(algo, tmp_path):
     venv.close()
 
 
-def test_the_loader_imports_no_learner_and_old_module_paths_still_name_the_learners():
-    """No import circle: the loader reads the allow-list each learner class declares. Code that
-    imported the learners from ``sb3_marl.algos.masking`` (one module until 2026-12) still does."""
+def test_the_loader_imports_no_learner():
+    """No import circle: the loader reads the allow-list each learner class declares."""
     import subprocess
     import sys
 
-    code = "import sys, sb3_marl.loading; print(sorted(m for m in sys.modules if m.startswith('sb3_marl.algos.')))"
-    assert subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout.strip() == "[]"
-    from sb3_marl.algos import ALGOS, masking
-
-    assert {masking.MaskableA2C, masking.MaskedPPO, masking.MaskableACKTR, masking.MaskableDQN} <= set(ALGOS.values())
+    code = (
+        "import sys, sb3_marl.algos.common.loading; print(sorted(m for m in sys.modules if m.startswith('sb3_marl.algos.')))"
+    )
+    learners = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout.strip()
+    assert learners == "['sb3_marl.algos.common', 'sb3_marl.algos.common.loading']"

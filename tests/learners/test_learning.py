@@ -10,10 +10,11 @@ policy, a gap of 71; the test asks for 30.
 
 import numpy as np
 
+from sb3_marl.algos.common.policies import model_policy
 from sb3_marl.envs import ENV_IDS
-from sb3_marl.evaluation import evaluate_on_density, model_policy
-from sb3_marl.hyperparams import load_hyperparams
-from sb3_marl.training import make_model, make_venv
+from sb3_marl.evaluation import evaluate_on_density
+from sb3_marl.runs.hyperparams import load_hyperparams
+from sb3_marl.runs.training import make_model, make_venv
 
 BUDGET = 60_000  # AV-steps
 EPISODES = 60  # 20 per AV count (1, 2, 3), seeds 1000..1059

@@ -5,11 +5,11 @@ import pytest
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_marl.algos import get_algo
-from sb3_marl.algos.base import uses_action_masks
+from sb3_marl.algos.common.policies import model_policy, uses_action_masks
 from sb3_marl.envs import ENV_IDS
-from sb3_marl.evaluation import model_policy, run_episodes
-from sb3_marl.hyperparams import load_hyperparams, validate_hyperparams
-from sb3_marl.training import make_model, make_venv
+from sb3_marl.evaluation import run_episodes
+from sb3_marl.runs.hyperparams import load_hyperparams, validate_hyperparams
+from sb3_marl.runs.training import make_model, make_venv
 
 #: small settings so that every learner updates several times within the budget
 QUICK = {
@@ -130,7 +130,7 @@ def test_the_learner_stores_the_configured_action(stored):
 
     import torch as th
 
-    from sb3_marl.callbacks import StoreExecutedActions
+    from sb3_marl.runs.callbacks import StoreExecutedActions
 
     model, venv = quick_model("ma2c", density=3)
     before = copy.deepcopy(model.policy)
@@ -150,7 +150,7 @@ def test_the_learner_stores_the_configured_action(stored):
 
 
 def test_stored_actions_must_be_known():
-    from sb3_marl.hyperparams import validate_scenario
+    from sb3_marl.runs.hyperparams import validate_scenario
 
     with pytest.raises(ValueError, match="stored_actions"):
         validate_scenario({"stored_actions": "both"}, ENV_IDS[1])

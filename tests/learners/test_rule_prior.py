@@ -8,9 +8,9 @@ import torch as th
 from stable_baselines3.common.logger import KVWriter, Logger
 
 from sb3_marl.algos import get_algo
-from sb3_marl.algos.rule_prior import RulePrior, prior_loss
+from sb3_marl.algos.common.rule_prior import RulePrior, prior_loss
 from sb3_marl.cli import main
-from sb3_marl.training import make_model, make_venv
+from sb3_marl.runs.training import make_model, make_venv
 
 ENV = "sb3_marl/LaneChange-density1-v0"
 PRIOR = {"prior": "idm-mobil", "prior_coef": 1.0, "prior_coef_final": 0.1, "prior_decay_steps": 1000}

@@ -1,0 +1,125 @@
+"""Headless mp4 of evaluation episodes, drawn by highway-env's renderer and encoded by
+imageio-ffmpeg (its wheel ships the ffmpeg binary: nothing is downloaded at run time).
+
+Each frame shows the road around the AVs (the camera follows the centre of the AVs still on the
+road; each AV labelled with its index) at :data:`SCALING` px/m, so a 5 m vehicle is 40 px long,
+under a band with the time, a legend
+of the colours (highway-env's: AVs green, HDVs blue, crashed vehicles red) and, per AV, its speed
+and meta-action; an action the safety supervisor replaced shows both, highlighted, and a crash is
+marked. The video ends with the episode (at the latest when the last AV leaves the road).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import imageio.v2 as imageio
+import numpy as np
+from PIL import Image, ImageDraw
+from tqdm import tqdm
+
+from sb3_marl.common.files import replaced_atomically
+from sb3_marl.envs import av_counts, make_scenario
+from sb3_marl.envs.lane_change_env import ACTIONS, LaneChangeEnv
+from sb3_marl.evaluation.episodes import Policy, run_episodes
+from sb3_marl.sim import kernel
+
+#: The video's view of the road: width and height [px] and scale [px/m].
+VIEW = {"screen_width": 1200, "screen_height": 240, "scaling": 8.0, "centering_position": [0.5, 0.5]}
+SCALING = VIEW["scaling"]
+#: Height [px] of the text band above the road; one line per AV after the header.
+LINE = 18
+COLOURS = {
+    "text": (20, 20, 20),
+    "label": (255, 255, 255),
+    "intervened": (200, 90, 0),
+    "crashed": (200, 0, 0),
+    "band": (245, 245, 245),
+}
+
+
+class _Camera:
+    """highway-env's viewer follows ``observer_vehicle.position``: here the centre [m] of the AVs
+    still on the road (all AVs once none is)."""
+
+    def __init__(self, env: LaneChangeEnv) -> None:
+        self.env = env
+
+    @property
+    def position(self) -> np.ndarray:
+        avs = self.env.state[: self.env.n_avs]
+        on_road = avs[avs[:, kernel.COLLIDABLE] > 0]
+        rows = on_road if len(on_road) else avs
+        return np.array([rows[:, kernel.X].mean(), rows[:, kernel.Y].mean()])
+
+
+def frame(env: LaneChangeEnv, info: dict[str, Any], rows: int | None = None) -> np.ndarray:
+    """The road around the AVs under a band with the time, the legend and each AV's speed and
+    meta-action (see the module doc), as an RGB array; ``rows``: AV lines the band has room for
+    (default: this episode's AVs; a video of several AV counts gives every frame the same size)."""
+    if env.viewer is None:
+        env.render()  # highway-env creates its viewer on the first frame
+    assert env.viewer is not None, "the env renders rgb_array frames"
+    env.viewer.observer_vehicle = _Camera(env)
+    pixels = env.render()
+    assert pixels is not None
+    road = Image.fromarray(pixels)
+    labels = ImageDraw.Draw(road)
+    for i, (x, y) in enumerate(env.state[: env.n_avs, [kernel.X, kernel.Y]]):
+        px, py = env.viewer.sim_surface.pos2pix(x, y)
+        labels.text((px - 8, py - 22), f"AV {i}", fill=COLOURS["crashed" if info["crashed"][i] else "label"])
+    n = env.n_avs
+    band = Image.new("RGB", (road.width, LINE * (max(rows or 0, n) + 1) + 6), COLOURS["band"])
+    draw = ImageDraw.Draw(band)
+    time = info["step"] / env.config["policy_frequency"]
+    header = f"t = {time:4.1f} s    legend: AV green, HDV blue, crashed red    ({n} AVs, {env.n_hdvs} HDVs)"
+    draw.text((8, 4), header, fill=COLOURS["text"])
+    for i in range(n):
+        proposed, executed = int(info["proposed_action"][i]), int(info["executed_action"][i])
+        action = ACTIONS.get(executed, "-")
+        colour = COLOURS["text"]
+        if info["intervened"][i]:
+            action, colour = f"{ACTIONS[proposed]} -> {ACTIONS[executed]} (supervisor)", COLOURS["intervened"]
+        if info["crashed"][i]:
+            action, colour = action + "   CRASH", COLOURS["crashed"]
+        state = "left the road" if info["exited"][i] else f"{info['speed'][i]:5.1f} m/s"
+        draw.text((8, 4 + LINE * (i + 1)), f"AV {i}: {state}   {action}", fill=colour)
+    return np.concatenate([np.asarray(band), np.asarray(road)], axis=0)
+
+
+def record_video(
+    policy: Policy,
+    env_id: str,
+    path: str | Path,
+    n_episodes: int = 1,
+    seed: int = 0,
+    config: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Play ``n_episodes`` seeded episodes (the density's AV counts from the largest down, cycling)
+    and write them to the mp4 ``path``, one frame per policy step (5 Hz, played at 5 fps: real
+    time), each drawn by :func:`frame`.
+
+    :return: ``{"path", "frames", "episodes", "fps"}``
+    """
+    path = Path(path)
+    counts = sorted(av_counts(env_id, config), reverse=True)
+    frames: list[np.ndarray] = []
+    fps = None
+    for episode in tqdm(range(n_episodes), desc="recording", unit="episode", leave=False):
+        n_avs = counts[episode % len(counts)]
+        env = make_scenario(env_id, {**(config or {}), **VIEW, "n_avs": n_avs}, render_mode="rgb_array")
+        fps = env.config["policy_frequency"]
+        run_episodes(env, policy, 1, seed + episode, on_step=lambda env, info: frames.append(frame(env, info, counts[0])))
+        env.close()
+    # libx264 needs even frame sizes; macro_block_size=2 pads odd ones instead of rescaling
+    with (
+        replaced_atomically(path) as temporary,
+        imageio.get_writer(temporary, fps=fps, codec="libx264", macro_block_size=2, format="FFMPEG") as writer,
+    ):
+        for picture in frames:
+            writer.append_data(picture)  # type: ignore[attr-defined]
+    return {"path": str(path), "frames": len(frames), "episodes": n_episodes, "fps": fps}
+
+
+__all__ = ["frame", "record_video"]

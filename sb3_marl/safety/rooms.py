@@ -1,0 +1,146 @@
+"""The safety supervisor's predictions and the room they leave: the road driven ahead with its own
+equations (:func:`predict`), the smallest bumper-to-bumper gap of a vehicle along it (:func:`path_room`)
+and how late an AV may still leave a lane an obstacle ends (:func:`dead_end_margin`), on the
+road and time grid of a :class:`Horizon`. Units: m, m/s, rad, s.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import numba
+import numpy as np
+
+from sb3_marl.sim.dynamics import drive
+from sb3_marl.sim.kernel import HEADING, LENGTH, OBSTACLE_LENGTH, SPEED, TARGET_LANE, TARGET_SPEED, WIDTH, X, Y, cos, sin
+from sb3_marl.sim.lanes import closest_lane, follow, local_coordinates, on_lane
+from sb3_marl.sim.meta_actions import speed_index
+from sb3_marl.sim.road import highway_lanes
+
+#: [s] the time an AV is given to leave a lane an obstacle ends (see :func:`dead_end_margin`)
+LEAVE_TIME = 2.5
+
+
+class Horizon(NamedTuple):
+    """The road and the prediction's time grid (compiled code takes it as one argument)."""
+
+    lanes: np.ndarray  # the road's lane table (sb3_marl.sim.lanes)
+    road_end: float  # [m] x past which vehicles leave the road
+    speed_limit: float  # [m/s]
+    dt: float  # [s] one frame
+    frames: int  # frames predicted
+    frames_per_step: int  # frames of one policy step
+    ladder: np.ndarray  # [m/s] the AVs' target speeds (MDPVehicle.target_speeds)
+
+    @classmethod
+    def from_config(cls, config: dict[str, Any], lanes: np.ndarray | None = None, road_end: float | None = None) -> Horizon:
+        """The road and time grid of a scenario config (frequencies [Hz], ``supervisor_horizon`` [s]);
+        the road is ``lanes`` and ``road_end`` [m], by default the lane-change highway of the config
+        (:func:`~sb3_marl.sim.road.highway_lanes`, ``road_length``)."""
+        return cls(
+            lanes=highway_lanes(config) if lanes is None else lanes,
+            road_end=float(config["road_length"] if road_end is None else road_end),
+            speed_limit=float(config["speed_limit"]),
+            dt=1.0 / config["simulation_frequency"],
+            frames=max(int(round(config["supervisor_horizon"] * config["simulation_frequency"])), 1),
+            frames_per_step=max(config["simulation_frequency"] // config["policy_frequency"], 1),
+            ladder=np.asarray(config["target_speeds"], dtype=np.float64),
+        )
+
+
+@numba.njit(cache=True)
+def predict(
+    state0: np.ndarray, horizon: Horizon, speed_step: np.ndarray, ego: int, collidable: np.ndarray, floor: float
+) -> tuple[np.ndarray, float]:
+    """(frames, 4, n) x, y [m], heading [rad] and speed [m/s] of every vehicle after each frame of
+    the road driven from ``state0`` (the kernel's layout, the AVs' targets set), and the room [m] of
+    vehicle ``ego`` along it (see :func:`path_room`; inf for ``ego`` -1). The prediction stops as soon
+    as that room is at most ``floor`` m (it can only shrink): the rest of the path is then unset.
+
+    ``speed_step`` (+1 FASTER, -1 SLOWER, 0 otherwise, per AV) repeats a speed change at every
+    policy step of the horizon, as ``MDPVehicle.act`` would on the speed ladder: the AV keeps its
+    action over the horizon."""
+    state = state0.copy()
+    n = state.shape[0]
+    path = np.empty((horizon.frames, 4, n))
+    room = np.inf
+    ladder = horizon.ladder
+    top = ladder.size - 1
+    for frame in range(horizon.frames):
+        if frame > 0 and frame % horizon.frames_per_step == 0:
+            for k in range(speed_step.size):
+                if speed_step[k] != 0:
+                    index = min(max(speed_index(state[k, SPEED], ladder) + speed_step[k], 0), top)
+                    state[k, TARGET_SPEED] = ladder[index]
+        drive(state, horizon.dt, horizon.lanes, horizon.speed_limit)
+        path[frame, 0], path[frame, 1] = state[:, X], state[:, Y]
+        path[frame, 2], path[frame, 3] = state[:, HEADING], state[:, SPEED]
+        if ego >= 0:
+            room = min(
+                room, frame_room(ego, path[frame, 0], path[frame, 1], path[frame, 2], path[frame, 3], collidable, horizon.dt)
+            )
+            if room <= floor:
+                break
+    return path, room
+
+
+@numba.njit(cache=True)
+def path_room(ego: int, path: np.ndarray, collidable: np.ndarray, dt: float) -> float:
+    """Smallest bumper-to-bumper gap [m] along a predicted ``path`` (see :func:`predict`) between
+    vehicle ``ego`` and any collidable vehicle overlapping it laterally (negative: a collision)."""
+    room = np.inf
+    for frame in range(path.shape[0]):
+        room = min(room, frame_room(ego, path[frame, 0], path[frame, 1], path[frame, 2], path[frame, 3], collidable, dt))
+    return room
+
+
+@numba.njit(cache=True)
+def frame_room(
+    ego: int, x: np.ndarray, y: np.ndarray, h: np.ndarray, v: np.ndarray, collidable: np.ndarray, dt: float
+) -> float:
+    """:func:`path_room` of one frame's positions [m], headings [rad] and speeds [m/s]."""
+    room = np.inf
+    ego_x, ego_y = _half_extents(h[ego])
+    for j in range(x.size):
+        if j != ego and collidable[j]:
+            other_x, other_y = _half_extents(h[j])
+            # highway-env flags a collision when the bodies would meet within the next frame
+            # (each moved by its velocity × dt): the gaps shrink by the closing speed × dt
+            dx, dy = x[j] - x[ego], y[j] - y[ego]
+            closing_x = (v[ego] * cos(h[ego]) - v[j] * cos(h[j])) * np.sign(dx)
+            closing_y = (v[ego] * sin(h[ego]) - v[j] * sin(h[j])) * np.sign(dy)
+            if abs(dy) - max(closing_y, 0.0) * dt < ego_y + other_y:
+                room = min(room, abs(dx) - ego_x - other_x - max(closing_x, 0.0) * dt)
+    return room
+
+
+@numba.njit(cache=True)
+def _half_extents(heading: float) -> tuple[float, float]:
+    """Half length along x and half width along y [m] of the axis-aligned box around a vehicle
+    body rotated by ``heading`` rad (a lane change tilts it: the box covers the corners)."""
+    c, s = abs(cos(heading)), abs(sin(heading))
+    return LENGTH / 2 * c + WIDTH / 2 * s, LENGTH / 2 * s + WIDTH / 2 * c
+
+
+@numba.njit(cache=True)
+def dead_end_margin(state: np.ndarray, ego: int, path: np.ndarray, lanes: np.ndarray, obstacles: np.ndarray) -> float:
+    """[m] How much room AV ``ego`` has left, at the end of the predicted ``path``, to leave a lane
+    that an obstacle ends (the merging lane): the gap to the obstacle ahead on the lane it keeps,
+    minus the distance it covers in :data:`LEAVE_TIME` at its speed; inf when no obstacle ends its
+    lane or it is changing lanes. Its meta-actions cannot stop it (the lowest target speed is 10
+    m/s), so this is how late it may still merge."""
+    if obstacles.size == 0:
+        return np.inf
+    last = path.shape[0] - 1
+    x, y, v = path[last, 0, ego], path[last, 1, ego], path[last, 3, ego]
+    lane = closest_lane(lanes, x, y, path[last, 2, ego])
+    if follow(lanes, int(state[ego, TARGET_LANE]), x, y) != lane:
+        return np.inf
+    s = local_coordinates(lanes, lane, x, y)[0]
+    margin = np.inf
+    for j in obstacles:
+        if on_lane(lanes, lane, state[j, X], state[j, Y], 1.0):
+            gap = local_coordinates(lanes, lane, state[j, X], state[j, Y])[0] - s - (LENGTH + OBSTACLE_LENGTH) / 2
+            if gap > -LENGTH:
+                margin = min(margin, gap - v * LEAVE_TIME)
+    return margin

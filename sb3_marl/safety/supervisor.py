@@ -1,0 +1,582 @@
+"""The priority-based safety supervisor of the authors' MA2C (Chen et al. 2021, arXiv 2105.05701).
+
+Every policy step, before the AVs act, the supervisor serves the AVs on the road one by one in
+priority order: the smallest headway margin first (gap to the leader in the AV's lane [m] minus
+speed [m/s] × ``headway_time`` [s]; :func:`headway_margins`; the merge serves its merging lane
+first, :class:`Supervisor`'s ``priorities``; equal priorities: the lower AV index first, so runs
+stay reproducible without drawing random numbers). For the AV being served it predicts the next
+``supervisor_horizon`` s of the whole road, frame by frame at ``simulation_frequency`` Hz
+(:mod:`sb3_marl.safety.rooms`):
+
+- every vehicle with the road's own equations (:func:`sb3_marl.sim.dynamics.drive`: highway-env's
+  controllers, the HDVs' IDM and MOBIL lane changes with their timers and abort rule, the
+  kinematic bicycle model and the lane update), on a copy of the road's state array (the kernel's
+  layout): the prediction is exact for the HDVs as
+  long as the AVs drive as predicted; collisions and the road end are not simulated (the room
+  measures how close the vehicles come);
+- AVs already served keep their (possibly replaced) action, the others their proposed action;
+  with ``supervisor_repeat_actions`` (default) every AV repeats its action at each policy step of
+  the horizon, as it would if the policy (or the supervisor) chose it again: SLOWER keeps braking
+  down the speed ladder, FASTER keeps speeding up. Held once, SLOWER only lowers the target speed
+  by one step, which cannot stop an AV closing on a slow leader; repeated, it can, and the
+  supervisor will keep choosing it while the danger lasts.
+
+The *room* of the AV is the smallest bumper-to-bumper gap [m] over the horizon to any vehicle
+whose body overlaps it laterally; bodies are the axis-aligned boxes around the (possibly tilted)
+vehicle rectangles, and, as highway-env's own collision test, each gap is shortened by the
+distance the two vehicles close within the next frame, so a negative room is a predicted
+collision, with a little to spare. If the action's room is below ``supervisor_min_gap`` m
+(default 2 m), it is replaced by the action available to the AV (the env's action mask) with the
+largest room, ties in the order IDLE, SLOWER, FASTER, LANE_LEFT, LANE_RIGHT. The AVs are served
+in two passes (:data:`PASSES`): the second re-checks each AV against the actions the others ended
+with in the first (an AV served early was checked against proposals that may have been replaced
+since). Served one at a time, two AVs whose lane changes conflict can still each find every option
+unsafe and cross each other; a joint fallback then makes the AVs left short of room after a lane
+change keep their lanes together (IDLE), when that leaves every AV more room. With
+``supervisor_joint_search`` (on by default on the merge), the AVs still short of room then have
+their options searched in pairs with every other AV's, the whole road predicted for each pair
+(:func:`_joint_search`): it finds the joint moves one-at-a-time service cannot (an AV on the
+merging lane keeping its speed while the AV closing from behind brakes). It first takes every AV's
+room again under the actions the passes ended with: an AV served early in the second pass was
+checked against actions that later AVs of that pass replaced. With ``supervisor_emergency_brake``
+(on by default on the merge), an AV that no meta-action leaves room is braked to a stop (a target
+speed of 0 m/s, below the speed ladder), and an AV so braked may be released by SLOWER, to the
+ladder's lowest speed, which the policy's mask leaves out there (:meth:`Supervisor.choices`).
+With ``supervisor_mobil_safety`` (off by default), an AV's lane change is held to the
+check MOBIL makes for the HDVs' own: it counts as short of room when the HDV it would cut in front
+of, on the target lane or on the lane leading into it, would have to brake harder than its safe
+braking (:func:`unsafe_cut_ins`). highway-env's HDVs see no vehicle past the start of the lane they
+are about to enter, so an HDV closing at full speed on the main road cannot stop for an AV that
+merged just past the ramp's end; the room over the horizon does not show it yet.
+
+A lane an obstacle ends (the merge's merging lane) is a constraint of its own: an AV cannot stop on
+it (its lowest target speed is 10 m/s), so an action is also replaced when it leaves the AV on
+that lane, at the end of the prediction, with under ``LEAVE_TIME`` s of driving to the obstacle
+(:func:`~sb3_marl.safety.rooms.dead_end_margin`); the replacement is the action with room and a way
+off the lane, else with room and the most time left, else the largest room. The prediction runs
+as one compiled (numba) function per step; compiled code is cached on disk, so a fresh process
+pays the compile time only once.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numba
+import numpy as np
+
+from sb3_marl.safety.rooms import Horizon, dead_end_margin, path_room, predict
+from sb3_marl.sim import LANE_CHANGE, MERGE
+from sb3_marl.sim.drivers import idm, lane_distance, lane_occupancy, leader
+from sb3_marl.sim.kernel import (
+    COLLIDABLE,
+    IS_HDV,
+    IS_OBSTACLE,
+    LANE,
+    MAX_BRAKING_IMPOSED,
+    PRESENT,
+    SPEED,
+    TARGET_LANE,
+    TARGET_SPEED,
+    X,
+    Y,
+)
+from sb3_marl.sim.lanes import NEXT_COUNT, NEXT_FIRST, local_coordinates
+from sb3_marl.sim.meta_actions import meta_action_targets
+
+#: Version of the supervisor's decisions on each road (:data:`~sb3_marl.sim.LANE_CHANGE`,
+#: ``MERGE``); evaluations record it, and ``sb3-marl benchmark evaluate`` re-evaluates trials
+#: evaluated under another (history in CHANGELOG.md; 3: the road's own equations; 4, the merge:
+#: the emergency brake's release, :meth:`Supervisor.choices`, and ``supervisor_joint_search`` on).
+VERSIONS = {LANE_CHANGE: 3, MERGE: 4}
+NO_LEADER_GAP = 1e6  # [m], headway of an AV without leader (priority only)
+#: Replacement candidates in tie order: IDLE, SLOWER, FASTER, LANE_LEFT, LANE_RIGHT
+#: (highway-env's meta-action indices).
+PREFERENCE = np.array([1, 4, 3, 0, 2], dtype=np.int64)
+#: Speed-index change of each meta-action (FASTER +1, SLOWER -1) when actions repeat over the horizon.
+SPEED_STEP = np.array([0, 0, 0, 1, -1], dtype=np.int64)
+LANE_LEFT, IDLE, LANE_RIGHT, SLOWER = 0, 1, 2, 4
+#: The emergency brake as an option of the joint search (after the five meta-actions).
+BRAKE = 5
+#: Passes over the AVs in priority order (the second checks against the first pass's final actions).
+PASSES = 2
+#: [s] the time an AV is given to leave a lane an obstacle ends (see :func:`dead_end_margin`)
+LEAVE_TIME = 2.5
+
+
+@numba.njit(cache=True)
+def _set_action(
+    state: np.ndarray,
+    i: int,
+    action: int,
+    speed_step: np.ndarray,
+    candidate_lane: np.ndarray,
+    candidate_speed: np.ndarray,
+    repeat_actions: bool,
+) -> None:
+    """Predict AV ``i`` under meta-action ``action``: its target lane and target speed [m/s] in
+    ``state`` and, with ``repeat_actions``, the speed change repeated at each policy step."""
+    state[i, TARGET_LANE], state[i, TARGET_SPEED] = candidate_lane[i, action], candidate_speed[i, action]
+    speed_step[i] = SPEED_STEP[action] if repeat_actions else 0
+
+
+@numba.njit(cache=True)
+def _set_brake(state: np.ndarray, i: int, speed_step: np.ndarray, candidate_lane: np.ndarray) -> None:
+    """Predict AV ``i`` under the emergency brake: IDLE's target lane, target speed 0 m/s."""
+    state[i, TARGET_LANE], state[i, TARGET_SPEED] = candidate_lane[i, IDLE], 0.0
+    speed_step[i] = 0
+
+
+@numba.njit(cache=True)
+def _counted(state0: np.ndarray, ego: int, n_avs: int, collidable: np.ndarray, rear_avs: bool) -> np.ndarray:
+    """The vehicles the room of AV ``ego`` counts: the collidable ones, without (unless
+    ``rear_avs``) the AVs behind it in its own lane, which are served themselves and may brake
+    for it (counted, they make braking look worse than holding the speed)."""
+    counted = collidable.copy()
+    if not rear_avs:
+        for j in range(n_avs):
+            if j != ego and state0[j, LANE] == state0[ego, LANE] and state0[j, X] < state0[ego, X]:
+                counted[j] = False
+    return counted
+
+
+@numba.njit(cache=True)
+def _all_counted(state0: np.ndarray, n_avs: int, collidable: np.ndarray, rear_avs: bool) -> np.ndarray:
+    """(n_avs, n_vehicles): row ``i`` the vehicles the room of AV ``i`` counts (:func:`_counted`)."""
+    counted = np.zeros((n_avs, collidable.size), dtype=np.bool_)
+    for i in range(n_avs):
+        counted[i] = _counted(state0, i, n_avs, collidable, rear_avs)
+    return counted
+
+
+@numba.njit(cache=True)
+def _rooms(path: np.ndarray, counted: np.ndarray, collidable: np.ndarray, dt: float) -> np.ndarray:
+    """(n_avs,) each collidable AV's room [m] along the predicted road ``path`` (NaN for the others),
+    counting the vehicles of its row of ``counted`` (:func:`_all_counted`)."""
+    rooms = np.full(counted.shape[0], np.nan)
+    for i in range(rooms.size):
+        if collidable[i]:
+            rooms[i] = path_room(i, path, counted[i], dt)
+    return rooms
+
+
+@numba.njit(cache=True)
+def unsafe_cut_ins(
+    state: np.ndarray, n_avs: int, lanes: np.ndarray, candidate_lane: np.ndarray, speed_limit: float
+) -> np.ndarray:
+    """(n_avs, 5) the meta-actions that take an AV into a lane (or on into the lane it is changing
+    to) in front of an HDV that would then have to brake harder than its MOBIL safe braking
+    [m/s²]: IDM's acceleration of the nearest HDV behind the AV on that lane, or on a lane leading
+    into it (whose HDVs do not see the AV yet), with the AV as its leader (MOBIL's safety check)."""
+    unsafe = np.zeros((n_avs, candidate_lane.shape[1]), dtype=np.bool_)
+    for i in range(n_avs):
+        for a in range(candidate_lane.shape[1]):
+            lane = int(candidate_lane[i, a])
+            if lane == int(state[i, LANE]):
+                continue
+            s_i = local_coordinates(lanes, lane, state[i, X], state[i, Y])[0]
+            follower, s_follower = -1, -np.inf
+            for j in range(n_avs, state.shape[0]):
+                if state[j, IS_HDV] <= 0 or state[j, PRESENT] <= 0:
+                    continue
+                own = int(state[j, LANE])
+                first = int(lanes[own, NEXT_FIRST])
+                if own != lane and not first <= lane < first + int(lanes[own, NEXT_COUNT]):
+                    continue
+                s_j = local_coordinates(lanes, lane, state[j, X], state[j, Y])[0]
+                if s_follower < s_j < s_i:
+                    follower, s_follower = j, s_j
+            if follower >= 0:
+                unsafe[i, a] = idm(state, lanes, follower, i, speed_limit) < -state[follower, MAX_BRAKING_IMPOSED]
+    return unsafe
+
+
+@numba.njit(cache=True)
+def supervise_arrays(
+    state0: np.ndarray,
+    candidate_lane: np.ndarray,
+    candidate_speed: np.ndarray,
+    available: np.ndarray,
+    proposed: np.ndarray,
+    priority: np.ndarray,
+    horizon: Horizon,
+    min_gap: float,
+    repeat_actions: bool,
+    rear_avs: bool = True,
+    emergency_brake: bool = False,
+    joint_search: bool = False,
+    mobil_safety: bool = False,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The supervisor on the road's state array (the kernel's layout, AVs first). Returns the
+    executed actions, each AV's room [m] under them (NaN for AVs not served: past the road end) and
+    which AVs brake to a stop (IDLE with a target speed of 0 m/s, see ``emergency_brake``).
+
+    :param candidate_lane: (n_avs, 5) target lane of each AV under each meta-action
+    :param candidate_speed: (n_avs, 5) target speed [m/s] under each meta-action
+    :param available: (n_avs, 5) the action mask
+    :param proposed: (n_avs,) the policy's meta-actions
+    :param priority: (n_avs,) the order of service, the smallest first (equal: the lower index first)
+    :param min_gap: [m] the smallest room an action may leave
+    :param rear_avs: whether an AV's room counts the AVs behind it in its lane (see
+        :func:`_counted`)
+    :param emergency_brake: when no meta-action leaves an AV ``min_gap`` of room, try braking to a
+        stop (target speed 0 m/s, below the speed ladder) and take it if it leaves more room
+    :param joint_search: when AVs are still short of room at the end, search their actions in
+        pairs with the other AVs' (:func:`_joint_search`)
+    :param mobil_safety: an action of :func:`unsafe_cut_ins` counts as short of room (below
+        ``min_gap``), and the joint search leaves such actions out
+    """
+    n_avs = proposed.size
+    executed = proposed.copy()
+    braking = np.zeros(n_avs, dtype=np.bool_)
+    rooms = np.full(n_avs, np.nan)
+    state = state0.copy()  # the AVs' targets under the actions being checked
+    collidable = state[:, COLLIDABLE] > 0
+    dt = horizon.dt
+    speed_step = np.zeros(n_avs, dtype=np.int64)
+    for i in range(n_avs):
+        _set_action(state, i, proposed[i], speed_step, candidate_lane, candidate_speed, repeat_actions)
+    order = np.argsort(priority, kind="mergesort")
+    unsafe = np.zeros(candidate_lane.shape, dtype=np.bool_)
+    if mobil_safety:
+        unsafe = unsafe_cut_ins(state0, n_avs, horizon.lanes, candidate_lane, horizon.speed_limit)
+    short = min_gap - 1e-6  # [m] the room an unsafe cut-in counts at most
+    # the road predicted under the AVs' current actions, shared by every AV's room until one changes
+    path = predict(state, horizon, speed_step, -1, collidable, -np.inf)[0]
+    obstacles = np.flatnonzero(state0[:, IS_OBSTACLE] > 0)
+    settled = False  # whether the last pass changed nothing (every room then under the final actions)
+    for _ in range(PASSES):
+        changed = False
+        for i in order:
+            if not collidable[i]:
+                continue
+            counted = _counted(state0, i, n_avs, collidable, rear_avs)
+            current = executed[i]
+            room = path_room(i, path, counted, dt)
+            if unsafe[i, current] and not braking[i]:
+                room = min(room, short)
+            dead_end = dead_end_margin(state, i, path, horizon.lanes, obstacles)
+            if room < min_gap or dead_end < 0:
+                best, best_brake, best_room, best_dead_end, best_path = current, braking[i], room, dead_end, path
+                # the meta-actions in tie order, then (as a last resort) the emergency brake
+                for k in range(PREFERENCE.size + 1):
+                    brake = k == PREFERENCE.size
+                    if brake:
+                        if not emergency_brake or best_brake or best_room >= min_gap:
+                            continue
+                        _set_brake(state, i, speed_step, candidate_lane)
+                        a = IDLE
+                    else:
+                        a = PREFERENCE[k]
+                        if not available[i, a] or (a == current and not braking[i]):
+                            continue
+                        _set_action(state, i, a, speed_step, candidate_lane, candidate_speed, repeat_actions)
+                    # stopped once it cannot beat the best room: such a candidate is never
+                    # chosen (with a dead end ahead, every candidate is predicted in full)
+                    floor = best_room if obstacles.size == 0 else -np.inf
+                    # braking counts no AV behind in the lane: they are served after and may brake too
+                    seen = _counted(state0, i, n_avs, collidable, False) if brake else counted
+                    candidate_path, candidate_room = predict(state, horizon, speed_step, i, seen, floor)
+                    candidate_dead_end = dead_end_margin(state, i, candidate_path, horizon.lanes, obstacles)
+                    if unsafe[i, a]:
+                        candidate_room = min(candidate_room, short)
+                    if _better(candidate_room, candidate_dead_end, best_room, best_dead_end, min_gap):
+                        best, best_brake = a, brake
+                        best_room, best_dead_end, best_path = candidate_room, candidate_dead_end, candidate_path
+                changed = changed or best != current or best_brake != braking[i]
+                executed[i], braking[i], room, path = best, best_brake, best_room, best_path
+                if best_brake:
+                    _set_brake(state, i, speed_step, candidate_lane)
+                else:
+                    _set_action(state, i, best, speed_step, candidate_lane, candidate_speed, repeat_actions)
+            rooms[i] = room
+        if not changed:
+            settled = True
+            break  # another pass would see the same actions and find the same rooms
+    # Joint fallback: the passes serve one AV at a time against the others' current actions, so two
+    # AVs whose lane changes conflict can each find every option unsafe and end up crossing each
+    # other. The AVs still short of room after a lane change keep their lanes (IDLE) together,
+    # if that leaves every served AV more room than before.
+    stuck = np.zeros(n_avs, dtype=np.bool_)
+    for i in order:
+        stuck[i] = collidable[i] and rooms[i] < min_gap and (executed[i] == LANE_LEFT or executed[i] == LANE_RIGHT)
+    if stuck.any():
+        trial, trial_step = state.copy(), speed_step.copy()
+        for i in range(n_avs):
+            if stuck[i]:
+                _set_action(trial, i, IDLE, trial_step, candidate_lane, candidate_speed, repeat_actions)
+        trial_path = predict(trial, horizon, trial_step, -1, collidable, -np.inf)[0]
+        trial_rooms = _rooms(trial_path, _all_counted(state0, n_avs, collidable, rear_avs), collidable, dt)
+        before, after = np.inf, np.inf
+        for i in range(n_avs):
+            if collidable[i]:
+                before, after = min(before, rooms[i]), min(after, trial_rooms[i])
+        if after > before:
+            for i in range(n_avs):
+                if stuck[i]:
+                    executed[i] = IDLE
+            rooms, state, speed_step = trial_rooms, trial, trial_step
+    if joint_search:
+        executed, braking, rooms = _joint_search(
+            state0,
+            state,
+            speed_step,
+            executed,
+            braking,
+            rooms,
+            order,
+            candidate_lane,
+            candidate_speed,
+            available & ~unsafe,
+            horizon,
+            min_gap,
+            repeat_actions,
+            rear_avs,
+            emergency_brake,
+            obstacles,
+            settled,
+        )
+    return executed, rooms, braking
+
+
+@numba.njit(cache=True)
+def _set_option(
+    state: np.ndarray,
+    i: int,
+    option: int,
+    speed_step: np.ndarray,
+    candidate_lane: np.ndarray,
+    candidate_speed: np.ndarray,
+    repeat_actions: bool,
+) -> None:
+    """Option ``option`` of AV ``i``: a meta-action index, or ``BRAKE`` (the emergency brake)."""
+    if option == BRAKE:
+        _set_brake(state, i, speed_step, candidate_lane)
+    else:
+        _set_action(state, i, option, speed_step, candidate_lane, candidate_speed, repeat_actions)
+
+
+@numba.njit(cache=True)
+def _joint_score(
+    state: np.ndarray,
+    speed_step: np.ndarray,
+    horizon: Horizon,
+    counted: np.ndarray,
+    collidable: np.ndarray,
+    obstacles: np.ndarray,
+    min_gap: float,
+    n_avs: int,
+) -> tuple[float, float, float, np.ndarray]:
+    """(worst room shortfall, worst dead-end shortfall, summed room shortfall) [m] of the AVs' set
+    actions (each 0 when every AV has room / a way off), and the AVs' rooms [m]."""
+    path = predict(state, horizon, speed_step, -1, collidable, -np.inf)[0]
+    rooms = _rooms(path, counted, collidable, horizon.dt)
+    worst, dead, total = 0.0, 0.0, 0.0
+    for i in range(n_avs):
+        if collidable[i]:
+            short = min(rooms[i] - min_gap, 0.0)
+            worst, total = min(worst, short), total + short
+            dead = min(dead, dead_end_margin(state, i, path, horizon.lanes, obstacles), 0.0)
+    return worst, dead, total, rooms
+
+
+@numba.njit(cache=True)
+def _joint_search(
+    state0: np.ndarray,
+    state: np.ndarray,
+    speed_step: np.ndarray,
+    executed: np.ndarray,
+    braking: np.ndarray,
+    rooms: np.ndarray,
+    order: np.ndarray,
+    candidate_lane: np.ndarray,
+    candidate_speed: np.ndarray,
+    available: np.ndarray,
+    horizon: Horizon,
+    min_gap: float,
+    repeat_actions: bool,
+    rear_avs: bool,
+    emergency_brake: bool,
+    obstacles: np.ndarray,
+    settled: bool,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Joint search (``supervisor_joint_search``): while AVs are left short of ``min_gap`` m of room
+    after the passes (every room taken again under the final actions unless the last pass was
+    ``settled``: changed nothing), try each such AV's options (its available meta-actions and, with
+    ``emergency_brake``, the brake) together with each other AV's, the whole road predicted for
+    every pair, and keep the pair that leaves the worst-off AV the most room (then the most time to
+    leave a dead end, then the least summed shortfall); repeated while it improves, at most once
+    per AV. Returns the executed actions, which AVs brake, and the AVs' rooms [m]."""
+    n_avs = executed.size
+    collidable = state0[:, COLLIDABLE] > 0
+    if settled and not (collidable[:n_avs] & (rooms < min_gap)).any():
+        return executed, braking, rooms  # nobody short: no prediction needed
+    counted = _all_counted(state0, n_avs, collidable, rear_avs)
+    options = np.zeros((n_avs, PREFERENCE.size + 1), dtype=np.bool_)
+    for i in range(n_avs):
+        for a in range(PREFERENCE.size):
+            options[i, a] = available[i, a]
+        options[i, BRAKE] = emergency_brake
+    option = executed.copy()
+    for i in range(n_avs):
+        if braking[i]:
+            option[i] = BRAKE
+    best = _joint_score(state, speed_step, horizon, counted, collidable, obstacles, min_gap, n_avs)
+    rooms = best[3]  # under the final actions (an AV served early in the last pass was checked against others')
+    for _ in range(n_avs):
+        if best[0] >= 0.0 and best[1] >= 0.0:
+            break
+        improved = False
+        for i in order:
+            if not collidable[i] or rooms[i] >= min_gap:
+                continue
+            best_pair = (-1, -1, -1, -1)
+            for j in order:
+                if not collidable[j]:
+                    continue
+                for a in range(PREFERENCE.size + 1):
+                    if not options[i, a]:
+                        continue
+                    for b in range(PREFERENCE.size + 1):
+                        if not options[j, b] or (j == i and b != a):
+                            continue
+                        if a == option[i] and b == option[j]:
+                            continue
+                        trial, trial_step = state.copy(), speed_step.copy()
+                        _set_option(trial, i, a, trial_step, candidate_lane, candidate_speed, repeat_actions)
+                        _set_option(trial, j, b, trial_step, candidate_lane, candidate_speed, repeat_actions)
+                        score = _joint_score(trial, trial_step, horizon, counted, collidable, obstacles, min_gap, n_avs)
+                        if (score[0], score[1], score[2]) > (best[0], best[1], best[2]):
+                            best, best_pair = score, (i, a, j, b)
+            if best_pair[0] >= 0:
+                i_, a, j, b = best_pair
+                _set_option(state, i_, a, speed_step, candidate_lane, candidate_speed, repeat_actions)
+                _set_option(state, j, b, speed_step, candidate_lane, candidate_speed, repeat_actions)
+                option[i_], option[j] = a, b
+                rooms = best[3]
+                improved = True
+        if not improved:
+            break
+    for i in range(n_avs):
+        braking[i] = option[i] == BRAKE
+        executed[i] = IDLE if braking[i] else option[i]
+    return executed, braking, rooms
+
+
+@numba.njit(cache=True)
+def _better(room: float, dead_end: float, best_room: float, best_dead_end: float, min_gap: float) -> bool:
+    """Whether a candidate action beats the best so far: first the actions with room and a way off
+    a dead-end lane (the larger room first), then those with room (the larger dead-end margin
+    first), then the larger room."""
+    tier = 2 if room >= min_gap and dead_end >= 0 else (1 if room >= min_gap else 0)
+    best_tier = 2 if best_room >= min_gap and best_dead_end >= 0 else (1 if best_room >= min_gap else 0)
+    if tier != best_tier:
+        return tier > best_tier
+    return dead_end > best_dead_end if tier == 1 else room > best_room
+
+
+@numba.njit(cache=True)
+def headway_margins(state: np.ndarray, n_avs: int, lanes: np.ndarray, headway_time: float) -> np.ndarray:
+    """(n_avs,) each AV's headway margin [m]: the gap to its leader in its lane (:data:`NO_LEADER_GAP`
+    without one) minus its speed [m/s] × ``headway_time`` [s] (the lane change's priority)."""
+    occupancy = lane_occupancy(state, lanes)
+    margin = np.empty(n_avs)
+    for i in range(n_avs):
+        front = leader(state, lanes, occupancy, i)
+        gap = lane_distance(state, lanes, i, front) if front >= 0 else NO_LEADER_GAP
+        margin[i] = gap - state[i, SPEED] * headway_time
+    return margin
+
+
+@dataclass(frozen=True)
+class Supervisor:
+    """The supervisor of one scenario config (see the module doc); the env builds it at each reset.
+
+    :param horizon: the road and the prediction's time grid
+    :param headway_time: [s] of the priority's headway margin (``headway_time``)
+    :param min_gap: [m] the smallest predicted room an action may leave (``supervisor_min_gap``)
+    :param repeat_actions: every AV repeats its action at each policy step of the horizon
+        (``supervisor_repeat_actions``)
+    :param rear_avs: protect each AV from the AVs behind it too (``supervisor_rear_avs``)
+    :param emergency_brake: brake to a stop when no meta-action leaves room (``supervisor_emergency_brake``)
+    :param joint_search: search the actions of AVs left short of room in pairs (``supervisor_joint_search``)
+    :param mobil_safety: hold the AVs' lane changes to MOBIL's safety check (``supervisor_mobil_safety``)
+    :param priorities: (state, n_avs, supervisor) -> (n_avs,) the order of service, the smallest
+        first; by default the headway margin (:func:`headway_margins`)
+    """
+
+    horizon: Horizon
+    headway_time: float
+    min_gap: float
+    repeat_actions: bool
+    rear_avs: bool
+    emergency_brake: bool = False
+    joint_search: bool = False
+    mobil_safety: bool = False
+    priorities: Callable[[np.ndarray, int, Supervisor], np.ndarray] | None = None
+
+    @classmethod
+    def from_config(
+        cls,
+        config: dict[str, Any],
+        lanes: np.ndarray | None = None,
+        road_end: float | None = None,
+        priorities: Callable[[np.ndarray, int, Supervisor], np.ndarray] | None = None,
+    ) -> Supervisor:
+        """The supervisor of ``config`` on the road ``lanes`` (see :meth:`Horizon.from_config`)."""
+        return cls(
+            Horizon.from_config(config, lanes, road_end),
+            float(config["headway_time"]),
+            float(config["supervisor_min_gap"]),
+            bool(config["supervisor_repeat_actions"]),
+            bool(config["supervisor_rear_avs"]),
+            bool(config["supervisor_emergency_brake"]),
+            bool(config["supervisor_joint_search"]),
+            bool(config["supervisor_mobil_safety"]),
+            priorities,
+        )
+
+    def choices(self, state: np.ndarray, n_avs: int, available: np.ndarray) -> np.ndarray:
+        """(n_avs, 5) the meta-actions the supervisor may execute: the policy's mask ``available``
+        and, with the emergency brake, SLOWER for an AV braked below the speed ladder (the brake's
+        release: highway-env's SLOWER at the ladder's bottom step sets its lowest speed, but its mask
+        leaves SLOWER out there, so the AV could otherwise only keep braking or take FASTER to the
+        ladder's second speed)."""
+        choices = np.array(available, dtype=np.bool_)
+        if self.emergency_brake:
+            choices[:, SLOWER] |= state[:n_avs, TARGET_SPEED] < self.horizon.ladder[0]
+        return choices
+
+    def __call__(
+        self, state: np.ndarray, n_avs: int, proposed: np.ndarray, available: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Executed meta-actions (n_avs,), each AV's predicted room [m] and which AVs brake to a stop.
+
+        :param state: the road's state array (:mod:`~sb3_marl.sim.kernel` layout), the ``n_avs`` AVs
+            first; not modified
+        :param proposed: (n_avs,) the policy's meta-actions
+        :param available: (n_avs, 5) bool action mask
+        """
+        horizon = self.horizon
+        candidate_lane, candidate_speed = meta_action_targets(state, n_avs, horizon.lanes, horizon.ladder)
+        if self.priorities is None:
+            priority = headway_margins(state, n_avs, horizon.lanes, self.headway_time)
+        else:
+            priority = self.priorities(state, n_avs, self)
+        return supervise_arrays(
+            state,
+            candidate_lane,
+            candidate_speed,
+            self.choices(state, n_avs, available),
+            np.asarray(proposed, dtype=np.int64),
+            priority,
+            horizon,
+            self.min_gap,
+            self.repeat_actions,
+            self.rear_avs,
+            self.emergency_brake,
+            self.joint_search,
+            self.mobil_safety,
+        )
