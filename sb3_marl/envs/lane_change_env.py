@@ -41,8 +41,7 @@ class LaneChangeEnv(AbstractEnv):
       (:mod:`sb3_marl.safety.supervisor`) first, which replaces those predicted to collide; with
       ``supervisor_shadow`` and the supervisor off, it only reports where it would have
       (``info["intervened"]``).
-    - The episode terminates for all AVs as soon as any AV crashes. It is truncated after
-      ``duration * policy_frequency`` steps (100 by default).
+    - The episode ends for all AVs when any AV crashes, or after ``duration * policy_frequency`` steps.
 
     Road end: the simulated lanes are ``road_length`` m long. A vehicle whose centre passes the
     end has left the scenario: it can no longer collide, and it is dropped from every

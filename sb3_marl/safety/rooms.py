@@ -1,7 +1,9 @@
 """The safety supervisor's predictions and the room they leave: the road driven ahead with its own
 equations (:func:`predict`), the smallest bumper-to-bumper gap of a vehicle along it (:func:`path_room`)
 and how late an AV may still leave a lane an obstacle ends (:func:`dead_end_margin`), on the
-road and time grid of a :class:`Horizon`. Units: m, m/s, rad, s.
+road and time grid of a :class:`Horizon`; an AV's options set into the predicted state
+(:func:`set_action`, :func:`set_brake`), the vehicles each AV's room counts (:func:`counted_by`)
+and MOBIL's safety check of a cut-in (:func:`unsafe_cut_ins`). Units: m, m/s, rad, s.
 """
 
 from __future__ import annotations
@@ -11,9 +13,26 @@ from typing import Any, NamedTuple
 import numba
 import numpy as np
 
+from sb3_marl.sim.drivers import idm
 from sb3_marl.sim.dynamics import drive
-from sb3_marl.sim.kernel import HEADING, LENGTH, OBSTACLE_LENGTH, SPEED, TARGET_LANE, TARGET_SPEED, WIDTH, X, Y, cos, sin
-from sb3_marl.sim.lanes import closest_lane, follow, local_coordinates, on_lane
+from sb3_marl.sim.kernel import (
+    HEADING,
+    IS_HDV,
+    LANE,
+    LENGTH,
+    MAX_BRAKING_IMPOSED,
+    OBSTACLE_LENGTH,
+    PRESENT,
+    SPEED,
+    TARGET_LANE,
+    TARGET_SPEED,
+    WIDTH,
+    X,
+    Y,
+    cos,
+    sin,
+)
+from sb3_marl.sim.lanes import NEXT_COUNT, NEXT_FIRST, closest_lane, follow, local_coordinates, on_lane
 from sb3_marl.sim.meta_actions import speed_index
 from sb3_marl.sim.road import highway_lanes
 
@@ -144,3 +163,98 @@ def dead_end_margin(state: np.ndarray, ego: int, path: np.ndarray, lanes: np.nda
             if gap > -LENGTH:
                 margin = min(margin, gap - v * LEAVE_TIME)
     return margin
+
+
+#: Replacement candidates in tie order: IDLE, SLOWER, FASTER, LANE_LEFT, LANE_RIGHT
+#: (highway-env's meta-action indices).
+PREFERENCE = np.array([1, 4, 3, 0, 2], dtype=np.int64)
+#: Speed-index change of each meta-action (FASTER +1, SLOWER -1) when actions repeat over the horizon.
+SPEED_STEP = np.array([0, 0, 0, 1, -1], dtype=np.int64)
+LANE_LEFT, IDLE, LANE_RIGHT, SLOWER = 0, 1, 2, 4
+
+
+@numba.njit(cache=True)
+def set_action(
+    state: np.ndarray,
+    i: int,
+    action: int,
+    speed_step: np.ndarray,
+    candidate_lane: np.ndarray,
+    candidate_speed: np.ndarray,
+    repeat_actions: bool,
+) -> None:
+    """Predict AV ``i`` under meta-action ``action``: its target lane and target speed [m/s] in
+    ``state`` and, with ``repeat_actions``, the speed change repeated at each policy step."""
+    state[i, TARGET_LANE], state[i, TARGET_SPEED] = candidate_lane[i, action], candidate_speed[i, action]
+    speed_step[i] = SPEED_STEP[action] if repeat_actions else 0
+
+
+@numba.njit(cache=True)
+def set_brake(state: np.ndarray, i: int, speed_step: np.ndarray, candidate_lane: np.ndarray) -> None:
+    """Predict AV ``i`` under the emergency brake: IDLE's target lane, target speed 0 m/s."""
+    state[i, TARGET_LANE], state[i, TARGET_SPEED] = candidate_lane[i, IDLE], 0.0
+    speed_step[i] = 0
+
+
+@numba.njit(cache=True)
+def counted_by(state0: np.ndarray, ego: int, n_avs: int, collidable: np.ndarray, rear_avs: bool) -> np.ndarray:
+    """The vehicles the room of AV ``ego`` counts: the collidable ones, without (unless
+    ``rear_avs``) the AVs behind it in its own lane, which are served themselves and may brake
+    for it (counted, they make braking look worse than holding the speed)."""
+    counted = collidable.copy()
+    if not rear_avs:
+        for j in range(n_avs):
+            if j != ego and state0[j, LANE] == state0[ego, LANE] and state0[j, X] < state0[ego, X]:
+                counted[j] = False
+    return counted
+
+
+@numba.njit(cache=True)
+def counted_by_all(state0: np.ndarray, n_avs: int, collidable: np.ndarray, rear_avs: bool) -> np.ndarray:
+    """(n_avs, n_vehicles): row ``i`` the vehicles the room of AV ``i`` counts (:func:`counted_by`)."""
+    counted = np.zeros((n_avs, collidable.size), dtype=np.bool_)
+    for i in range(n_avs):
+        counted[i] = counted_by(state0, i, n_avs, collidable, rear_avs)
+    return counted
+
+
+@numba.njit(cache=True)
+def av_rooms(path: np.ndarray, counted: np.ndarray, collidable: np.ndarray, dt: float) -> np.ndarray:
+    """(n_avs,) each collidable AV's room [m] along the predicted road ``path`` (NaN for the others),
+    counting the vehicles of its row of ``counted`` (:func:`counted_by_all`)."""
+    rooms = np.full(counted.shape[0], np.nan)
+    for i in range(rooms.size):
+        if collidable[i]:
+            rooms[i] = path_room(i, path, counted[i], dt)
+    return rooms
+
+
+@numba.njit(cache=True)
+def unsafe_cut_ins(
+    state: np.ndarray, n_avs: int, lanes: np.ndarray, candidate_lane: np.ndarray, speed_limit: float
+) -> np.ndarray:
+    """(n_avs, 5) the meta-actions that take an AV into a lane (or on into the lane it is changing
+    to) in front of an HDV that would then have to brake harder than its MOBIL safe braking
+    [m/s²]: IDM's acceleration of the nearest HDV behind the AV on that lane, or on a lane leading
+    into it (whose HDVs do not see the AV yet), with the AV as its leader (MOBIL's safety check)."""
+    unsafe = np.zeros((n_avs, candidate_lane.shape[1]), dtype=np.bool_)
+    for i in range(n_avs):
+        for a in range(candidate_lane.shape[1]):
+            lane = int(candidate_lane[i, a])
+            if lane == int(state[i, LANE]):
+                continue
+            s_i = local_coordinates(lanes, lane, state[i, X], state[i, Y])[0]
+            follower, s_follower = -1, -np.inf
+            for j in range(n_avs, state.shape[0]):
+                if state[j, IS_HDV] <= 0 or state[j, PRESENT] <= 0:
+                    continue
+                own = int(state[j, LANE])
+                first = int(lanes[own, NEXT_FIRST])
+                if own != lane and not first <= lane < first + int(lanes[own, NEXT_COUNT]):
+                    continue
+                s_j = local_coordinates(lanes, lane, state[j, X], state[j, Y])[0]
+                if s_follower < s_j < s_i:
+                    follower, s_follower = j, s_j
+            if follower >= 0:
+                unsafe[i, a] = idm(state, lanes, follower, i, speed_limit) < -state[follower, MAX_BRAKING_IMPOSED]
+    return unsafe

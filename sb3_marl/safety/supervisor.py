@@ -35,8 +35,8 @@ unsafe and cross each other; a joint fallback then makes the AVs left short of r
 change keep their lanes together (IDLE), when that leaves every AV more room. With
 ``supervisor_joint_search`` (on by default on the merge), the AVs still short of room then have
 their options searched in pairs with every other AV's, the whole road predicted for each pair
-(:func:`_joint_search`): it finds the joint moves one-at-a-time service cannot (an AV on the
-merging lane keeping its speed while the AV closing from behind brakes). It first takes every AV's
+(:func:`~sb3_marl.safety.joint_search.search_pairs`): it finds the joint moves one-at-a-time
+service cannot (an AV on the merging lane keeping its speed while the AV closing from behind brakes). It first takes every AV's
 room again under the actions the passes ended with: an AV served early in the second pass was
 checked against actions that later AVs of that pass replaced. With ``supervisor_emergency_brake``
 (on by default on the merge), an AV that no meta-action leaves room is braked to a stop (a target
@@ -51,7 +51,7 @@ merged just past the ramp's end; the room over the horizon does not show it yet.
 
 A lane an obstacle ends (the merge's merging lane) is a constraint of its own: an AV cannot stop on
 it (its lowest target speed is 10 m/s), so an action is also replaced when it leaves the AV on
-that lane, at the end of the prediction, with under ``LEAVE_TIME`` s of driving to the obstacle
+that lane, at the end of the prediction, with under :data:`~sb3_marl.safety.rooms.LEAVE_TIME` s of driving to the obstacle
 (:func:`~sb3_marl.safety.rooms.dead_end_margin`); the replacement is the action with room and a way
 off the lane, else with room and the most time left, else the largest room. The prediction runs
 as one compiled (numba) function per step; compiled code is cached on disk, so a fresh process
@@ -67,23 +67,32 @@ from typing import Any
 import numba
 import numpy as np
 
-from sb3_marl.safety.rooms import Horizon, dead_end_margin, path_room, predict
+from sb3_marl.safety.joint_search import search_pairs
+from sb3_marl.safety.rooms import (
+    IDLE,
+    LANE_LEFT,
+    LANE_RIGHT,
+    PREFERENCE,
+    SLOWER,
+    Horizon,
+    av_rooms,
+    counted_by,
+    counted_by_all,
+    dead_end_margin,
+    path_room,
+    predict,
+    set_action,
+    set_brake,
+    unsafe_cut_ins,
+)
 from sb3_marl.sim import LANE_CHANGE, MERGE
-from sb3_marl.sim.drivers import idm, lane_distance, lane_occupancy, leader
+from sb3_marl.sim.drivers import lane_distance, lane_occupancy, leader
 from sb3_marl.sim.kernel import (
     COLLIDABLE,
-    IS_HDV,
     IS_OBSTACLE,
-    LANE,
-    MAX_BRAKING_IMPOSED,
-    PRESENT,
     SPEED,
-    TARGET_LANE,
     TARGET_SPEED,
-    X,
-    Y,
 )
-from sb3_marl.sim.lanes import NEXT_COUNT, NEXT_FIRST, local_coordinates
 from sb3_marl.sim.meta_actions import meta_action_targets
 
 #: Version of the supervisor's decisions on each road (:data:`~sb3_marl.sim.LANE_CHANGE`,
@@ -92,105 +101,8 @@ from sb3_marl.sim.meta_actions import meta_action_targets
 #: the emergency brake's release, :meth:`Supervisor.choices`, and ``supervisor_joint_search`` on).
 VERSIONS = {LANE_CHANGE: 3, MERGE: 4}
 NO_LEADER_GAP = 1e6  # [m], headway of an AV without leader (priority only)
-#: Replacement candidates in tie order: IDLE, SLOWER, FASTER, LANE_LEFT, LANE_RIGHT
-#: (highway-env's meta-action indices).
-PREFERENCE = np.array([1, 4, 3, 0, 2], dtype=np.int64)
-#: Speed-index change of each meta-action (FASTER +1, SLOWER -1) when actions repeat over the horizon.
-SPEED_STEP = np.array([0, 0, 0, 1, -1], dtype=np.int64)
-LANE_LEFT, IDLE, LANE_RIGHT, SLOWER = 0, 1, 2, 4
-#: The emergency brake as an option of the joint search (after the five meta-actions).
-BRAKE = 5
 #: Passes over the AVs in priority order (the second checks against the first pass's final actions).
 PASSES = 2
-#: [s] the time an AV is given to leave a lane an obstacle ends (see :func:`dead_end_margin`)
-LEAVE_TIME = 2.5
-
-
-@numba.njit(cache=True)
-def _set_action(
-    state: np.ndarray,
-    i: int,
-    action: int,
-    speed_step: np.ndarray,
-    candidate_lane: np.ndarray,
-    candidate_speed: np.ndarray,
-    repeat_actions: bool,
-) -> None:
-    """Predict AV ``i`` under meta-action ``action``: its target lane and target speed [m/s] in
-    ``state`` and, with ``repeat_actions``, the speed change repeated at each policy step."""
-    state[i, TARGET_LANE], state[i, TARGET_SPEED] = candidate_lane[i, action], candidate_speed[i, action]
-    speed_step[i] = SPEED_STEP[action] if repeat_actions else 0
-
-
-@numba.njit(cache=True)
-def _set_brake(state: np.ndarray, i: int, speed_step: np.ndarray, candidate_lane: np.ndarray) -> None:
-    """Predict AV ``i`` under the emergency brake: IDLE's target lane, target speed 0 m/s."""
-    state[i, TARGET_LANE], state[i, TARGET_SPEED] = candidate_lane[i, IDLE], 0.0
-    speed_step[i] = 0
-
-
-@numba.njit(cache=True)
-def _counted(state0: np.ndarray, ego: int, n_avs: int, collidable: np.ndarray, rear_avs: bool) -> np.ndarray:
-    """The vehicles the room of AV ``ego`` counts: the collidable ones, without (unless
-    ``rear_avs``) the AVs behind it in its own lane, which are served themselves and may brake
-    for it (counted, they make braking look worse than holding the speed)."""
-    counted = collidable.copy()
-    if not rear_avs:
-        for j in range(n_avs):
-            if j != ego and state0[j, LANE] == state0[ego, LANE] and state0[j, X] < state0[ego, X]:
-                counted[j] = False
-    return counted
-
-
-@numba.njit(cache=True)
-def _all_counted(state0: np.ndarray, n_avs: int, collidable: np.ndarray, rear_avs: bool) -> np.ndarray:
-    """(n_avs, n_vehicles): row ``i`` the vehicles the room of AV ``i`` counts (:func:`_counted`)."""
-    counted = np.zeros((n_avs, collidable.size), dtype=np.bool_)
-    for i in range(n_avs):
-        counted[i] = _counted(state0, i, n_avs, collidable, rear_avs)
-    return counted
-
-
-@numba.njit(cache=True)
-def _rooms(path: np.ndarray, counted: np.ndarray, collidable: np.ndarray, dt: float) -> np.ndarray:
-    """(n_avs,) each collidable AV's room [m] along the predicted road ``path`` (NaN for the others),
-    counting the vehicles of its row of ``counted`` (:func:`_all_counted`)."""
-    rooms = np.full(counted.shape[0], np.nan)
-    for i in range(rooms.size):
-        if collidable[i]:
-            rooms[i] = path_room(i, path, counted[i], dt)
-    return rooms
-
-
-@numba.njit(cache=True)
-def unsafe_cut_ins(
-    state: np.ndarray, n_avs: int, lanes: np.ndarray, candidate_lane: np.ndarray, speed_limit: float
-) -> np.ndarray:
-    """(n_avs, 5) the meta-actions that take an AV into a lane (or on into the lane it is changing
-    to) in front of an HDV that would then have to brake harder than its MOBIL safe braking
-    [m/s²]: IDM's acceleration of the nearest HDV behind the AV on that lane, or on a lane leading
-    into it (whose HDVs do not see the AV yet), with the AV as its leader (MOBIL's safety check)."""
-    unsafe = np.zeros((n_avs, candidate_lane.shape[1]), dtype=np.bool_)
-    for i in range(n_avs):
-        for a in range(candidate_lane.shape[1]):
-            lane = int(candidate_lane[i, a])
-            if lane == int(state[i, LANE]):
-                continue
-            s_i = local_coordinates(lanes, lane, state[i, X], state[i, Y])[0]
-            follower, s_follower = -1, -np.inf
-            for j in range(n_avs, state.shape[0]):
-                if state[j, IS_HDV] <= 0 or state[j, PRESENT] <= 0:
-                    continue
-                own = int(state[j, LANE])
-                first = int(lanes[own, NEXT_FIRST])
-                if own != lane and not first <= lane < first + int(lanes[own, NEXT_COUNT]):
-                    continue
-                s_j = local_coordinates(lanes, lane, state[j, X], state[j, Y])[0]
-                if s_follower < s_j < s_i:
-                    follower, s_follower = j, s_j
-            if follower >= 0:
-                unsafe[i, a] = idm(state, lanes, follower, i, speed_limit) < -state[follower, MAX_BRAKING_IMPOSED]
-    return unsafe
 
 
 @numba.njit(cache=True)
@@ -220,11 +132,11 @@ def supervise_arrays(
     :param priority: (n_avs,) the order of service, the smallest first (equal: the lower index first)
     :param min_gap: [m] the smallest room an action may leave
     :param rear_avs: whether an AV's room counts the AVs behind it in its lane (see
-        :func:`_counted`)
+        :func:`counted_by`)
     :param emergency_brake: when no meta-action leaves an AV ``min_gap`` of room, try braking to a
         stop (target speed 0 m/s, below the speed ladder) and take it if it leaves more room
     :param joint_search: when AVs are still short of room at the end, search their actions in
-        pairs with the other AVs' (:func:`_joint_search`)
+        pairs with the other AVs' (:func:`~sb3_marl.safety.joint_search.search_pairs`)
     :param mobil_safety: an action of :func:`unsafe_cut_ins` counts as short of room (below
         ``min_gap``), and the joint search leaves such actions out
     """
@@ -237,7 +149,7 @@ def supervise_arrays(
     dt = horizon.dt
     speed_step = np.zeros(n_avs, dtype=np.int64)
     for i in range(n_avs):
-        _set_action(state, i, proposed[i], speed_step, candidate_lane, candidate_speed, repeat_actions)
+        set_action(state, i, proposed[i], speed_step, candidate_lane, candidate_speed, repeat_actions)
     order = np.argsort(priority, kind="mergesort")
     unsafe = np.zeros(candidate_lane.shape, dtype=np.bool_)
     if mobil_safety:
@@ -252,7 +164,7 @@ def supervise_arrays(
         for i in order:
             if not collidable[i]:
                 continue
-            counted = _counted(state0, i, n_avs, collidable, rear_avs)
+            counted = counted_by(state0, i, n_avs, collidable, rear_avs)
             current = executed[i]
             room = path_room(i, path, counted, dt)
             if unsafe[i, current] and not braking[i]:
@@ -266,18 +178,18 @@ def supervise_arrays(
                     if brake:
                         if not emergency_brake or best_brake or best_room >= min_gap:
                             continue
-                        _set_brake(state, i, speed_step, candidate_lane)
+                        set_brake(state, i, speed_step, candidate_lane)
                         a = IDLE
                     else:
                         a = PREFERENCE[k]
                         if not available[i, a] or (a == current and not braking[i]):
                             continue
-                        _set_action(state, i, a, speed_step, candidate_lane, candidate_speed, repeat_actions)
+                        set_action(state, i, a, speed_step, candidate_lane, candidate_speed, repeat_actions)
                     # stopped once it cannot beat the best room: such a candidate is never
                     # chosen (with a dead end ahead, every candidate is predicted in full)
                     floor = best_room if obstacles.size == 0 else -np.inf
                     # braking counts no AV behind in the lane: they are served after and may brake too
-                    seen = _counted(state0, i, n_avs, collidable, False) if brake else counted
+                    seen = counted_by(state0, i, n_avs, collidable, False) if brake else counted
                     candidate_path, candidate_room = predict(state, horizon, speed_step, i, seen, floor)
                     candidate_dead_end = dead_end_margin(state, i, candidate_path, horizon.lanes, obstacles)
                     if unsafe[i, a]:
@@ -288,9 +200,9 @@ def supervise_arrays(
                 changed = changed or best != current or best_brake != braking[i]
                 executed[i], braking[i], room, path = best, best_brake, best_room, best_path
                 if best_brake:
-                    _set_brake(state, i, speed_step, candidate_lane)
+                    set_brake(state, i, speed_step, candidate_lane)
                 else:
-                    _set_action(state, i, best, speed_step, candidate_lane, candidate_speed, repeat_actions)
+                    set_action(state, i, best, speed_step, candidate_lane, candidate_speed, repeat_actions)
             rooms[i] = room
         if not changed:
             settled = True
@@ -306,9 +218,9 @@ def supervise_arrays(
         trial, trial_step = state.copy(), speed_step.copy()
         for i in range(n_avs):
             if stuck[i]:
-                _set_action(trial, i, IDLE, trial_step, candidate_lane, candidate_speed, repeat_actions)
+                set_action(trial, i, IDLE, trial_step, candidate_lane, candidate_speed, repeat_actions)
         trial_path = predict(trial, horizon, trial_step, -1, collidable, -np.inf)[0]
-        trial_rooms = _rooms(trial_path, _all_counted(state0, n_avs, collidable, rear_avs), collidable, dt)
+        trial_rooms = av_rooms(trial_path, counted_by_all(state0, n_avs, collidable, rear_avs), collidable, dt)
         before, after = np.inf, np.inf
         for i in range(n_avs):
             if collidable[i]:
@@ -319,7 +231,7 @@ def supervise_arrays(
                     executed[i] = IDLE
             rooms, state, speed_step = trial_rooms, trial, trial_step
     if joint_search:
-        executed, braking, rooms = _joint_search(
+        executed, braking, rooms = search_pairs(
             state0,
             state,
             speed_step,
@@ -339,130 +251,6 @@ def supervise_arrays(
             settled,
         )
     return executed, rooms, braking
-
-
-@numba.njit(cache=True)
-def _set_option(
-    state: np.ndarray,
-    i: int,
-    option: int,
-    speed_step: np.ndarray,
-    candidate_lane: np.ndarray,
-    candidate_speed: np.ndarray,
-    repeat_actions: bool,
-) -> None:
-    """Option ``option`` of AV ``i``: a meta-action index, or ``BRAKE`` (the emergency brake)."""
-    if option == BRAKE:
-        _set_brake(state, i, speed_step, candidate_lane)
-    else:
-        _set_action(state, i, option, speed_step, candidate_lane, candidate_speed, repeat_actions)
-
-
-@numba.njit(cache=True)
-def _joint_score(
-    state: np.ndarray,
-    speed_step: np.ndarray,
-    horizon: Horizon,
-    counted: np.ndarray,
-    collidable: np.ndarray,
-    obstacles: np.ndarray,
-    min_gap: float,
-    n_avs: int,
-) -> tuple[float, float, float, np.ndarray]:
-    """(worst room shortfall, worst dead-end shortfall, summed room shortfall) [m] of the AVs' set
-    actions (each 0 when every AV has room / a way off), and the AVs' rooms [m]."""
-    path = predict(state, horizon, speed_step, -1, collidable, -np.inf)[0]
-    rooms = _rooms(path, counted, collidable, horizon.dt)
-    worst, dead, total = 0.0, 0.0, 0.0
-    for i in range(n_avs):
-        if collidable[i]:
-            short = min(rooms[i] - min_gap, 0.0)
-            worst, total = min(worst, short), total + short
-            dead = min(dead, dead_end_margin(state, i, path, horizon.lanes, obstacles), 0.0)
-    return worst, dead, total, rooms
-
-
-@numba.njit(cache=True)
-def _joint_search(
-    state0: np.ndarray,
-    state: np.ndarray,
-    speed_step: np.ndarray,
-    executed: np.ndarray,
-    braking: np.ndarray,
-    rooms: np.ndarray,
-    order: np.ndarray,
-    candidate_lane: np.ndarray,
-    candidate_speed: np.ndarray,
-    available: np.ndarray,
-    horizon: Horizon,
-    min_gap: float,
-    repeat_actions: bool,
-    rear_avs: bool,
-    emergency_brake: bool,
-    obstacles: np.ndarray,
-    settled: bool,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Joint search (``supervisor_joint_search``): while AVs are left short of ``min_gap`` m of room
-    after the passes (every room taken again under the final actions unless the last pass was
-    ``settled``: changed nothing), try each such AV's options (its available meta-actions and, with
-    ``emergency_brake``, the brake) together with each other AV's, the whole road predicted for
-    every pair, and keep the pair that leaves the worst-off AV the most room (then the most time to
-    leave a dead end, then the least summed shortfall); repeated while it improves, at most once
-    per AV. Returns the executed actions, which AVs brake, and the AVs' rooms [m]."""
-    n_avs = executed.size
-    collidable = state0[:, COLLIDABLE] > 0
-    if settled and not (collidable[:n_avs] & (rooms < min_gap)).any():
-        return executed, braking, rooms  # nobody short: no prediction needed
-    counted = _all_counted(state0, n_avs, collidable, rear_avs)
-    options = np.zeros((n_avs, PREFERENCE.size + 1), dtype=np.bool_)
-    for i in range(n_avs):
-        for a in range(PREFERENCE.size):
-            options[i, a] = available[i, a]
-        options[i, BRAKE] = emergency_brake
-    option = executed.copy()
-    for i in range(n_avs):
-        if braking[i]:
-            option[i] = BRAKE
-    best = _joint_score(state, speed_step, horizon, counted, collidable, obstacles, min_gap, n_avs)
-    rooms = best[3]  # under the final actions (an AV served early in the last pass was checked against others')
-    for _ in range(n_avs):
-        if best[0] >= 0.0 and best[1] >= 0.0:
-            break
-        improved = False
-        for i in order:
-            if not collidable[i] or rooms[i] >= min_gap:
-                continue
-            best_pair = (-1, -1, -1, -1)
-            for j in order:
-                if not collidable[j]:
-                    continue
-                for a in range(PREFERENCE.size + 1):
-                    if not options[i, a]:
-                        continue
-                    for b in range(PREFERENCE.size + 1):
-                        if not options[j, b] or (j == i and b != a):
-                            continue
-                        if a == option[i] and b == option[j]:
-                            continue
-                        trial, trial_step = state.copy(), speed_step.copy()
-                        _set_option(trial, i, a, trial_step, candidate_lane, candidate_speed, repeat_actions)
-                        _set_option(trial, j, b, trial_step, candidate_lane, candidate_speed, repeat_actions)
-                        score = _joint_score(trial, trial_step, horizon, counted, collidable, obstacles, min_gap, n_avs)
-                        if (score[0], score[1], score[2]) > (best[0], best[1], best[2]):
-                            best, best_pair = score, (i, a, j, b)
-            if best_pair[0] >= 0:
-                i_, a, j, b = best_pair
-                _set_option(state, i_, a, speed_step, candidate_lane, candidate_speed, repeat_actions)
-                _set_option(state, j, b, speed_step, candidate_lane, candidate_speed, repeat_actions)
-                option[i_], option[j] = a, b
-                rooms = best[3]
-                improved = True
-        if not improved:
-            break
-    for i in range(n_avs):
-        braking[i] = option[i] == BRAKE
-        executed[i] = IDLE if braking[i] else option[i]
-    return executed, braking, rooms
 
 
 @numba.njit(cache=True)

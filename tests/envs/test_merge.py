@@ -9,7 +9,8 @@ import pytest
 from parity import compare, run_episode, stock_rule_actions
 from pettingzoo.test import parallel_api_test
 
-from sb3_marl.envs import ENV_IDS, MERGE_ENV_IDS, av_counts, kernel, parallel_env
+from sb3_marl.envs import ENV_IDS, MERGE_ENV_IDS, av_counts, parallel_env
+from sb3_marl.sim import kernel
 from sb3_marl.sim.lanes import lane_table
 from sb3_marl.sim.merge_road import (
     CONVERGING,
@@ -278,7 +279,7 @@ def test_mobil_safety_flags_a_merge_in_front_of_an_hdv_still_on_the_lane_before(
     section before the merging lane: highway-env's IDM does not see the AV until it enters the
     section beside it, then would have to brake harder than its safe braking, so merging (LANE_LEFT)
     is flagged; with the HDV 80 m back it is not. Keeping the merging lane (IDLE) never is."""
-    from sb3_marl.safety.supervisor import unsafe_cut_ins
+    from sb3_marl.safety.rooms import unsafe_cut_ins
     from sb3_marl.sim.meta_actions import meta_action_targets
 
     env = make(1, n_avs=1, safety_supervisor=True)

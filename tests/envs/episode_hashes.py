@@ -1,0 +1,51 @@
+"""Seeded episodes of every scenario id, with the supervisor on and off, reduced to one SHA-256
+each: observations, rewards (global and per AV), action masks, executed actions, crash flags,
+neighbour sets, the rule driver's actions and the step count.
+``python tests/envs/episode_hashes.py > tests/envs/episode_hashes.json`` records them; the test
+compares the code's against the record, so a refactor that changes an episode shows."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+
+import numpy as np
+
+from sb3_marl.envs import SCENARIO_IDS, av_counts, make_scenario
+
+EPISODE_SEEDS = (0, 1)
+
+
+def episode_hash(env_id: str, supervisor: bool, seed: int) -> str:
+    """The hash of one episode at the density's largest AV count, random masked meta-actions
+    drawn from ``numpy.random.default_rng(seed)``."""
+    n_avs = av_counts(env_id)[-1]
+    env = make_scenario(env_id, {"safety_supervisor": supervisor, "n_avs": n_avs})
+    rng = np.random.default_rng(seed)
+    digest = hashlib.sha256()
+    obs, info = env.reset(seed=seed)
+    digest.update(np.ascontiguousarray(obs, dtype=np.float64).tobytes())
+    done = False
+    while not done:
+        masks = env.action_masks()
+        actions = np.array([rng.choice(np.flatnonzero(row)) for row in masks])
+        obs, reward, terminated, truncated, info = env.step(actions)
+        for value in (obs, reward, masks, info["executed_action"], info["crashed"], info["rewards"], info["neighbours"], info["rule_action"]):
+            digest.update(np.ascontiguousarray(value, dtype=np.float64).tobytes())
+        done = terminated or truncated
+    digest.update(str(env.steps_done).encode())
+    env.close()
+    return digest.hexdigest()
+
+
+def all_hashes() -> dict[str, str]:
+    return {
+        f"{env_id} supervisor={on} seed={seed}": episode_hash(env_id, on, seed)
+        for env_id in SCENARIO_IDS
+        for on in (True, False)
+        for seed in EPISODE_SEEDS
+    }
+
+
+if __name__ == "__main__":
+    print(json.dumps(all_hashes(), indent=1))
