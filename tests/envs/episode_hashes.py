@@ -30,7 +30,8 @@ def episode_hash(env_id: str, supervisor: bool, seed: int) -> str:
         masks = env.action_masks()
         actions = np.array([rng.choice(np.flatnonzero(row)) for row in masks])
         obs, reward, terminated, truncated, info = env.step(actions)
-        for value in (obs, reward, masks, info["executed_action"], info["crashed"], info["rewards"], info["neighbours"], info["rule_action"]):
+        step = (obs, reward, masks, info["executed_action"], info["crashed"], info["rewards"])
+        for value in (*step, info["neighbours"], info["rule_action"]):
             digest.update(np.ascontiguousarray(value, dtype=np.float64).tobytes())
         done = terminated or truncated
     digest.update(str(env.steps_done).encode())
