@@ -57,7 +57,7 @@ from sb3_marl.envs.config import scenario_default_config
 from wrappers.parameter_sharing import check_sharing_options, check_supervisor_dropout
 from wrappers.reward_scale import check_penalty, check_reward_scale
 
-CONFIG_DIR = Path(__file__).resolve().parent.parent / "zoo_configs"
+CONFIG_DIR = Path(__file__).resolve().parents[2] / "zoo_configs"
 #: Algorithms registered under two names share one file: ``acktr`` reads ``maacktr.yml``.
 CONFIG_FILES = {"acktr": "maacktr"}
 SCENARIO_KEYS = (
