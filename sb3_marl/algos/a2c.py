@@ -23,7 +23,8 @@ class MaskableA2C(MaskableActorCritic):
     :param action_masking: sample only available meta-actions (the authors' MA2C) or all of them
     :param rms_prop_eps: RMSprop epsilon (with ``use_rms_prop``; RMSprop alpha 0.99 as SB3's A2C)
     :param use_rms_prop: RMSprop (A2C's original optimiser) rather than Adam
-    :param safety_loss_coef: weight of the safety supervisor's teaching loss (:class:`SupervisorTeacher`; 0: off)
+    :param safety_loss_coef: weight of the safety supervisor's teaching loss
+        (:func:`~sb3_marl.algos.common.teacher.safety_step`; 0: off)
     :param prior: ``idm-mobil``: start from the rule driver and regularise toward it
         (:mod:`sb3_marl.algos.common.rule_prior`, with ``prior_warm_start``, ``prior_coef``,
         ``prior_coef_final``, ``prior_decay_steps``, ``prior_smoothing``, ``prior_form``); None: off

@@ -44,7 +44,7 @@ from stable_baselines3.common.policies import (
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.utils import explained_variance
 
-from sb3_marl.algos.common.base import ACTOR_CRITIC_POLICIES, ActionMaskingMixin
+from sb3_marl.algos.common.base import ACTOR_CRITIC_POLICIES, MaskableOnPolicy
 from sb3_marl.algos.common.kfac import KFAC
 
 SelfACKTR = TypeVar("SelfACKTR", bound="ACKTR")
@@ -232,7 +232,7 @@ class ACKTR(OnPolicyAlgorithm):
         )
 
 
-class MaskableACKTR(ActionMaskingMixin, ACKTR):  # type: ignore[misc]
+class MaskableACKTR(MaskableOnPolicy, ACKTR):  # type: ignore[misc]  # two OnPolicyAlgorithm hosts
     """Our :class:`~sb3_marl.algos.acktr.ACKTR` on sb3-contrib's maskable policy, rollout buffer and
     masked rollouts (see the module doc); ACKTR's update evaluates the actions under their masks,
     and its loss takes the rule prior's term (:meth:`auxiliary_loss`)."""
@@ -254,7 +254,7 @@ class MaskableACKTR(ActionMaskingMixin, ACKTR):  # type: ignore[misc]
             self.device
         )
         buffer_class = MaskableDictRolloutBuffer if isinstance(self.observation_space, spaces.Dict) else MaskableRolloutBuffer
-        self.rollout_buffer = buffer_class(
+        self.rollout_buffer = buffer_class(  # type: ignore[assignment]  # the Dict one too
             self.n_steps,
             self.observation_space,  # type: ignore[arg-type]
             self.action_space,

@@ -12,8 +12,8 @@ from sb3_contrib.common.maskable.utils import get_action_masks
 from stable_baselines3 import DQN
 from stable_baselines3.common.type_aliases import GymEnv
 
-from sb3_marl.algos.common.base import MaskingLearner
 from sb3_marl.algos.common.buffers import MaskedReplayBuffer
+from sb3_marl.algos.common.loading import safe_load
 from sb3_marl.algos.common.rule_prior import RulePrior
 from sb3_marl.algos.common.teacher import check_safety_loss_coef
 
@@ -29,13 +29,14 @@ def large_margin_loss(q_values: th.Tensor, labels: th.Tensor, margin: float) -> 
     return ((q + margins).max(dim=1).values - q.gather(1, labels[:, None]).squeeze(1)).mean()
 
 
-class MaskableDQN(MaskingLearner, DQN):
+class MaskableDQN(DQN):
     """SB3's DQN whose Q-values of unavailable meta-actions are excluded from the greedy action,
     from ε-greedy exploration (random actions among the available ones, also during warm-up) and
     from the bootstrap target ``max_a' Q_target(s', a')`` (over the actions available in s').
 
-    With ``safety_loss_coef`` > 0 the safety supervisor is a teacher (as :class:`SupervisorTeacher`
-    for the actor-critics): replayed transitions where it replaced the stored action add DQfD's
+    With ``safety_loss_coef`` > 0 the safety supervisor is a teacher (as
+    :func:`~sb3_marl.algos.common.teacher.safety_step` for the actor-critics): replayed transitions
+    where it replaced the stored action add DQfD's
     large-margin loss ``safety_loss_coef * (max_a [Q(s, a) + margin·(a ≠ a_E)] - Q(s, a_E))``
     with a_E the executed action and margin :attr:`SAFETY_MARGIN`, so that the greedy action
     becomes the supervisor's.
@@ -58,11 +59,12 @@ class MaskableDQN(MaskingLearner, DQN):
     #: DQfD's margin of the teacher's action over the others (Hester et al. 2018: 0.8)
     SAFETY_MARGIN = 0.8
     known_classes: ClassVar[tuple[type, ...]] = (MaskedReplayBuffer,)
+    load = safe_load
 
     def __init__(
         self,
         policy: Any,
-        env: GymEnv | str | None,
+        env: GymEnv | str,
         *args: Any,
         action_masking: bool = True,
         safety_loss_coef: float = 0.0,
@@ -79,7 +81,9 @@ class MaskableDQN(MaskingLearner, DQN):
         if (action_masking or safety_loss_coef or settings.active) and kwargs.get("replay_buffer_class") is None:
             kwargs["replay_buffer_class"] = MaskedReplayBuffer
         self.safety_loss_coef = check_safety_loss_coef(safety_loss_coef)
-        super().__init__(policy, env, *args, action_masking=action_masking, **kwargs)
+        self.algorithm_class = type(self).__name__  # saved: a model is loaded by its own class only
+        self.action_masking = bool(action_masking)
+        super().__init__(policy, env, *args, **kwargs)
 
     @property
     def rule_prior(self) -> RulePrior:

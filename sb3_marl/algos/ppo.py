@@ -16,11 +16,10 @@ from sb3_contrib.common.maskable.buffers import MaskableDictRolloutBuffer, Maska
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.utils import explained_variance
 
-from sb3_marl.algos.common.base import ACTOR_CRITIC_POLICIES, ActionMaskingMixin
-from sb3_marl.algos.common.teacher import SupervisorTeacher
+from sb3_marl.algos.common.base import ACTOR_CRITIC_POLICIES, MaskableOnPolicy
 
 
-class MaskableActorCritic(SupervisorTeacher, ActionMaskingMixin, MaskablePPO):  # type: ignore[misc]
+class MaskableActorCritic(MaskableOnPolicy, MaskablePPO):
     """sb3-contrib's ``MaskablePPO`` with the ``action_masking`` switch (see the module doc), whose
     update adds the rule prior's term to each minibatch's loss (same loss, same optimiser step),
     then takes the supervisor teacher's step; minibatches are one per AV slot with
@@ -103,7 +102,7 @@ class MaskableActorCritic(SupervisorTeacher, ActionMaskingMixin, MaskablePPO):  
         self.logger.record("train/clip_range", clip_range)
         if clip_range_vf is not None:
             self.logger.record("train/clip_range_vf", clip_range_vf)
-        if self.safety_loss_coef > 0 and self._recorder is not None:
+        if self.safety_loss_coef > 0 and self._recorder is not None:  # the teacher's step
             self.safety_step(self._recorder.executed)
 
 

@@ -4,9 +4,11 @@ from __future__ import annotations
 
 from sb3_contrib import TRPO
 
-from sb3_marl.algos.common.loading import SafeLoading
+from sb3_marl.algos.common.loading import safe_load
 
 
-class SafeTRPO(SafeLoading, TRPO):
+class SafeTRPO(TRPO):
     """sb3-contrib's ``TRPO`` (``matrpo``) whose ``load`` never unpickles
-    (:class:`~sb3_marl.algos.common.loading.SafeLoading`)."""
+    (:data:`~sb3_marl.algos.common.loading.safe_load`)."""
+
+    load = safe_load

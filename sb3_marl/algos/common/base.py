@@ -1,38 +1,35 @@
-"""What the learners that never sample an unavailable meta-action, as the authors' MA2C (masked logits).
+"""What the maskable learners share: the policies of the actor-critics, the base of the on-policy
+ones (:class:`MaskableOnPolicy`) and the keyword arguments a learner takes (:func:`hyperparameters`).
 
 The scenario env says which meta-actions each AV may take (``action_masks()``: FASTER only below
-the top target speed, a lane change only towards a reachable lane, ...); the
-parameter-sharing VecEnv passes those masks per AV slot. sb3-contrib's maskable policy,
-distribution and rollout buffer do the rest:
-
-- :class:`MaskableA2C` (``ma2c``) is A2C's update on sb3-contrib's ``MaskablePPO`` machinery: one
-  epoch over the whole rollout in one batch, no clipping and no advantage normalisation make the
-  PPO loss's gradient exactly A2C's (the probability ratio is 1 at the single gradient step, and
-  the gradient of ``ratio * advantage`` is then ``advantage * ∇ log π``); RMSprop as SB3's A2C.
-- :class:`MaskedPPO` (``mappo``) is ``MaskablePPO`` itself.
-- :class:`MaskableACKTR` (``maacktr``) is our ACKTR on the same maskable machinery.
-- :class:`MaskableDQN` (``madqn``): sb3-contrib has no maskable DQN; SB3's DQN with masked greedy
-  actions, exploration and bootstrap targets (masks of next states kept in the replay buffer).
-
-This module holds what they share (the learners are in ``a2c``, ``ppo``, ``acktr``, ``dqn``,
-``trpo``; their buffers in ``buffers``, the supervisor teacher in ``teacher``, the rule prior in
-``rule_prior``). All take ``action_masking`` (default True): False trains and acts without masks (the unmasked
-learner of the ablation) with the same network. The setting is saved with the model, and
-``predict(obs, action_masks=...)`` takes masks exactly as sb3-contrib's maskable algorithms do.
+the top target speed, a lane change only towards a reachable lane, ...); the parameter-sharing
+VecEnv passes those masks per AV slot; sb3-contrib's maskable policy, distribution and rollout
+buffer do the rest. The learners, one per module: MA2C (``a2c``: A2C's update on the maskable
+machinery), MAPPO (``ppo``), MAACKTR (``acktr``), MADQN (``dqn``: SB3's DQN with masked greedy
+actions, exploration and bootstrap targets), MATRPO (``trpo``). All maskable learners take
+``action_masking`` (default True): False trains and acts without masks (the unmasked learner of
+the ablation) with the same network; ``predict(obs, action_masks=...)`` takes masks exactly as
+sb3-contrib's maskable algorithms do.
 """
 
 from __future__ import annotations
 
 import inspect
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sb3_contrib import MaskablePPO
 from stable_baselines3.common.policies import BasePolicy
 
-from sb3_marl.algos.common.loading import SafeLoading
+from sb3_marl.algos.common.loading import safe_load
 from sb3_marl.algos.common.policies import CentralisedCriticPolicy
-from sb3_marl.algos.common.rule_prior import RulePriorLearner
+from sb3_marl.algos.common.rule_prior import RulePrior, dagger, labelled, prior_term
+from sb3_marl.algos.common.teacher import InterventionRecorder, check_safety_loss_coef, recording, safety_step
+
+if TYPE_CHECKING:  # the host the class is written for (at run time: the learner's own MRO)
+    _OnPolicyHost = MaskablePPO
+else:
+    _OnPolicyHost = object
 
 #: Policies of the maskable actor-critic learners: sb3-contrib's, plus the centralised critic
 #: (``critic: centralised``, selected by the hyperparameters under this alias).
@@ -40,18 +37,6 @@ ACTOR_CRITIC_POLICIES: dict[str, type[BasePolicy]] = {
     **MaskablePPO.policy_aliases,
     CentralisedCriticPolicy.__name__: CentralisedCriticPolicy,
 }
-
-
-class MaskingLearner(SafeLoading):
-    """What every learner of this module takes and saves: the ``action_masking`` switch and its
-    class name (``algorithm_class`` in the zip's data, so that loading a model as another
-    algorithm is refused by name: :func:`sb3_marl.runs.folders.check_model_file`). Loading a model
-    restores the saved values over these, and never unpickles (:class:`~sb3_marl.algos.common.loading.SafeLoading`)."""
-
-    def __init__(self, *args: Any, action_masking: bool = True, **kwargs: Any) -> None:
-        self.algorithm_class = type(self).__name__
-        self.action_masking = bool(action_masking)
-        super().__init__(*args, **kwargs)
 
 
 def hyperparameters(cls: type) -> dict[str, inspect.Parameter]:
@@ -70,31 +55,98 @@ def hyperparameters(cls: type) -> dict[str, inspect.Parameter]:
     return found
 
 
-class ActionMaskingMixin(RulePriorLearner, MaskingLearner):  # type: ignore[misc]  # SafeLoading.load: SB3's plus trust_remote_code
-    """``action_masking`` switch of a maskable on-policy learner: sb3-contrib's masked rollouts
-    and ``predict(..., action_masks=...)``, with masks only when ``action_masking`` is True, and
-    the rule prior (:class:`RulePriorLearner`)."""
+class MaskableOnPolicy(_OnPolicyHost):
+    """What the maskable on-policy learners (MA2C, MAPPO, MAACKTR) add to their base (sb3-contrib's
+    ``MaskablePPO``, our ``ACKTR``), as switches and terms of one update:
 
+    - ``action_masking``: sb3-contrib's masked rollouts and ``predict(..., action_masks=...)``,
+      with masks only when it is True;
+    - the rule prior (``prior``, ``prior_*``: :class:`~sb3_marl.algos.common.rule_prior.RulePrior`):
+      the DAgger warm start when learning starts, the rule driver's labels of each rollout and the
+      prior's term of the loss (:meth:`prior_term`);
+    - the safety teacher (``safety_loss_coef``): the supervisor's interventions recorded during
+      each rollout, and one more optimiser step after each update (:meth:`safety_step`).
+
+    The settings are saved with the model (plain attributes, with the class name as
+    ``algorithm_class``: loading a model as another algorithm is refused by name,
+    :func:`sb3_marl.runs.folders.check_model_file`); ``load`` never unpickles
+    (:data:`~sb3_marl.algos.common.loading.safe_load`).
+    """
+
+    load = safe_load
     action_masking: bool = True
+    safety_loss_coef: float = 0.0
+    # set by __init__ from a validated RulePrior (its defaults are the only ones)
+    prior: str | None
+    prior_warm_start: int
+    prior_coef: float
+    prior_coef_final: float
+    prior_decay_steps: int
+    prior_smoothing: float
+    prior_form: str
+    _recorder: InterventionRecorder | None = None
+    _rule_labels: np.ndarray | None = None
 
-    def rollout_callback(self, callback: Any, n_rollout_steps: int, n_envs: int) -> Any:
-        """The callback of a rollout (the teacher's adds its recorder: :class:`SupervisorTeacher`)."""
-        return callback
+    def __init__(
+        self,
+        *args: Any,
+        action_masking: bool = True,
+        safety_loss_coef: float = 0.0,
+        prior: str | None = None,
+        prior_warm_start: int = 0,
+        prior_coef: float = 1.0,
+        prior_coef_final: float = 0.0,
+        prior_decay_steps: int = 1,
+        prior_smoothing: float = 0.0,
+        prior_form: str = "cross-entropy",
+        **kwargs: Any,
+    ) -> None:
+        self.safety_loss_coef = check_safety_loss_coef(safety_loss_coef)
+        settings = RulePrior(
+            prior, prior_warm_start, prior_coef, prior_coef_final, prior_decay_steps, prior_smoothing, prior_form
+        )
+        self.__dict__.update(settings.as_kwargs())
+        self.algorithm_class = type(self).__name__
+        self.action_masking = bool(action_masking)
+        super().__init__(*args, **kwargs)
+
+    @property
+    def rule_prior(self) -> RulePrior:
+        return RulePrior.from_kwargs({key: getattr(self, key) for key in RulePrior().as_kwargs()})
+
+    def _excluded_save_params(self) -> list[str]:
+        return [*super()._excluded_save_params(), "_recorder", "_rule_labels"]
+
+    def _setup_learn(self, *args: Any, **kwargs: Any) -> Any:
+        """SB3's set-up, then the DAgger warm start where the budget's first ``prior_warm_start``
+        AV-steps are still ahead."""
+        result = super()._setup_learn(*args, **kwargs)
+        prior = self.rule_prior
+        if prior.active and self.num_timesteps < prior.warm_start:
+            dagger(self, prior.warm_start - self.num_timesteps, prior)
+        return result
 
     def collect_rollouts(
         self, env: Any, callback: Any, rollout_buffer: Any, n_rollout_steps: int, use_masking: bool = True
     ) -> bool:
         """sb3-contrib's masked rollout collection (``MaskablePPO.collect_rollouts``), recording the
-        supervisor's interventions for the teacher's loss and the rule driver's labels for the prior's."""
-        callback = self.rollout_callback(callback, n_rollout_steps, env.num_envs)
+        supervisor's interventions for the teacher and the rule driver's labels for the prior."""
         return MaskablePPO.collect_rollouts(
-            self,  # type: ignore[arg-type]
-            self.labelled(env, n_rollout_steps),
-            callback,
+            self,
+            labelled(self, env, n_rollout_steps),
+            recording(self, callback, n_rollout_steps, env.num_envs),
             rollout_buffer,
             n_rollout_steps,
             use_masking=use_masking and self.action_masking,
         )
+
+    def prior_term(self, observations: Any, action_masks: Any, indices: np.ndarray, logs: dict[str, list]) -> Any:
+        """The rule prior's term of the update's loss (:func:`~sb3_marl.algos.common.rule_prior.prior_term`)."""
+        return prior_term(self, observations, action_masks, indices, logs)
+
+    def safety_step(self, executed: np.ndarray) -> float:
+        """The teacher's step after an update (:func:`~sb3_marl.algos.common.teacher.safety_step`)."""
+        return safety_step(self, executed)
 
     def predict(  # type: ignore[override]  # plus sb3-contrib's action_masks
         self,
@@ -107,4 +159,4 @@ class ActionMaskingMixin(RulePriorLearner, MaskingLearner):  # type: ignore[misc
         """The policy's action; ``action_masks`` (batch, 5) bool restricts it to available actions
         (ignored when the model was trained with ``action_masking=False``)."""
         masks = action_masks if self.action_masking else None
-        return self.policy.predict(observation, state, episode_start, deterministic, action_masks=masks)  # type: ignore[call-arg]  # a maskable policy
+        return self.policy.predict(observation, state, episode_start, deterministic, action_masks=masks)

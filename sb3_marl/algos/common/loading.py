@@ -23,7 +23,7 @@ import re
 import warnings
 import zipfile
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 from gymnasium import spaces
@@ -263,50 +263,46 @@ def load_model(
         objects = dict(custom_objects or {})
     else:
         objects = {**safe_custom_objects(algo_class, path), **(custom_objects or {})}
-    return algo_class.sb3_load(path, custom_objects=objects, **kwargs)
+    from stable_baselines3.common.base_class import BaseAlgorithm
+
+    return BaseAlgorithm.load.__func__(algo_class, path, custom_objects=objects, **kwargs)  # type: ignore[attr-defined]  # SB3's own loader
 
 
-class SafeLoading:
-    """Mixin of the registered learners: ``load`` goes through :func:`load_model` (no unpickling
-    unless ``trust_remote_code=True``); ``sb3_load`` is SB3's own ``load``. ``known_classes``: the
-    learner's own classes its zips may name (its buffers), beside SB3's and its policies."""
-
-    known_classes: ClassVar[tuple[type, ...]] = ()
-
-    @classmethod
-    def load(
+def _safe_load(
+    cls: Any,
+    path: Any,
+    env: Any = None,
+    device: Any = "auto",
+    custom_objects: dict[str, Any] | None = None,
+    print_system_info: bool = False,
+    force_reset: bool = True,
+    trust_remote_code: bool = False,
+    **kwargs: Any,
+) -> Any:
+    return load_model(
         cls,
-        path: Any,
-        env: Any = None,
-        device: Any = "auto",
-        custom_objects: dict[str, Any] | None = None,
-        print_system_info: bool = False,
-        force_reset: bool = True,
-        trust_remote_code: bool = False,
-        **kwargs: Any,
-    ) -> Any:
-        return load_model(
-            cls,
-            path,
-            trust_remote_code=trust_remote_code,
-            custom_objects=custom_objects,
-            env=env,
-            device=device,
-            print_system_info=print_system_info,
-            force_reset=force_reset,
-            **kwargs,
-        )
+        path,
+        trust_remote_code=trust_remote_code,
+        custom_objects=custom_objects,
+        env=env,
+        device=device,
+        print_system_info=print_system_info,
+        force_reset=force_reset,
+        **kwargs,
+    )
 
-    @classmethod
-    def sb3_load(cls, path: Any, **kwargs: Any) -> Any:
-        return super().load(path, **kwargs)  # type: ignore[misc]
+
+#: ``load`` of every registered learner (``load = safe_load`` in its class body): SB3's arguments
+#: plus ``trust_remote_code``, through :func:`load_model` (no unpickling unless it is True). A
+#: learner's ``known_classes`` names its own classes its zips may name (its buffers).
+safe_load = classmethod(_safe_load)
 
 
 __all__ = [
-    "SafeLoading",
     "UnsafeModelError",
     "load_model",
     "read_model_data",
     "safe_custom_objects",
+    "safe_load",
     "saved_policy_class",
 ]

@@ -29,7 +29,7 @@ start's included. MADQN takes the same schedule in DQfD's way (:class:`~sb3_marl
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import torch as th
@@ -42,11 +42,6 @@ from sb3_marl.algos.common.teacher import select_rows
 from sb3_marl.common.checks import check_integer, check_number, invalid
 from sb3_marl.envs.config import with_supervisor
 from sb3_marl.evaluation.episodes import evaluate_on_density
-
-if TYPE_CHECKING:  # the host the learner mixin is written for (at run time: its own MRO)
-    from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm as _OnPolicyHost
-else:
-    _OnPolicyHost = object
 
 #: Rule drivers a learner can start from: the scenario's IDM/MOBIL decision.
 PRIORS = ("idm-mobil",)
@@ -300,76 +295,28 @@ def _fit(
     return float(np.mean(prior_losses)), float(np.mean(value_losses))
 
 
-class RulePriorLearner(_OnPolicyHost):
-    """The rule prior of an on-policy actor-critic (``prior``, ``prior_warm_start``, ``prior_coef``,
-    ``prior_coef_final``, ``prior_decay_steps``, ``prior_smoothing``, ``prior_form``; :mod:`sb3_marl.algos.common.rule_prior`):
-    the DAgger warm start when learning starts, the rule driver's labels of each rollout, and the
-    prior's term of the loss. The values are saved with the model (plain attributes)."""
+def labelled(model: Any, env: Any, n_rollout_steps: int) -> Any:
+    """``env`` recording the rule driver's labels of the rollout in ``model._rule_labels`` (when the
+    prior's weight is on; None otherwise)."""
+    if model.rule_prior.weight(model.num_timesteps) <= 0:
+        model._rule_labels = None
+        return env
+    recorder = RuleLabels(env, n_rollout_steps)
+    model._rule_labels = recorder.labels
+    return recorder
 
-    # set by __init__ from a validated RulePrior (its defaults are the only ones)
-    prior: str | None
-    prior_warm_start: int
-    prior_coef: float
-    prior_coef_final: float
-    prior_decay_steps: int
-    prior_smoothing: float
-    prior_form: str
-    _rule_labels: np.ndarray | None = None
 
-    def __init__(
-        self,
-        *args: Any,
-        prior: str | None = None,
-        prior_warm_start: int = 0,
-        prior_coef: float = 1.0,
-        prior_coef_final: float = 0.0,
-        prior_decay_steps: int = 1,
-        prior_smoothing: float = 0.0,
-        prior_form: str = "cross-entropy",
-        **kwargs: Any,
-    ) -> None:
-        settings = RulePrior(
-            prior, prior_warm_start, prior_coef, prior_coef_final, prior_decay_steps, prior_smoothing, prior_form
-        )
-        self.__dict__.update(settings.as_kwargs())
-        super().__init__(*args, **kwargs)
-
-    @property
-    def rule_prior(self) -> RulePrior:
-        return RulePrior.from_kwargs({key: getattr(self, key) for key in RulePrior().as_kwargs()})
-
-    def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_rule_labels"]
-
-    def _setup_learn(self, *args: Any, **kwargs: Any) -> Any:
-        """SB3's set-up, then the DAgger warm start where the budget's first ``prior_warm_start``
-        AV-steps are still ahead."""
-        result = super()._setup_learn(*args, **kwargs)
-        prior = self.rule_prior
-        if prior.active and self.num_timesteps < prior.warm_start:
-            dagger(self, prior.warm_start - self.num_timesteps, prior)
-        return result
-
-    def labelled(self, env: Any, n_rollout_steps: int) -> Any:
-        """``env`` recording the rule driver's labels of the rollout (when the prior's weight is on)."""
-        if self.rule_prior.weight(self.num_timesteps) <= 0:
-            self._rule_labels = None
-            return env
-        labelled = RuleLabels(env, n_rollout_steps)
-        self._rule_labels = labelled.labels
-        return labelled
-
-    def prior_term(self, observations: Any, action_masks: Any, indices: np.ndarray, logs: dict[str, list]) -> Any:
-        """``w · prior_loss`` of the rollout's samples at ``indices`` (of the flattened, slot-major
-        buffer), 0 without labels; logs the loss, its KL and the weight."""
-        weight = self.rule_prior.weight(self.num_timesteps)
-        if self._rule_labels is None or weight <= 0:
-            return 0.0
-        policy: Any = self.policy
-        labels = th.as_tensor(self._rule_labels.swapaxes(0, 1).reshape(-1)[indices], device=policy.device)
-        logits = masked_logits(policy, observations, action_masks)
-        loss, kl = prior_loss(logits, labels, self.prior_smoothing, action_masks, self.prior_form)
-        logs["prior_loss"].append(loss.item())
-        logs["prior_kl"].append(kl.item())
-        logs["prior_coef"].append(weight)
-        return weight * loss
+def prior_term(model: Any, observations: Any, action_masks: Any, indices: np.ndarray, logs: dict[str, list]) -> Any:
+    """``w · prior_loss`` of the rollout's samples at ``indices`` (of the flattened, slot-major
+    buffer), 0 without labels; logs the loss, its KL and the weight."""
+    weight = model.rule_prior.weight(model.num_timesteps)
+    if model._rule_labels is None or weight <= 0:
+        return 0.0
+    policy = model.policy
+    labels = th.as_tensor(model._rule_labels.swapaxes(0, 1).reshape(-1)[indices], device=policy.device)
+    logits = masked_logits(policy, observations, action_masks)
+    loss, kl = prior_loss(logits, labels, model.prior_smoothing, action_masks, model.prior_form)
+    logs["prior_loss"].append(loss.item())
+    logs["prior_kl"].append(kl.item())
+    logs["prior_coef"].append(weight)
+    return weight * loss

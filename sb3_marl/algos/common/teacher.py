@@ -3,18 +3,13 @@ its interventions, their recording during rollouts, and the actor-critics' auxil
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import torch as th
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 
 from sb3_marl.common.checks import check_number
-
-if TYPE_CHECKING:  # the host the mixins below are written for (at run time: their own MRO)
-    from sb3_contrib import MaskablePPO as _OnPolicyHost
-else:
-    _OnPolicyHost = object
 
 
 def executed_labels(infos: list[dict[str, Any]]) -> list[int]:
@@ -29,7 +24,7 @@ def executed_labels(infos: list[dict[str, Any]]) -> list[int]:
 class InterventionRecorder(BaseCallback):
     """Records, per rollout step and VecEnv slot, the action the safety supervisor executed where
     it replaced the policy's proposal (``info["intervened"]``), -1 elsewhere: the labels of
-    :class:`SupervisorTeacher`'s loss. Arrays are ``(n_steps, n_envs)``, as the rollout buffer's."""
+    :func:`safety_step`. Arrays are ``(n_steps, n_envs)``, as the rollout buffer's."""
 
     def __init__(self, n_steps: int, n_envs: int) -> None:
         super().__init__()
@@ -54,72 +49,56 @@ class _InitialisedCallbacks(CallbackList):
         pass
 
 
-class SupervisorTeacher(_OnPolicyHost):
-    """The safety supervisor as a teacher of an on-policy maskable learner (``safety_loss_coef`` > 0).
+def recording(model: Any, callback: Any, n_rollout_steps: int, n_envs: int) -> Any:
+    """``callback`` plus ``model``'s intervention recorder when the teacher is on
+    (``safety_loss_coef`` > 0; the recorder is kept in ``model._recorder``)."""
+    if model.safety_loss_coef <= 0:
+        return callback
+    if model._recorder is None or model._recorder.executed.shape != (n_rollout_steps, n_envs):
+        model._recorder = InterventionRecorder(n_rollout_steps, n_envs)
+        model._recorder.init_callback(model)
+    together = _InitialisedCallbacks([callback, model._recorder])
+    together.init_callback(model)
+    return together
 
-    After each update, one more optimiser step on the auxiliary loss
-    ``safety_loss_coef * mean(-log π(executed | s))`` over the rollout's steps where the supervisor
-    replaced the policy's proposal (the action it executed is the label): the policy learns to
-    propose what the supervisor would have done, so that it stays safe without it. Steps without
-    an intervention contribute nothing; a rollout without any leaves the policy unchanged.
-    Logged as ``train/safety_loss`` and ``train/intervened_share``.
-    """
 
-    safety_loss_coef: float = 0.0
-    action_masking: bool  # the host's (MaskingLearner)
-    _recorder: InterventionRecorder | None = None
+def safety_loss(policy: Any, observations: Any, action_masks: np.ndarray | None, executed: th.Tensor) -> th.Tensor:
+    """``-log π(executed | s)`` averaged over the given (intervened) samples."""
+    distribution = policy.get_distribution(observations, action_masks=action_masks)
+    return -distribution.log_prob(executed).mean()
 
-    def __init__(self, *args: Any, safety_loss_coef: float = 0.0, **kwargs: Any) -> None:
-        self.safety_loss_coef = check_safety_loss_coef(safety_loss_coef)
-        super().__init__(*args, **kwargs)
 
-    def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_recorder"]
-
-    def rollout_callback(self, callback: Any, n_rollout_steps: int, n_envs: int) -> Any:
-        """``callback`` plus the intervention recorder when the teacher is on."""
-        if self.safety_loss_coef <= 0:
-            return callback
-        if self._recorder is None or self._recorder.executed.shape != (n_rollout_steps, n_envs):
-            self._recorder = InterventionRecorder(n_rollout_steps, n_envs)
-            self._recorder.init_callback(self)
-        together = _InitialisedCallbacks([callback, self._recorder])
-        together.init_callback(self)
-        return together
-
-    def safety_loss(
-        self, observations: th.Tensor | dict[str, th.Tensor], action_masks: np.ndarray | None, executed: th.Tensor
-    ) -> th.Tensor:
-        """``-log π(executed | s)`` averaged over the given (intervened) samples."""
-        distribution = self.policy.get_distribution(observations, action_masks=action_masks)
-        return -distribution.log_prob(executed).mean()
-
-    def safety_step(self, executed: np.ndarray) -> float:
-        """One optimiser step on the auxiliary loss over the rollout buffer's samples whose entry
-        of ``executed`` ((n_steps, n_envs), -1: no intervention) names the supervisor's action;
-        returns the loss before the step (0 without intervened samples)."""
-        buffer = self.rollout_buffer
-        labels = executed.swapaxes(0, 1).reshape(-1) if buffer.generator_ready else executed.reshape(-1)
-        observations = _flat_samples(buffer.observations, buffer.obs_shape, len(labels))
-        masks = buffer.action_masks.reshape(len(labels), -1) if self.action_masking else None
-        chosen = np.flatnonzero(labels >= 0)
-        self.logger.record("train/intervened_share", chosen.size / max(len(labels), 1))
-        if chosen.size == 0:
-            self.logger.record("train/safety_loss", 0.0)
-            return 0.0
-        policy = self.policy
-        policy.set_training_mode(True)
-        loss = self.safety_loss(
-            policy.obs_to_tensor(select_rows(observations, chosen))[0],
-            None if masks is None else masks[chosen],
-            th.as_tensor(labels[chosen], device=policy.device),
-        )
-        policy.optimizer.zero_grad()
-        (self.safety_loss_coef * loss).backward()
-        th.nn.utils.clip_grad_norm_(policy.parameters(), self.max_grad_norm)
-        policy.optimizer.step()
-        self.logger.record("train/safety_loss", float(loss.item()))
-        return float(loss.item())
+def safety_step(model: Any, executed: np.ndarray) -> float:
+    """The teacher's step (``safety_loss_coef`` > 0): after each update, one more optimiser step
+    of ``model`` on ``safety_loss_coef * mean(-log π(executed | s))`` over the rollout buffer's
+    samples whose entry of ``executed`` ((n_steps, n_envs), -1: no intervention) names the
+    action the supervisor executed in place of the policy's proposal; the policy learns to propose
+    what the supervisor would have done, so that it stays safe without it. Returns the loss before
+    the step (0 without intervened samples: the policy is left unchanged). Logged as
+    ``train/safety_loss`` and ``train/intervened_share``."""
+    buffer = model.rollout_buffer
+    labels = executed.swapaxes(0, 1).reshape(-1) if buffer.generator_ready else executed.reshape(-1)
+    observations = _flat_samples(buffer.observations, buffer.obs_shape, len(labels))
+    masks = buffer.action_masks.reshape(len(labels), -1) if model.action_masking else None
+    chosen = np.flatnonzero(labels >= 0)
+    model.logger.record("train/intervened_share", chosen.size / max(len(labels), 1))
+    if chosen.size == 0:
+        model.logger.record("train/safety_loss", 0.0)
+        return 0.0
+    policy = model.policy
+    policy.set_training_mode(True)
+    loss = safety_loss(
+        policy,
+        policy.obs_to_tensor(select_rows(observations, chosen))[0],
+        None if masks is None else masks[chosen],
+        th.as_tensor(labels[chosen], device=policy.device),
+    )
+    policy.optimizer.zero_grad()
+    (model.safety_loss_coef * loss).backward()
+    th.nn.utils.clip_grad_norm_(policy.parameters(), model.max_grad_norm)
+    policy.optimizer.step()
+    model.logger.record("train/safety_loss", float(loss.item()))
+    return float(loss.item())
 
 
 def check_safety_loss_coef(coef: Any) -> float:
