@@ -26,7 +26,7 @@ setup(
     python_requires=">=3.10",
     # zoo_configs/ ships beside the packages, so sb3_marl finds it installed as in a checkout
     packages=[*find_packages(include=["sb3_marl", "sb3_marl.*", "wrappers", "wrappers.*"]), "zoo_configs"],
-    package_data={"zoo_configs": ["*.yml"]},
+    package_data={"zoo_configs": ["*.yml", "grids/*.yml"]},
     install_requires=[
         # any torch 2 release; the README installs the CPU build first (`pip install torch==2.13.0`)
         "torch>=2.3,<3",

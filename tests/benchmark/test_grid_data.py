@@ -1,0 +1,65 @@
+"""The grid's variants and experiments are data (zoo_configs/grids/): read, checked with a message
+naming the file and the entry, and each curve's overrides valid for its learner."""
+
+import pytest
+
+from sb3_marl.benchmark.grid import EXPERIMENTS, GRID_DIR, load_experiments, load_variants, make_grid
+from sb3_marl.runs.hyperparams import load_hyperparams, merge_hyperparams, validate_hyperparams
+
+
+def test_every_curve_of_every_experiment_validates_for_its_learner():
+    for spec in {(s.algo, s.variant): s for grid in EXPERIMENTS for s in make_grid(grid, densities=(3,), seeds=1)}.values():
+        hyperparams = merge_hyperparams(load_hyperparams(spec.algo, spec.env_id), spec.hyperparams)
+        validate_hyperparams(spec.algo, hyperparams, spec.env_id)
+
+
+def test_a_variant_extends_another_and_a_user_adds_an_experiment(tmp_path):
+    variants = tmp_path / "variants.yml"
+    variants.write_text(
+        (GRID_DIR / "variants.yml").read_text() + "\nmy-ablation:\n  extends: rule-prior\n  hyperparams: {ent_coef: 0.02}\n"
+    )
+    found, merge, _ = load_variants(variants)
+    assert found["my-ablation"] == {**found["rule-prior"], "ent_coef": 0.02}
+    assert "my-ablation" not in merge and "merge-mobil-safety" in merge
+    experiments = tmp_path / "experiments.yml"
+    experiments.write_text("experiments:\n  mine:\n    MA2C, mine: [ma2c, my-ablation]\ngrids: {}\n")
+    _, grids = load_experiments(experiments, found)
+    assert grids == {"mine": ("mine",)}
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("a: {hyperparams: 3}", r"variant 'a', hyperparams: expected a mapping"),
+        ("a: {extends: b}", r"variant 'a': extends 'b' is not a variant defined above it"),
+        ("a: {scenario: moon}", r"variant 'a', scenario='moon': expected one of \['lane-change', 'merge'\]"),
+        ("a: {curriculum: a}", r"variant 'a': curriculum 'a' is not a variant defined above it"),
+        ("a: {hyperparam: {}}", r"variant 'a': unknown keys \['hyperparam'\]"),
+        ("- a", r"must be a mapping"),
+        ("a: !!python/object/apply:os.system [echo]", r"not a plain-data YAML file"),
+    ],
+)
+def test_bad_variants_are_refused_naming_the_file_and_entry(tmp_path, text, message):
+    path = tmp_path / "variants.yml"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=message) as error:
+        load_variants(path)
+    assert str(path) in str(error.value)
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("experiments: {x: {c: [ma2c, nope]}}\ngrids: {}", r"curve 'c', variant='nope': expected one of \['default'\]"),
+        ("experiments: {x: {c: [sac, default]}}\ngrids: {}", r"curve 'c', learner='sac'"),
+        ("experiments: {x: {c: ma2c}}\ngrids: {}", r"curve 'c': expected \[learner, variant\]"),
+        ("experiments: {x: {c: [ma2c, default]}}\ngrids: {g: [y]}", r"grid 'g', experiment='y'"),
+        ("experiments: {}", r"expected the keys \['experiments', 'grids'\]"),
+    ],
+)
+def test_bad_experiments_are_refused_naming_the_file_and_entry(tmp_path, text, message):
+    path = tmp_path / "experiments.yml"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=message) as error:
+        load_experiments(path, {"default": {}})
+    assert str(path) in str(error.value)
