@@ -16,6 +16,7 @@ from gymnasium import spaces
 from stable_baselines3.common.env_util import is_wrapped
 from stable_baselines3.common.vec_env.base_vec_env import CloudpickleWrapper
 
+from sb3_marl.envs.config import with_supervisor
 from sb3_marl.envs.reward import apply_reward_mode
 
 #: Per-AV arrays of the scenario's info that each slot's info carries as scalars.
@@ -73,25 +74,29 @@ class CopyRunner:
         self.copy = copy
         self.reward_mode = reward_mode
         self.supervisor_dropout = supervisor_dropout
-        # the scenario's config, whose safety supervisor the dropout switches (none: not a scenario env)
-        self.scenario_config: dict[str, Any] = getattr(self.env.unwrapped, "config", {})
-        self._supervised = bool(self.scenario_config.get("safety_supervisor", False)) if supervisor_dropout else False
+        # whether the dropout switches the scenario's safety supervisor (configured on: a scenario env)
+        config = getattr(self.env.unwrapped, "config", {})
+        self._supervised = bool(config.get("safety_supervisor", False)) if supervisor_dropout else False
         self._dropout_rng = np.random.default_rng()
 
-    def _draw_supervisor(self, seed: int | None) -> None:
-        """Switch the supervisor on or off for the episode about to start (``supervisor_dropout``)."""
-        if not self._supervised:
-            return
-        if seed is not None:
-            self._dropout_rng = np.random.default_rng([seed, self.copy])
-        self.scenario_config["safety_supervisor"] = bool(self._dropout_rng.random() >= self.supervisor_dropout)
+    def _episode_options(self, seed: int | None, options: dict[str, Any] | None = None) -> dict[str, Any]:
+        """The reset options of the episode about to start: with ``supervisor_dropout``, the
+        scenario's config for it with the supervisor drawn on or off (highway-env's
+        ``options={"config": ...}``, written by :func:`~sb3_marl.envs.config.with_supervisor`)."""
+        options = dict(options or {})
+        if self._supervised:
+            if seed is not None:
+                self._dropout_rng = np.random.default_rng([seed, self.copy])
+            on = bool(self._dropout_rng.random() >= self.supervisor_dropout)
+            options["config"] = with_supervisor(options.get("config"), on)
+        return options
 
     def spaces(self) -> tuple[spaces.Space, spaces.Space]:
         return self.env.observation_space, self.env.action_space
 
     def reset(self, seed: int | None, options: dict[str, Any]) -> tuple[np.ndarray, list[dict[str, Any]]]:
         """Observations (n_avs, ...) and per-AV reset infos."""
-        self._draw_supervisor(seed)
+        options = self._episode_options(seed, options)
         obs, info = self.env.reset(seed=seed, **({"options": options} if options else {}))
         missing = [key for key in ("rewards", "neighbours") if key not in info]
         if missing:
@@ -110,8 +115,7 @@ class CopyRunner:
         if done:
             info["terminal_observation"] = obs
             info["TimeLimit.truncated"] = bool(truncated and not terminated)
-            self._draw_supervisor(None)
-            obs, reset_info = self.env.reset()
+            obs, reset_info = self.env.reset(options=self._episode_options(None) or None)
             reset_infos = split_info(reset_info, self.copy)
         return obs, apply_reward_mode(info, self.reward_mode), done, split_info(info, self.copy), reset_infos
 

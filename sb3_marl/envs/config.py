@@ -392,6 +392,10 @@ def resolved_hdv_range(config: dict[str, Any], scenario: str = LANE_CHANGE) -> t
 SUPERVISOR_PROTOCOLS: dict[str, bool] = {"on": True, "off": False}
 
 
-def with_supervisor(config: dict | None, protocol: str) -> dict:
-    """``config`` with the safety supervisor of ``protocol`` (a key of :data:`SUPERVISOR_PROTOCOLS`)."""
-    return {**(config or {}), "safety_supervisor": SUPERVISOR_PROTOCOLS[protocol]}
+def with_supervisor(config: dict | None, supervisor: bool | str) -> dict:
+    """A copy of ``config`` with the safety supervisor on or off: ``supervisor`` a bool or a protocol
+    name (a key of :data:`SUPERVISOR_PROTOCOLS`). The one writer of the setting once a config is
+    made: each evaluation protocol, and the per-episode dropout of training (as the episode's reset
+    options, :class:`wrappers.copies.CopyRunner`)."""
+    on = SUPERVISOR_PROTOCOLS[supervisor] if isinstance(supervisor, str) else bool(supervisor)
+    return {**(config or {}), "safety_supervisor": on}
