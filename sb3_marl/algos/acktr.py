@@ -245,6 +245,7 @@ class MaskableACKTR(MaskableOnPolicy, ACKTR):  # type: ignore[misc]  # two OnPol
         return term
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = ACTOR_CRITIC_POLICIES
+    left_out: ClassVar[tuple[str, ...]] = ("safety_loss_coef",)  # K-FAC's step has no teacher's step after it
 
     def _setup_model(self) -> None:
         """As ``MaskablePPO._setup_model`` (maskable policy and rollout buffer), then K-FAC."""

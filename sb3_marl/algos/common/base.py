@@ -15,7 +15,7 @@ sb3-contrib's maskable algorithms do.
 from __future__ import annotations
 
 import inspect
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 from sb3_contrib import MaskablePPO
@@ -42,7 +42,7 @@ ACTOR_CRITIC_POLICIES: dict[str, type[BasePolicy]] = {
 def hyperparameters(cls: type) -> dict[str, inspect.Parameter]:
     """The keyword arguments a learner class takes: those of its own ``__init__`` and of each class
     up its MRO that the arguments are passed on to (``**kwargs``), down to the first that takes no
-    more (SB3's algorithm)."""
+    more (SB3's algorithm), less those the class leaves out (``left_out``)."""
     found: dict[str, inspect.Parameter] = {}
     for klass in cls.__mro__:
         if "__init__" not in vars(klass):
@@ -52,7 +52,7 @@ def hyperparameters(cls: type) -> dict[str, inspect.Parameter]:
         found.update({p.name: p for p in parameters if p.kind not in skipped and p.name not in found})
         if all(p.kind != inspect.Parameter.VAR_KEYWORD for p in parameters):
             break
-    return found
+    return {name: p for name, p in found.items() if name not in getattr(cls, "left_out", ())}
 
 
 class MaskableOnPolicy(_OnPolicyHost):
@@ -74,6 +74,8 @@ class MaskableOnPolicy(_OnPolicyHost):
     """
 
     load = safe_load
+    #: keywords of the terms above that a learner's update does not take (refused when set)
+    left_out: ClassVar[tuple[str, ...]] = ()
     action_masking: bool = True
     safety_loss_coef: float = 0.0
     # set by __init__ from a validated RulePrior (its defaults are the only ones)
@@ -102,6 +104,8 @@ class MaskableOnPolicy(_OnPolicyHost):
         **kwargs: Any,
     ) -> None:
         self.safety_loss_coef = check_safety_loss_coef(safety_loss_coef)
+        if self.safety_loss_coef and "safety_loss_coef" in self.left_out:
+            raise ValueError(f"Invalid safety_loss_coef={safety_loss_coef!r}: {type(self).__name__} has no teacher's step.")
         settings = RulePrior(
             prior, prior_warm_start, prior_coef, prior_coef_final, prior_decay_steps, prior_smoothing, prior_form
         )
