@@ -50,7 +50,8 @@ def test_the_wheel_installs_and_runs_from_an_unrelated_folder(tmp_path):
     elsewhere.mkdir()
     python, cli = str(venv / "bin" / "python"), [str(venv / "bin" / "python"), "-m", "sb3_marl"]
     located = subprocess.run(
-        [python, "-c", "import sb3_marl, zoo_configs; print(sb3_marl.__file__)"],
+        # the benchmark reads its grids from zoo_configs/grids/ (package data)
+        [python, "-c", "import sb3_marl, zoo_configs, sb3_marl.benchmark.grid; print(sb3_marl.__file__)"],
         cwd=elsewhere,
         check=True,
         capture_output=True,
