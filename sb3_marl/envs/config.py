@@ -387,15 +387,13 @@ def resolved_hdv_range(config: dict[str, Any], scenario: str = LANE_CHANGE) -> t
     return SCENARIO_DENSITIES[scenario][config["density"]]["hdvs"]
 
 
-#: The two evaluation protocols of every evaluation: name -> the scenario's ``safety_supervisor``.
-#: ``on``: the proposals pass the safety supervisor (the authors' protocol); ``off``: the policy alone.
+#: Every evaluation's two protocols -> ``safety_supervisor``: the authors' (on), the policy alone (off).
 SUPERVISOR_PROTOCOLS: dict[str, bool] = {"on": True, "off": False}
 
 
 def with_supervisor(config: dict | None, supervisor: bool | str) -> dict:
-    """A copy of ``config`` with the safety supervisor on or off: ``supervisor`` a bool or a protocol
-    name (a key of :data:`SUPERVISOR_PROTOCOLS`). The one writer of the setting once a config is
-    made: each evaluation protocol, and the per-episode dropout of training (as the episode's reset
-    options, :class:`wrappers.copies.CopyRunner`)."""
+    """A copy of ``config`` with the safety supervisor on or off (a bool or a key of
+    :data:`SUPERVISOR_PROTOCOLS`): the setting's one writer once a config is made, for each
+    evaluation protocol and the per-episode dropout of training (:class:`wrappers.copies.CopyRunner`)."""
     on = SUPERVISOR_PROTOCOLS[supervisor] if isinstance(supervisor, str) else bool(supervisor)
     return {**(config or {}), "safety_supervisor": on}

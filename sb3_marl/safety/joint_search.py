@@ -9,6 +9,8 @@ import numpy as np
 
 from sb3_marl.safety.rooms import (
     IDLE,
+    LANE_LEFT,
+    LANE_RIGHT,
     PREFERENCE,
     Horizon,
     av_rooms,
@@ -22,6 +24,51 @@ from sb3_marl.sim.kernel import COLLIDABLE
 
 #: The emergency brake as an option of the joint search (after the five meta-actions).
 BRAKE = 5
+
+
+@numba.njit(cache=True)
+def keep_lanes_together(
+    state0: np.ndarray,
+    state: np.ndarray,
+    speed_step: np.ndarray,
+    executed: np.ndarray,
+    rooms: np.ndarray,
+    order: np.ndarray,
+    candidate_lane: np.ndarray,
+    candidate_speed: np.ndarray,
+    horizon: Horizon,
+    min_gap: float,
+    repeat_actions: bool,
+    rear_avs: bool,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The joint fallback after the passes: they serve one AV at a time against the others' current
+    actions, so two AVs whose lane changes conflict can each find every option unsafe and end up
+    crossing each other. The AVs still short of ``min_gap`` m of room after a lane change keep
+    their lanes (IDLE, set in ``executed``) together, if that leaves every served AV more room than
+    before. Returns the rooms [m], the predicted state and the speed steps, the trial's where taken."""
+    n_avs = executed.size
+    collidable = state0[:, COLLIDABLE] > 0
+    dt = horizon.dt
+    stuck = np.zeros(n_avs, dtype=np.bool_)
+    for i in order:
+        stuck[i] = collidable[i] and rooms[i] < min_gap and (executed[i] == LANE_LEFT or executed[i] == LANE_RIGHT)
+    if stuck.any():
+        trial, trial_step = state.copy(), speed_step.copy()
+        for i in range(n_avs):
+            if stuck[i]:
+                set_action(trial, i, IDLE, trial_step, candidate_lane, candidate_speed, repeat_actions)
+        trial_path = predict(trial, horizon, trial_step, -1, collidable, -np.inf)[0]
+        trial_rooms = av_rooms(trial_path, counted_by_all(state0, n_avs, collidable, rear_avs), collidable, dt)
+        before, after = np.inf, np.inf
+        for i in range(n_avs):
+            if collidable[i]:
+                before, after = min(before, rooms[i]), min(after, trial_rooms[i])
+        if after > before:
+            for i in range(n_avs):
+                if stuck[i]:
+                    executed[i] = IDLE
+            rooms, state, speed_step = trial_rooms, trial, trial_step
+    return rooms, state, speed_step
 
 
 @numba.njit(cache=True)

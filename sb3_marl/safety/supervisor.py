@@ -67,17 +67,13 @@ from typing import Any
 import numba
 import numpy as np
 
-from sb3_marl.safety.joint_search import search_pairs
+from sb3_marl.safety.joint_search import keep_lanes_together, search_pairs
 from sb3_marl.safety.rooms import (
     IDLE,
-    LANE_LEFT,
-    LANE_RIGHT,
     PREFERENCE,
     SLOWER,
     Horizon,
-    av_rooms,
     counted_by,
-    counted_by_all,
     dead_end_margin,
     path_room,
     predict,
@@ -207,29 +203,21 @@ def supervise_arrays(
         if not changed:
             settled = True
             break  # another pass would see the same actions and find the same rooms
-    # Joint fallback: the passes serve one AV at a time against the others' current actions, so two
-    # AVs whose lane changes conflict can each find every option unsafe and end up crossing each
-    # other. The AVs still short of room after a lane change keep their lanes (IDLE) together,
-    # if that leaves every served AV more room than before.
-    stuck = np.zeros(n_avs, dtype=np.bool_)
-    for i in order:
-        stuck[i] = collidable[i] and rooms[i] < min_gap and (executed[i] == LANE_LEFT or executed[i] == LANE_RIGHT)
-    if stuck.any():
-        trial, trial_step = state.copy(), speed_step.copy()
-        for i in range(n_avs):
-            if stuck[i]:
-                set_action(trial, i, IDLE, trial_step, candidate_lane, candidate_speed, repeat_actions)
-        trial_path = predict(trial, horizon, trial_step, -1, collidable, -np.inf)[0]
-        trial_rooms = av_rooms(trial_path, counted_by_all(state0, n_avs, collidable, rear_avs), collidable, dt)
-        before, after = np.inf, np.inf
-        for i in range(n_avs):
-            if collidable[i]:
-                before, after = min(before, rooms[i]), min(after, trial_rooms[i])
-        if after > before:
-            for i in range(n_avs):
-                if stuck[i]:
-                    executed[i] = IDLE
-            rooms, state, speed_step = trial_rooms, trial, trial_step
+    # the joint fallback: AVs short of room after a lane change keep their lanes together
+    rooms, state, speed_step = keep_lanes_together(
+        state0,
+        state,
+        speed_step,
+        executed,
+        rooms,
+        order,
+        candidate_lane,
+        candidate_speed,
+        horizon,
+        min_gap,
+        repeat_actions,
+        rear_avs,
+    )
     if joint_search:
         executed, braking, rooms = search_pairs(
             state0,
