@@ -36,6 +36,16 @@ def replaced_atomically(path: str | Path) -> Iterator[Path]:
         raise
 
 
+def inside(path: str | Path, folder: str | Path) -> Path:
+    """``path`` if it lies in ``folder`` once links are followed; a ValueError naming it if a link
+    leads out of the folder (a run's or a grid's files are read from the folder, never through a
+    link to elsewhere)."""
+    resolved, root = Path(path).resolve(), Path(folder).resolve()
+    if not resolved.is_relative_to(root):
+        raise ValueError(f"{path} is a link to {resolved}, outside {folder}; it is not followed.")
+    return Path(path)
+
+
 def write_text(path: str | Path, text: str) -> Path:
     """Write ``text`` to ``path`` atomically (:func:`replaced_atomically`); returns the path."""
     with replaced_atomically(path) as temporary:

@@ -20,8 +20,9 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from sb3_marl.algos import get_algo
 from sb3_marl.algos.common.loading import UnsafeModelError, read_model_data, saved_policy_class
 from sb3_marl.algos.common.policies import model_policy, uses_action_masks
-from sb3_marl.common.files import read_run_yaml
+from sb3_marl.common.files import inside, read_run_yaml
 from sb3_marl.evaluation import evaluate_protocols, protocol_label
+from sb3_marl.runs.hyperparams import validate_hyperparams
 
 
 @dataclass
@@ -202,9 +203,25 @@ def find_run(
             raise FileNotFoundError(f"None of the runs {runs} of {algo} on {env_id} has the model asked for: {missing}")
     else:
         model_path, log_path = model_of(exp_id)
-    config_path = Path(log_path) / str(env_name) / "config.yml"
-    hyperparams = read_run_yaml(config_path) if config_path.is_file() else {}  # plain data only
-    return Run(algo, env_id, Path(log_path), Path(model_path), hyperparams)
+    return Run(algo, env_id, Path(log_path), inside(model_path, log_path), run_hyperparams(algo, env_id, log_path))
+
+
+def run_hyperparams(algo: str, env_id: str, log_path: str | Path) -> dict[str, Any]:
+    """The hyperparameters a run was trained with: its ``<env name>/config.yml``, read as plain data
+    from inside the run (not through a link out of it) and checked as ``train`` checks them (every
+    key one a run writes); {} without the file.
+
+    :raises ValueError: naming the file and the bad key or value
+    """
+    config_path = Path(log_path) / str(EnvironmentName(env_id)) / "config.yml"
+    if not config_path.is_file():
+        return {}
+    hyperparams = read_run_yaml(inside(config_path, log_path))
+    try:
+        validate_hyperparams(algo, hyperparams, env_id)
+    except ValueError as error:
+        raise ValueError(f"{config_path}: {error}") from None
+    return hyperparams
 
 
 def latest_checkpoint(run_folder: str | Path) -> Path | None:

@@ -10,11 +10,13 @@ import httpx2
 import huggingface_hub
 import numpy as np
 import pytest
+import yaml
 from huggingface_hub import ModelCard, metadata_load
 from huggingface_hub.utils._http import default_client_factory
 
 from sb3_marl.algos.a2c import MaskableA2C
 from sb3_marl.cli import main
+from sb3_marl.common.files import read_run_yaml
 
 sys.path.insert(0, str(Path(__file__).parent))
 from fake_hub import FakeHub
@@ -158,6 +160,31 @@ def test_the_upload_holds_only_the_files_built_for_it(logs, tmp_path, hub):
     (tmp_path / "link").symlink_to(tmp_path / "empty", target_is_directory=True)
     (tmp_path / "empty").mkdir()
     assert main(["push-to-hub", "-f", str(logs), "-orga", "me", "--dry-run", str(tmp_path / "link")]) == 2
+
+
+@pytest.mark.parametrize("linked", [True, False])
+def test_a_config_with_a_secret_never_reaches_the_upload(logs, tmp_path, capsys, linked):
+    """<run>/<env>/config.yml a link to a secret file outside the run, or a copy of the run's config
+    with foreign keys added: refused with one message naming the file; nothing built holds the secret."""
+    config = logs / "ma2c" / f"{ENV_NAME}_1" / ENV_NAME / "config.yml"
+    original = config.read_text()
+    secret = tmp_path / "secret.yml"
+    hyperparams = read_run_yaml(config)  # rl-zoo's ordered pairs, as plain data
+    secret.write_text(yaml.safe_dump({**hyperparams, "hf_token": "hf_SECRET", "password": "hunter2"}))
+    config.unlink()
+    if linked:
+        config.symlink_to(secret)
+    else:
+        config.write_text(secret.read_text())
+    try:
+        argv = ["push-to-hub", "-f", str(logs), "-orga", "me", "--eval-episodes", "1", "--no-video", "--dry-run"]
+        assert main([*argv, str(tmp_path / "built")]) == 2
+    finally:
+        config.unlink()
+        config.write_text(original)
+    err = capsys.readouterr().err
+    assert str(config) in err and ("outside" in err if linked else "hf_token" in err) and "Traceback" not in err
+    assert not any("hf_SECRET" in p.read_text(errors="ignore") for p in tmp_path.rglob("*") if p.is_file() and p != secret)
 
 
 def test_a_repo_with_a_file_name_leaving_the_folder_is_one_message(logs, tmp_path, hub, capsys):
