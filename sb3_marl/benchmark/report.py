@@ -23,29 +23,26 @@
   as road snapshots and speed traces; the json says which, or that no AV yielded.
 
 Only finished trials (with ``result.json``) enter the table; curves also show unfinished ones.
-Outputs of an earlier report that this one does not produce (a figure whose trials are gone) are
-removed from the output folder, so it always shows one report; other files there are left alone.
+The output folder is one the report creates, an empty one, or one an earlier report wrote (its
+:data:`MANIFEST` lists the files it wrote); the files of an earlier report that this one does not
+write again (a figure whose trials are gone) are deleted, so the folder shows one report. Nothing
+else there is touched: a file the report did not write is never deleted.
 """
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 from sb3_marl.benchmark.figures import plot_comfort, plot_final_returns, plot_interpretation, plot_learning_curves
 from sb3_marl.benchmark.runner import SETTINGS_FILE
 from sb3_marl.benchmark.statistics import curve_summaries, load_trials, reference_summaries
 from sb3_marl.benchmark.tables import headline_table, paper_table
-from sb3_marl.common.files import read_json_object, write_text
+from sb3_marl.common.files import inside, read_json_object, write_text
 
-#: Names (glob patterns) of the files a report writes into its output folder.
-REPORT_OUTPUTS = (
-    "paper_table.md",
-    "headline.md",
-    "learning_curves_*.png",
-    "final_returns.png",
-    "comfort.png",
-    "cooperative_lane_change.*",
-)
+#: The report's manifest in its output folder: the names of the files it wrote there last time,
+#: the only files a later report deletes.
+MANIFEST = ".sb3-marl-report.json"
 
 
 def write_report(log_folder: str | Path, out_dir: str | Path = "results", seed: int = 10_000) -> list[Path]:
@@ -64,6 +61,7 @@ def write_report(log_folder: str | Path, out_dir: str | Path = "results", seed: 
             "(run `sb3-marl benchmark` with this --log-folder first)."
         )
     out_dir = Path(out_dir)
+    earlier = _earlier_outputs(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     settings_path = Path(log_folder) / SETTINGS_FILE
     settings = read_json_object(settings_path) if settings_path.is_file() else None
@@ -78,16 +76,32 @@ def write_report(log_folder: str | Path, out_dir: str | Path = "results", seed: 
         if figure is not None:
             written.append(figure)
     written += plot_interpretation(trials, log_folder, out_dir, seed)
-    _remove_stale_outputs(out_dir, written)
+    for name in sorted(earlier - {path.name for path in written}):
+        inside(out_dir / name, out_dir).unlink(missing_ok=True)  # an earlier report's, not written now
+    write_text(out_dir / MANIFEST, json.dumps(sorted(path.name for path in written), indent=1) + "\n")
     return written
 
 
-def _remove_stale_outputs(out_dir: Path, written: list[Path]) -> None:
-    """Delete the report outputs in ``out_dir`` (:data:`REPORT_OUTPUTS`) that were not ``written`` now."""
-    for pattern in REPORT_OUTPUTS:
-        for path in out_dir.glob(pattern):
-            if path not in written:
-                path.unlink()
+def _earlier_outputs(out_dir: Path) -> set[str]:
+    """The names of the files an earlier report wrote into ``out_dir`` (its manifest); a ValueError
+    naming ``-o`` if ``out_dir`` is a file, or a folder with files but no manifest (another's)."""
+    manifest = out_dir / MANIFEST
+    if out_dir.exists() and not out_dir.is_dir():
+        raise ValueError(f"-o/--output {out_dir} is a file, not a folder.")
+    if not manifest.is_file():
+        if out_dir.is_dir() and any(out_dir.iterdir()):
+            raise ValueError(
+                f"-o/--output {out_dir} holds files that no report wrote (no {MANIFEST}); "
+                "give a new or empty folder, or the folder of an earlier report."
+            )
+        return set()
+    try:
+        names = json.loads(inside(manifest, out_dir).read_text())
+    except (OSError, ValueError, UnicodeDecodeError) as error:
+        raise ValueError(f"{manifest}: not the list of files a report wrote ({error}).") from None
+    if not isinstance(names, list) or not all(isinstance(n, str) and n == Path(n).name for n in names):
+        raise ValueError(f"{manifest}: expected a list of file names in {out_dir}, got {str(names)[:200]}.")
+    return set(names)
 
 
-__all__ = ["REPORT_OUTPUTS", "write_report"]
+__all__ = ["MANIFEST", "write_report"]

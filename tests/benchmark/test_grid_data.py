@@ -1,5 +1,9 @@
 """The grid's variants and experiments are data (zoo_configs/grids/): read, checked with a message
-naming the file and the entry, and each curve's overrides valid for its learner."""
+naming the file and the entry, and each curve's overrides valid for its learner; the report's
+output folder holds only what it wrote."""
+
+import json
+from pathlib import Path
 
 import pytest
 
@@ -63,3 +67,32 @@ def test_bad_experiments_are_refused_naming_the_file_and_entry(tmp_path, text, m
     with pytest.raises(ValueError, match=message) as error:
         load_experiments(path, {"default": {}})
     assert str(path) in str(error.value)
+
+
+def test_the_report_deletes_only_files_it_wrote_and_refuses_a_foreign_folder(tmp_path, capsys):
+    """`benchmark report -o D`: D with files but no report manifest is refused before anything is
+    written; in a report's folder, only the files of that earlier report that it does not write
+    again are deleted (a user's file named like a report output stays)."""
+    from sb3_marl.benchmark.report import MANIFEST, write_report
+    from sb3_marl.cli import main
+
+    grid = Path(__file__).resolve().parents[2] / "results" / "paper-grid"
+    foreign = tmp_path / "mine"
+    foreign.mkdir()
+    (foreign / "learning_curves_mine.png").write_text("a user's figure")
+    assert main(["benchmark", "report", "-f", str(grid), "-o", str(foreign)]) == 2
+    assert "holds files that no report wrote" in capsys.readouterr().err
+    assert [p.name for p in foreign.iterdir()] == ["learning_curves_mine.png"]
+    (foreign / "report.png").write_text("x")
+    assert main(["benchmark", "report", "-f", str(foreign / "report.png"), "-o", str(foreign / "report.png")]) == 2
+    out = tmp_path / "report"
+    out.mkdir()
+    (out / MANIFEST).write_text('["learning_curves_gone.png"]')
+    (out / "learning_curves_gone.png").write_text("an earlier report's")
+    (out / "learning_curves_user.png").write_text("a user's")
+    written = write_report(grid, out)
+    assert not (out / "learning_curves_gone.png").exists() and (out / "learning_curves_user.png").exists()
+    assert json.loads((out / MANIFEST).read_text()) == sorted(p.name for p in written)
+    (out / MANIFEST).write_text('["../outside.txt"]')
+    with pytest.raises(ValueError, match="expected a list of file names"):
+        write_report(grid, out)
