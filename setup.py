@@ -46,6 +46,7 @@ setup(
         "rich",
         "huggingface_hub>=1.0",  # push-to-hub / load-from-hub
         "requests",  # rl_zoo3's plotting scripts, which read our log folders
+        "filelock>=3",  # one launcher per benchmark grid folder
     ],
     extras_require={
         # Ray Tune runs the paper-reproduction benchmark (`sb3-marl benchmark`)

@@ -15,10 +15,15 @@ from __future__ import annotations
 import itertools
 import json
 import os
+import socket
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+import filelock
 
 from sb3_marl.benchmark.grid import (
     PAPER_EVAL_EPISODES,
@@ -34,6 +39,9 @@ from sb3_marl.common.files import read_json_object, write_text
 from sb3_marl.envs import DENSITIES
 
 SETTINGS_FILE = "benchmark.json"
+#: The launcher's lock in a grid folder (one launcher runs a grid folder at a time) and the file
+#: that names its holder while it runs.
+LOCK_FILE, HOLDER_FILE = ".benchmark.lock", ".benchmark.holder.json"
 
 
 @dataclass
@@ -75,6 +83,7 @@ def run_benchmark(
     max_concurrent: int | None = None,
     max_failures: int = 2,
     verbose: int = 1,
+    wait: bool = False,
 ) -> BenchmarkRun:
     """Run the unfinished trials of ``grid`` as Ray Tune trials (one CPU each).
 
@@ -87,7 +96,8 @@ def run_benchmark(
         with this machine's cores (an already initialised Ray is used as it is)
     :param max_concurrent: at most this many trials at once (default: as many as free CPUs)
     :param max_failures: Ray restarts a failed trial from its checkpoint this many times
-    :raises ValueError: on a bad argument, before Ray starts
+    :param wait: wait for another launcher running ``log_folder`` to end (default: refuse, naming it)
+    :raises ValueError: on a bad argument, before Ray starts; when another launcher runs ``log_folder``
     """
     trials = make_grid(grid, tuple(densities), seeds)
     check_budget(budget)
@@ -111,7 +121,50 @@ def run_benchmark(
     if not todo:
         return outcome
     ray = _import_ray()
+    with grid_lock(log_folder, wait):
+        return _run_waves(ray, grid, todo, outcome, log_folder, settings, address, max_concurrent, max_failures, verbose)
+
+
+@contextmanager
+def grid_lock(log_folder: Path, wait: bool = False) -> Iterator[None]:
+    """Held while a launcher runs the grid in ``log_folder``: a second launcher on the same folder
+    gets a ValueError naming the holder (host, process, start) or, with ``wait``, waits for it."""
     log_folder.mkdir(parents=True, exist_ok=True)
+    lock = filelock.FileLock(str(log_folder / LOCK_FILE))
+    try:
+        lock.acquire(timeout=-1 if wait else 0)
+    except filelock.Timeout:
+        try:
+            holder = read_json_object(log_folder / HOLDER_FILE)
+        except (OSError, ValueError):
+            holder = {}
+        who = ", ".join(f"{key} {holder[key]}" for key in ("host", "pid", "started") if key in holder) or "holder unknown"
+        raise ValueError(
+            f"{log_folder} is being run by another launcher ({who}); wait for it to end (--wait), or use another --log-folder."
+        ) from None
+    try:
+        holder = {"host": socket.gethostname(), "pid": os.getpid(), "started": time.strftime("%Y-%m-%dT%H:%M:%S")}
+        write_text(log_folder / HOLDER_FILE, json.dumps(holder) + "\n")
+        yield
+    finally:
+        (log_folder / HOLDER_FILE).unlink(missing_ok=True)
+        lock.release()
+
+
+def _run_waves(
+    ray: Any,
+    grid: str,
+    todo: list[TrialSpec],
+    outcome: BenchmarkRun,
+    log_folder: Path,
+    settings: dict[str, Any],
+    address: str | None,
+    max_concurrent: int | None,
+    max_failures: int,
+    verbose: int,
+) -> BenchmarkRun:
+    """Run ``todo`` on Ray (the launcher holding the folder's lock) and fill ``outcome``."""
+    todo = [spec for spec in todo if not _finished(log_folder, spec)]  # another launcher may have run some
     write_text(log_folder / SETTINGS_FILE, json.dumps(settings, indent=2) + "\n")
     started_ray = _start_ray(ray, address, verbose)
     start = time.perf_counter()

@@ -89,7 +89,7 @@ def write_checkpoint(model: Any, folder: Path, evaluations: Path) -> Path:
     """``<folder>/checkpoint/`` with the model, its replay buffer, a copy of ``evaluations`` (the
     ``evaluations.npz`` so far) and the step count, written beside and renamed into place (a crash
     leaves the previous one whole)."""
-    final, staging = folder / CHECKPOINT, folder / f".{CHECKPOINT}.partial"
+    final, staging = folder / CHECKPOINT, folder / f".{CHECKPOINT}.partial-{os.getpid()}"  # one per process
     shutil.rmtree(staging, ignore_errors=True)
     staging.mkdir(parents=True)
     model.save(staging / "model.zip")

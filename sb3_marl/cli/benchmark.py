@@ -68,6 +68,9 @@ def add_parsers(commands: Any) -> None:
         "--max-concurrent", type=positive(maximum=MAX_COPIES), default=None, help="trials at once (default: one per free CPU)"
     )
     benchmark.add_argument("--max-failures", type=int, default=2, help="restarts of a failed trial (default: 2)")
+    benchmark.add_argument(
+        "--wait", action="store_true", help="wait for another launcher running the same -f to end (default: refuse)"
+    )
     benchmark.add_argument("-o", "--output", default="results", help="report: output folder (default: results)")
     benchmark.add_argument("--verbose", type=int, default=1, choices=[0, 1, 2], help="Ray Tune's verbosity")
     benchmark.set_defaults(handler=benchmark_command)
@@ -117,6 +120,7 @@ def benchmark_command(args: argparse.Namespace) -> int:
             args.max_concurrent,
             args.max_failures,
             args.verbose,
+            args.wait,
         )
     except ValueError as error:
         raise UsageError(str(error)) from None

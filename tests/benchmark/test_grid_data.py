@@ -96,3 +96,41 @@ def test_the_report_deletes_only_files_it_wrote_and_refuses_a_foreign_folder(tmp
     (out / MANIFEST).write_text('["../outside.txt"]')
     with pytest.raises(ValueError, match="expected a list of file names"):
         write_report(grid, out)
+
+
+def test_one_launcher_per_grid_folder(tmp_path, capsys):
+    """A second launcher on a grid folder another process runs is refused before Ray starts,
+    naming the holder; once the holder ends, the folder is free."""
+    import subprocess
+    import sys
+    import time
+
+    from sb3_marl.benchmark.runner import HOLDER_FILE, grid_lock
+    from sb3_marl.cli import main
+
+    folder = tmp_path / "grid"
+    holder = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import sys, time; from pathlib import Path; from sb3_marl.benchmark.runner import grid_lock\n"
+            "with grid_lock(Path(sys.argv[1])):\n    print('held', flush=True); time.sleep(60)",
+            str(folder),
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        argv = ["benchmark", "--grid", "reward", "--budget", "0.0003", "--seeds", "1", "--densities", "1", "-f", str(folder)]
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert "is being run by another launcher (host " in err and f"pid {holder.pid}" in err and "--wait" in err
+        assert (folder / HOLDER_FILE).is_file() and not (folder / "trials").exists()
+    finally:
+        holder.kill()
+        holder.wait()
+    start = time.perf_counter()
+    with grid_lock(folder):  # the lock went with its process
+        assert json.loads((folder / HOLDER_FILE).read_text())["pid"] != holder.pid
+    assert time.perf_counter() - start < 5 and not (folder / HOLDER_FILE).exists()
