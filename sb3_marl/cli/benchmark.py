@@ -13,6 +13,7 @@ from sb3_marl.cli.common import (
     EXIT_INTERRUPTED,
     MAX_COPIES,
     MAX_COUNT,
+    MAX_EPISODES,
     CommandFailed,
     UsageError,
     positive,
@@ -59,7 +60,7 @@ def add_parsers(commands: Any) -> None:
     )
     benchmark.add_argument(
         "--eval-episodes",
-        type=positive(),
+        type=positive(maximum=MAX_EPISODES),
         default=PAPER_EVAL_EPISODES,
         help="episodes per evaluation (default: 3, the paper's)",
     )
@@ -67,7 +68,12 @@ def add_parsers(commands: Any) -> None:
     benchmark.add_argument(
         "--max-concurrent", type=positive(maximum=MAX_COPIES), default=None, help="trials at once (default: one per free CPU)"
     )
-    benchmark.add_argument("--max-failures", type=int, default=2, help="restarts of a failed trial (default: 2)")
+    benchmark.add_argument(
+        "--max-failures",
+        type=positive(minimum=0, maximum=MAX_COUNT),
+        default=2,
+        help="restarts of a failed trial (default: 2)",
+    )
     benchmark.add_argument(
         "--wait", action="store_true", help="wait for another launcher running the same -f to end (default: refuse)"
     )

@@ -4,6 +4,7 @@ help formatter, finding a run and loading its model."""
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import signal
 import tempfile
@@ -42,12 +43,14 @@ class StoreHyperparams(argparse.Action):
         setattr(namespace, self.dest, parsed)
 
 
-def positive(kind: type = int, maximum: float | None = None) -> Any:
+def positive(kind: type = int, maximum: float | None = None, minimum: int = 1) -> Any:
+    """A parser of a finite ``kind`` value in [``minimum``, ``maximum``] (nan and inf refused)."""
+
     def parse(text: str) -> Any:
         value = kind(text)
-        if value < 1 or (maximum is not None and value > maximum):
+        if not math.isfinite(value) or value < minimum or (maximum is not None and value > maximum):
             bound = "" if maximum is None else f" and <= {maximum:,}"
-            raise argparse.ArgumentTypeError(f"expected a value >= 1{bound}, got {text}")
+            raise argparse.ArgumentTypeError(f"expected a finite value >= {minimum}{bound}, got {text}")
         return value
 
     return parse

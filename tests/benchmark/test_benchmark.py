@@ -260,8 +260,12 @@ def test_a_trial_whose_worker_dies_is_retried_from_its_checkpoint(local_ray, tmp
         (["--grid", "papers"], "argument --grid: invalid choice: 'papers' (choose from 'paper', 'reward'"),
         (["--budget", "0"], "argument --budget: expected a fraction in (0, 1] of the paper's 1M env steps"),
         (["--budget", "1.5"], "argument --budget: expected a fraction in (0, 1]"),
-        (["--seeds", "0"], "argument --seeds: expected a value >= 1"),
+        (["--seeds", "0"], "argument --seeds: expected a finite value >= 1"),
         (["--densities", "4"], "argument --densities: invalid choice: 4"),
+        (["--eval-episodes", "100000000"], "argument --eval-episodes: expected a finite value >= 1 and <= 100,000"),
+        (["--eval-every", "nan"], "argument --eval-every: expected a finite value >= 1, got nan"),
+        (["--eval-every", "inf"], "argument --eval-every: expected a finite value >= 1, got inf"),
+        (["status", "--max-failures", "-7"], "argument --max-failures: expected a finite value >= 0 and <= 10,000"),
     ],
 )
 def test_bad_arguments_are_rejected_before_any_work(argv, message, capsys, tmp_path):

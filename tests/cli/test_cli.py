@@ -296,7 +296,7 @@ def test_two_processes_writing_one_file_do_not_collide(tmp_path):
         (["train", "--algo", "a3c"], "invalid choice: 'a3c' (choose from 'acktr', 'ma2c'"),
         (["train", "--env", "highway-v0"], "invalid choice: 'highway-v0'"),
         (["train", "--bogus-flag"], "unrecognized arguments: --bogus-flag"),
-        (["train", "--n-envs", "0"], "expected a value >= 1"),
+        (["train", "--n-envs", "0"], "expected a finite value >= 1"),
         (["train", "-params", "n_steps"], "expected key:value"),
     ],
 )
