@@ -120,9 +120,51 @@ def read_replay_buffer(buffer: Any, path: str | Path) -> None:
     buffer.pos, buffer.full = int(pos), bool(full)
 
 
+#: Bounds of a YAML file the project reads: its size [bytes], and its nodes with every alias
+#: expanded (a "billion laughs" file of a few hundred bytes expands to billions through aliases).
+MAX_YAML_BYTES, MAX_YAML_NODES = 1_000_000, 100_000
+
+
 class RunFileLoader(yaml.SafeLoader):
     """yaml's SafeLoader plus rl-zoo's ``!!python/object/apply:collections.OrderedDict`` (a list of
-    [key, value] pairs, read as a dict); every other Python tag is refused."""
+    [key, value] pairs, read as a dict); every other Python tag is refused, and so is a document of
+    more than :data:`MAX_YAML_NODES` nodes once its aliases are expanded (counted, not expanded)."""
+
+    def get_single_node(self) -> Any:
+        node = super().get_single_node()
+        if node is not None and _expanded_size(node, {}) > MAX_YAML_NODES:
+            raise yaml.YAMLError(f"more than {MAX_YAML_NODES:,} values once its aliases are expanded")
+        return node
+
+
+def _expanded_size(node: yaml.Node, sizes: dict[int, int]) -> int:
+    """Nodes under ``node`` with aliases expanded (an alias is the node it names: shared, so each
+    node's size is computed once)."""
+    if id(node) not in sizes:
+        sizes[id(node)] = 1  # a node that contains itself counts once
+        children: list[Any] = []
+        if isinstance(node, yaml.MappingNode):
+            children = [child for pair in node.value for child in pair]
+        elif isinstance(node, yaml.SequenceNode):
+            children = node.value
+        sizes[id(node)] = 1 + sum(_expanded_size(child, sizes) for child in children)
+    return sizes[id(node)]
+
+
+def load_yaml(path: str | Path) -> Any:
+    """The plain data of a YAML file (:class:`RunFileLoader`), at most :data:`MAX_YAML_BYTES` long.
+
+    :raises ValueError: naming the file if it is larger
+    :raises yaml.YAMLError: if it is not plain-data YAML within :data:`MAX_YAML_NODES` (or nests
+        beyond Python's recursion limit)
+    """
+    size = Path(path).stat().st_size
+    if size > MAX_YAML_BYTES:
+        raise ValueError(f"{path} is {size:,} bytes, more than the {MAX_YAML_BYTES:,} a YAML file here may have.")
+    try:
+        return yaml.load(Path(path).read_text(), Loader=RunFileLoader)
+    except RecursionError:
+        raise yaml.YAMLError("nested too deeply") from None
 
 
 def _ordered_dict(loader: yaml.SafeLoader, node: yaml.Node) -> dict:
@@ -140,7 +182,7 @@ def read_run_yaml(path: str | Path) -> dict[str, Any]:
     """A run folder's ``config.yml`` / ``args.yml`` as a dict; a ValueError naming the file for
     YAML that is not plain data (e.g. a ``!!python/object/apply:os.system`` tag) or not a mapping."""
     try:
-        data = yaml.load(Path(path).read_text(), Loader=RunFileLoader)
+        data = load_yaml(path)
     except yaml.YAMLError as error:
         raise ValueError(
             f"{path} is not a plain-data YAML file of a run ({str(error).splitlines()[0]}); "

@@ -52,6 +52,7 @@ from sb3_marl.algos.common.policies import (
     ma2c_q_policy_kwargs,
 )
 from sb3_marl.common.checks import is_integer, is_number
+from sb3_marl.common.files import load_yaml
 from sb3_marl.envs import av_counts, scenario_of, validate_config
 from sb3_marl.envs.config import scenario_default_config
 from wrappers.parameter_sharing import check_sharing_options, check_supervisor_dropout
@@ -92,7 +93,7 @@ def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> 
     if not path.is_file():
         raise ValueError(f"No hyperparameter file for algorithm {algo!r}: {path} does not exist.")
     try:
-        entries = yaml.safe_load(path.read_text()) or {}
+        entries = load_yaml(path) or {}
     except yaml.YAMLError as error:
         raise ValueError(f"{path} is not valid YAML: {error}") from None
     if not isinstance(entries, dict):

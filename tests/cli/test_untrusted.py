@@ -135,6 +135,35 @@ def test_plot_names_a_run_yaml_with_a_python_tag(run, tmp_path, capsys):
     assert not (tmp_path / "marker").exists() and not (tmp_path / "plots").exists()
 
 
+LAUGHS = "".join(
+    f"{name}: &{name} [{', '.join([f'*{prev}'] * 9) if prev else ', '.join(['lol'] * 9)}]\n"
+    for prev, name in zip(["", *"abcdefgh"], "abcdefghi")
+)
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        (LAUGHS, "more than 100,000 values once its aliases are expanded"),  # ~700 bytes, 9^9 values
+        ("a: " + "[" * 5000 + "]" * 5000 + "\n", "nested too deeply"),
+        ("a: " + "x" * 1_100_000 + "\n", "bytes, more than the 1,000,000 a YAML file here may have"),
+    ],
+)
+def test_a_small_yaml_cannot_take_the_memory_or_the_stack(tmp_path, capsys, text, message):
+    """A hyperparameter file (-c) that expands through aliases (billion laughs), nests past the
+    stack, or is over 1 MB: one message, before any folder, in well under a second of work."""
+    import time
+
+    config = tmp_path / "hyperparams.yml"
+    config.write_text(text)
+    start = time.perf_counter()
+    assert main(["train", "-c", str(config), "-n", "100", "-f", str(tmp_path / "logs")]) == 2
+    assert time.perf_counter() - start < 5
+    err = capsys.readouterr().err
+    assert message in err and str(config) in err and "Traceback" not in err
+    assert not (tmp_path / "logs").exists()
+
+
 def test_rl_zoo_run_yaml_still_reads(run):
     config = read_run_yaml(run / "ma2c" / f"{ENV_NAME}_1" / ENV_NAME / "config.yml")
     assert config["env_config"] == {"safety_supervisor": True} and config["n_steps"] == 20
