@@ -164,6 +164,27 @@ def test_a_small_yaml_cannot_take_the_memory_or_the_stack(tmp_path, capsys, text
     assert not (tmp_path / "logs").exists()
 
 
+def test_a_model_with_non_finite_weights_is_refused_and_loss_weights_are_bounded(run, tmp_path, capsys):
+    """A zip whose weights hold NaN (a diverged run): `evaluate` says so in one line instead of a
+    torch traceback; loss weights that would overflow to NaN are refused before any folder."""
+    import torch
+
+    logs = tmp_path / "logs"
+    subprocess.run(["cp", "-r", str(run), str(logs)], check=True)
+    zip_path = logs / "ma2c" / f"{ENV_NAME}_1" / f"{ENV_NAME}.zip"
+    model = get_algo("ma2c").load(zip_path)
+    with torch.no_grad():
+        next(model.policy.parameters()).fill_(float("nan"))
+    model.save(zip_path)
+    assert main(["evaluate", "-f", str(logs), "--eval-episodes", "1"]) == 2
+    err = capsys.readouterr().err
+    assert f"{zip_path}: the model's weights" in err and "not finite" in err and "Traceback" not in err
+    for key in ("prior_coef", "safety_loss_coef"):
+        argv = ["train", "-n", "100", "-f", str(tmp_path / key), "-params", f"{key}:1e300", "prior:'idm-mobil'"]
+        assert main(argv) == 2
+        assert f"Invalid {key}=1e+300" in capsys.readouterr().err and not (tmp_path / key).exists()
+
+
 def test_rl_zoo_run_yaml_still_reads(run):
     config = read_run_yaml(run / "ma2c" / f"{ENV_NAME}_1" / ENV_NAME / "config.yml")
     assert config["env_config"] == {"safety_supervisor": True} and config["n_steps"] == 20

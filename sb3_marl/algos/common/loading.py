@@ -265,7 +265,22 @@ def load_model(
         objects = {**safe_custom_objects(algo_class, path), **(custom_objects or {})}
     from stable_baselines3.common.base_class import BaseAlgorithm
 
-    return BaseAlgorithm.load.__func__(algo_class, path, custom_objects=objects, **kwargs)  # type: ignore[attr-defined]  # SB3's own loader
+    model = BaseAlgorithm.load.__func__(algo_class, path, custom_objects=objects, **kwargs)  # type: ignore[attr-defined]  # SB3's own loader
+    check_finite_weights(model, path)
+    return model
+
+
+def check_finite_weights(model: Any, path: str | Path) -> None:
+    """A ValueError naming ``path`` and the first tensor if any weight of ``model``'s policy is NaN
+    or infinite (a run that diverged: every action it would take is meaningless)."""
+    import torch
+
+    for name, tensor in model.policy.state_dict().items():
+        if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
+            raise ValueError(
+                f"{path}: the model's weights {name} are not finite (NaN or inf): its training diverged; "
+                "it is not used (retrain, e.g. with a smaller learning rate or loss weights)."
+            )
 
 
 def _safe_load(
@@ -300,6 +315,7 @@ safe_load = classmethod(_safe_load)
 
 __all__ = [
     "UnsafeModelError",
+    "check_finite_weights",
     "load_model",
     "read_model_data",
     "safe_custom_objects",

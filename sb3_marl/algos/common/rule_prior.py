@@ -38,7 +38,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvStepReturn
 
 from sb3_marl.algos.common.policies import model_policy
-from sb3_marl.algos.common.teacher import select_rows
+from sb3_marl.algos.common.teacher import MAX_LOSS_WEIGHT, select_rows
 from sb3_marl.common.checks import check_integer, check_number, invalid
 from sb3_marl.envs.config import with_supervisor
 from sb3_marl.evaluation.episodes import evaluate_on_density
@@ -89,8 +89,8 @@ class RulePrior:
             raise invalid("prior", self.name, f"one of {list(PRIORS)} (or null: off)")
         check_integer("prior_warm_start", self.warm_start, 0, expected="an integer >= 0 (AV-steps)")
         check_integer("prior_decay_steps", self.decay_steps, 1, expected="an integer >= 1 (AV-steps)")
-        check_number("prior_coef", self.coef, 0)
-        check_number("prior_coef_final", self.coef_final, 0)
+        check_number("prior_coef", self.coef, 0, MAX_LOSS_WEIGHT)
+        check_number("prior_coef_final", self.coef_final, 0, MAX_LOSS_WEIGHT)
         check_number("prior_smoothing", self.smoothing, 0, 1, high_open=True, expected="a number in [0, 1)")
         if self.form not in PRIOR_FORMS:
             raise invalid("prior_form", self.form, f"one of {list(PRIOR_FORMS)}")

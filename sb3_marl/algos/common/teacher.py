@@ -101,9 +101,14 @@ def safety_step(model: Any, executed: np.ndarray) -> float:
     return float(loss.item())
 
 
+#: The largest weight of an auxiliary loss term (the teacher's, the rule prior's): far beyond any
+#: useful one, and far below the weights whose gradients overflow to NaN.
+MAX_LOSS_WEIGHT = 1_000.0
+
+
 def check_safety_loss_coef(coef: Any) -> float:
-    """``safety_loss_coef`` as a float; a ValueError naming it unless a finite number >= 0."""
-    return check_number("safety_loss_coef", coef, 0, expected="a finite number >= 0 (0: off)")
+    """``safety_loss_coef`` as a float; a ValueError naming it unless a number in [0, 1000]."""
+    return check_number("safety_loss_coef", coef, 0, MAX_LOSS_WEIGHT, expected="a number in [0, 1000] (0: off)")
 
 
 def _flat_samples(observations: Any, obs_shape: Any, n: int) -> Any:
