@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from sb3_marl.algos import ALGO_NAMES
-from sb3_marl.common.checks import check_choice, check_number
+from sb3_marl.common.checks import check_choice, check_integer, check_number
 from sb3_marl.common.files import read_run_yaml
 from sb3_marl.envs import DENSITIES, ENV_IDS, MERGE_ENV_IDS, av_steps_per_env_step
 from sb3_marl.runs.hyperparams import CONFIG_DIR
@@ -120,6 +120,13 @@ class TrialSpec:
     density: int
     variant: str
     seed: int
+
+    def __post_init__(self) -> None:
+        """Each field one the grids know (a trial read from a ``trial.json`` names no other file)."""
+        check_choice("algo", self.algo, ALGO_NAMES)
+        check_choice("density", self.density, DENSITIES)
+        check_choice("variant", self.variant, VARIANTS)
+        check_integer("seed", self.seed, 0, 2**31 - 1)
 
     @property
     def trial_id(self) -> str:

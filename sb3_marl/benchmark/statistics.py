@@ -13,7 +13,7 @@ import numpy as np
 
 from sb3_marl.benchmark.grid import EPISODE_STEPS, EXPERIMENTS, TrialSpec
 from sb3_marl.benchmark.trial import RESULT, TRIAL, final_evaluation
-from sb3_marl.common.files import read_evaluations, read_json_object
+from sb3_marl.common.files import inside, read_evaluations, read_json_object
 from sb3_marl.envs import DENSITIES
 
 #: Driving metrics of the final evaluation, averaged over seeds in the table.
@@ -51,7 +51,7 @@ def load_trials(log_folder: str | Path, problems: list[str] | None = None) -> li
     trials = []
     for info_path in sorted(Path(log_folder).glob(f"trials/*/{TRIAL}")):
         try:
-            spec = TrialSpec(**read_json_object(info_path)["trial"])
+            spec = TrialSpec(**read_json_object(inside(info_path, log_folder))["trial"])
             npz = sorted(info_path.parent.glob(f"{spec.algo}/*_1/evaluations.npz"))
             if not npz:
                 continue

@@ -257,7 +257,10 @@ def reevaluate_trial(folder: Path) -> bool:
     result = read_json_object(folder / RESULT)
     if "trial" not in result:
         raise ValueError(f"{folder / RESULT} has no 'trial' entry: not a finished trial's result.")
-    spec = TrialSpec(**result["trial"])
+    try:
+        spec = TrialSpec(**result["trial"])
+    except (ValueError, TypeError) as error:
+        raise ValueError(f"{folder / RESULT}: 'trial' {error}") from None
     earlier = result.get("paper_evaluation") or {}
     version = VERSIONS[scenario_of(spec.env_id)]
     if earlier.get("supervisor_version") == version and "yields_per_episode" in earlier.get("supervisor_off", {}):

@@ -156,13 +156,15 @@ def _benchmark_evaluate(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from sb3_marl.benchmark.trial import RESULT, reevaluate_trial
+    from sb3_marl.common.files import inside
 
     results = sorted(Path(args.log_folder).glob(f"trials/*/{RESULT}"))
     if not results:
         raise UsageError(f"-f/--log-folder: no finished trial (trials/*/{RESULT}) under {args.log_folder!r}.")
     set_num_threads(1)
     try:
-        done = [path.parent.name for path in tqdm(results, desc="trials", unit="trial") if reevaluate_trial(path.parent)]
+        trials = [inside(path.parent, args.log_folder) for path in results]  # no link out of the grid
+        done = [folder.name for folder in tqdm(trials, desc="trials", unit="trial") if reevaluate_trial(folder)]
     except (ValueError, KeyError, TypeError) as error:  # an unreadable or edited result.json, named
         raise UsageError(f"-f/--log-folder: {error}") from None
     print(

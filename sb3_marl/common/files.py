@@ -60,12 +60,19 @@ def save_figure(figure: Any, path: str | Path, dpi: int = 100) -> Path:
     return Path(path)
 
 
+#: The largest JSON file the project reads [bytes] (a held-out evaluation's is about 1 MB).
+MAX_JSON_BYTES = 50_000_000
+
+
 def read_json_object(path: str | Path) -> dict[str, Any]:
     """The JSON object (a mapping) in ``path``; a ValueError naming the file and what is wrong
     (unreadable, truncated, not JSON, or JSON that is not an object)."""
     try:
+        size = Path(path).stat().st_size
+        if size > MAX_JSON_BYTES:
+            raise ValueError(f"{size:,} bytes, more than the {MAX_JSON_BYTES:,} a JSON file here may have")
         data = json.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, ValueError) as error:
+    except (OSError, ValueError, RecursionError) as error:
         raise ValueError(f"{path} is not readable JSON ({type(error).__name__}: {error}).") from None
     if not isinstance(data, dict):
         raise ValueError(f"{path} holds a JSON {type(data).__name__}, expected an object.")

@@ -134,3 +134,36 @@ def test_one_launcher_per_grid_folder(tmp_path, capsys):
     with grid_lock(folder):  # the lock went with its process
         assert json.loads((folder / HOLDER_FILE).read_text())["pid"] != holder.pid
     assert time.perf_counter() - start < 5 and not (folder / HOLDER_FILE).exists()
+
+
+def test_crafted_trial_files_are_named_and_links_out_of_the_grid_not_followed(tmp_path, capsys):
+    """A trial.json naming ``../..`` as its learner, a result.json with density 9, and a trial folder
+    that is a link to a folder outside the grid: each one message naming the file; nothing is read
+    or written outside the grid."""
+    import shutil
+
+    from sb3_marl.benchmark.statistics import load_trials
+    from sb3_marl.cli import main
+
+    source = Path(__file__).resolve().parents[2] / "results" / "paper-grid" / "trials" / "ma2c_density1_default_seed0"
+    grid = tmp_path / "grid"
+    shutil.copytree(source, grid / "trials" / source.name)
+    trial_json = grid / "trials" / source.name / "trial.json"
+    info = json.loads(trial_json.read_text())
+    trial_json.write_text(json.dumps({**info, "trial": {**info["trial"], "algo": "../../.."}}))
+    problems: list[str] = []
+    assert load_trials(grid, problems) == [] and "Invalid algo='../../..'" in problems[0]
+
+    result_json = grid / "trials" / source.name / "result.json"
+    result = json.loads(result_json.read_text())
+    result_json.write_text(json.dumps({**result, "trial": {**result["trial"], "density": 9}}))
+    assert main(["benchmark", "evaluate", "-f", str(grid)]) == 2
+    err = capsys.readouterr().err
+    assert f"{result_json}: 'trial' Invalid density=9: expected one of [1, 2, 3]" in err and "Traceback" not in err
+
+    outside = tmp_path / "outside"
+    shutil.move(str(grid / "trials" / source.name), outside)
+    (grid / "trials" / source.name).symlink_to(outside, target_is_directory=True)
+    before = (outside / "result.json").read_text()
+    assert main(["benchmark", "evaluate", "-f", str(grid)]) == 2
+    assert "outside" in capsys.readouterr().err and (outside / "result.json").read_text() == before
