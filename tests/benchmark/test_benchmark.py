@@ -18,7 +18,7 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 from sb3_marl.benchmark import GRIDS, make_grid
 from sb3_marl.benchmark.figures import acceleration_traces
 from sb3_marl.benchmark.grid import VARIANTS
-from sb3_marl.benchmark.report import write_report
+from sb3_marl.benchmark.report import MANIFEST, write_report
 from sb3_marl.benchmark.runner import run_benchmark
 from sb3_marl.benchmark.statistics import load_trials
 from sb3_marl.cli import main
@@ -127,10 +127,11 @@ def test_trials_write_the_rl_zoo_layout_and_tensorboard(tiny_benchmark):
 
 
 def test_report_writes_the_table_and_the_figures(tiny_benchmark, tmp_path, capsys):
-    # an earlier report's outputs that this grid does not produce go; other files stay
+    # an earlier report's outputs (its manifest) that this grid does not produce go; other files stay
     stale = ["comfort.png", "learning_curves_withdrawn.png", "cooperative_lane_change.json"]
     for name in [*stale, "notes.md"]:
         (tmp_path / name).write_text("earlier")
+    (tmp_path / MANIFEST).write_text(json.dumps(stale))
     assert main(["benchmark", "report", "-f", str(tiny_benchmark), "-o", str(tmp_path)]) == 0
     table = (tmp_path / "paper_table.md").read_text()
     trials = {t.spec.variant: t for t in load_trials(tiny_benchmark)}
