@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import zipfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -79,9 +80,44 @@ def read_json_object(path: str | Path) -> dict[str, Any]:
     return data
 
 
+#: The largest array an ``evaluations.npz`` may hold [bytes] (a full-budget run's are kilobytes).
+MAX_EVALUATION_BYTES = 100_000_000
+
+
+def npz_headers(path: str | Path) -> dict[str, tuple[tuple[int, ...], np.dtype]]:
+    """Each array of an npz as (shape, dtype), read from the headers of its members without
+    reading their data; a ValueError naming the file if it is not an npz of plain arrays."""
+    headers = {}
+    try:
+        with zipfile.ZipFile(path) as archive:
+            for member in archive.infolist():
+                if not member.filename.endswith(".npy"):
+                    raise ValueError(f"member {member.filename!r} is not an array")
+                with archive.open(member) as file:
+                    version = np.lib.format.read_magic(file)
+                    read_header = (
+                        np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+                    )
+                    shape, _, dtype = read_header(file)
+                if dtype.hasobject:
+                    raise ValueError(f"array {member.filename[:-4]!r} holds Python objects")
+                headers[member.filename[:-4]] = (tuple(shape), dtype)
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as error:
+        raise ValueError(f"{path} is not a readable npz of arrays ({type(error).__name__}: {error}).") from None
+    return headers
+
+
+def _array_bytes(shape: tuple[int, ...], dtype: np.dtype) -> int:
+    return int(np.prod(shape, dtype=np.float64) * dtype.itemsize)
+
+
 def read_evaluations(path: str | Path) -> dict[str, Any]:
     """The arrays of an ``evaluations.npz``; a ValueError naming the file if it is unreadable
-    (truncated, not an npz, pickled objects: never unpickled)."""
+    (truncated, not an npz, pickled objects: never unpickled) or an array's header claims more
+    than :data:`MAX_EVALUATION_BYTES` (checked before any array is read)."""
+    for key, (shape, dtype) in npz_headers(path).items():
+        if _array_bytes(shape, dtype) > MAX_EVALUATION_BYTES:
+            raise ValueError(f"{path}: array {key!r} of shape {shape} ({dtype}) is larger than an evaluations.npz holds.")
     try:
         with np.load(path, allow_pickle=False) as log:
             return {key: log[key] for key in log.files}
@@ -107,18 +143,22 @@ def read_replay_buffer(buffer: Any, path: str | Path) -> None:
     :func:`write_replay_buffer`'s npz, as data: a ValueError naming the file and the array when an
     array is missing, unknown or of another shape or dtype (nothing is changed then), or when the
     file is unreadable or holds pickled objects."""
+    expected = {key: value for key, value in vars(buffer).items() if isinstance(value, np.ndarray)}
+    headers = npz_headers(path)  # shapes and dtypes checked before any array is read
+    for key in sorted({*expected, *headers} - {"pos", "full"}):
+        have, want = headers.get(key), expected.get(key)
+        if have is None or want is None or have != (want.shape, want.dtype):
+            found = "missing" if have is None else f"{have[1]} {have[0]}"
+            wanted = "no such array" if want is None else f"{want.dtype} {want.shape}"
+            raise ValueError(f"{path}: array {key!r} is {found}, the model's replay buffer expects {wanted}.")
+    for key in ("pos", "full"):
+        if key in headers and headers[key][0] != ():
+            raise ValueError(f"{path}: {key!r} must be a scalar, got shape {headers[key][0]}.")
     try:
         with np.load(path, allow_pickle=False) as data:
             arrays = {key: data[key] for key in data.files}
     except Exception as error:
         raise ValueError(f"{path} is not a readable replay buffer ({type(error).__name__}: {error}).") from None
-    expected = {key: value for key, value in vars(buffer).items() if isinstance(value, np.ndarray)}
-    for key in sorted({*expected, *arrays} - {"pos", "full"}):
-        have, want = arrays.get(key), expected.get(key)
-        if have is None or want is None or have.shape != want.shape or have.dtype != want.dtype:
-            found = "missing" if have is None else f"{have.dtype} {have.shape}"
-            wanted = "no such array" if want is None else f"{want.dtype} {want.shape}"
-            raise ValueError(f"{path}: array {key!r} is {found}, the model's replay buffer expects {wanted}.")
     pos, full = arrays.get("pos"), arrays.get("full")
     if pos is None or full is None or pos.shape != () or full.shape != () or not 0 <= int(pos) < buffer.buffer_size:
         raise ValueError(f"{path}: 'pos' and 'full' must be scalars with 0 <= pos < {buffer.buffer_size}.")

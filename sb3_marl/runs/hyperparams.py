@@ -48,6 +48,7 @@ from sb3_marl.algos.common.policies import (
     ARCHITECTURES,
     CentralisedCriticPolicy,
     LocalViewExtractor,
+    check_network_size,
     ma2c_policy_kwargs,
     ma2c_q_policy_kwargs,
 )
@@ -331,6 +332,7 @@ def check_policy_kwargs(algo: str, hyperparams: dict[str, Any], env_id: str) -> 
     kwargs = hyperparams.get("policy_kwargs")
     if kwargs is not None and not isinstance(kwargs, dict):
         raise ValueError(f"Invalid policy_kwargs={kwargs!r}: expected a mapping, e.g. dict(net_arch=[64, 64]).")
+    check_network_size(kwargs, "Invalid policy_kwargs")
     density = (gym.spec(env_id).kwargs or {}).get("density", 1)
     defaults = scenario_default_config(scenario_of(env_id))
     config = {**defaults, "density": density, **(hyperparams.get("env_config") or {}), "n_avs": 1}

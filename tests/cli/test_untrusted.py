@@ -185,6 +185,51 @@ def test_a_model_with_non_finite_weights_is_refused_and_loss_weights_are_bounded
         assert f"Invalid {key}=1e+300" in capsys.readouterr().err and not (tmp_path / key).exists()
 
 
+def _rewrite_zip(source: Path, target: Path, data: dict) -> None:
+    """``source``'s model zip with its ``data`` JSON replaced (the other members as they are)."""
+    import zipfile
+
+    with zipfile.ZipFile(source) as old, zipfile.ZipFile(target, "w", zipfile.ZIP_DEFLATED) as new:
+        for member in old.infolist():
+            new.writestr(member.filename, json.dumps(data) if member.filename == "data" else old.read(member))
+
+
+def test_small_files_that_claim_large_sizes_are_refused_before_allocating(run, tmp_path):
+    """A model zip whose policy_kwargs name 16,000-unit layers, or whose data member inflates past
+    10 MB (a 100 kB file), an evaluations.npz whose header claims 4 GB, a replay_buffer.npz whose
+    header disagrees with the model's buffer: each refused by its header, naming the file."""
+    import io
+    import zipfile
+
+    from sb3_marl.algos.common.loading import read_model_data
+    from sb3_marl.common.files import read_evaluations, read_replay_buffer
+
+    source = run / "ma2c" / f"{ENV_NAME}_1" / f"{ENV_NAME}.zip"
+    data = read_model_data(source)
+    wide = tmp_path / "wide.zip"
+    _rewrite_zip(source, wide, {**data, "policy_kwargs": {**data["policy_kwargs"], "net_arch": [16000, 16000]}})
+    with pytest.raises(ValueError, match=r"wide.zip: policy_kwargs names layers of up to 16,000 units"):
+        get_algo("ma2c").load(wide)
+    bomb = tmp_path / "bomb.zip"
+    _rewrite_zip(source, bomb, {**data, "padding": " " * 11_000_000})
+    assert bomb.stat().st_size < 1_000_000
+    with pytest.raises(ValueError, match=r"bomb.zip is not a readable SB3 model file .*'data' inflates to 11,0"):
+        get_algo("ma2c").load(bomb)
+
+    header = io.BytesIO()
+    np.lib.format.write_array_header_1_0(header, {"descr": "<f8", "fortran_order": False, "shape": (500_000_000,)})
+    claims = tmp_path / "evaluations.npz"
+    with zipfile.ZipFile(claims, "w") as archive:
+        archive.writestr("results.npy", header.getvalue() + bytes(64))
+    with pytest.raises(ValueError, match=r"array 'results' of shape \(500000000,\) \(float64\) is larger"):
+        read_evaluations(claims)
+    madqn = get_algo("madqn")("MlpPolicy", "CartPole-v1", buffer_size=100, learning_starts=0)
+    with zipfile.ZipFile(tmp_path / "replay_buffer.npz", "w") as archive:
+        archive.writestr("observations.npy", header.getvalue() + bytes(64))
+    with pytest.raises(ValueError, match=r"array 'actions' is missing|array 'observations' is float64 \(500000000,\)"):
+        read_replay_buffer(madqn.replay_buffer, tmp_path / "replay_buffer.npz")
+
+
 def test_rl_zoo_run_yaml_still_reads(run):
     config = read_run_yaml(run / "ma2c" / f"{ENV_NAME}_1" / ENV_NAME / "config.yml")
     assert config["env_config"] == {"safety_supervisor": True} and config["n_steps"] == 20

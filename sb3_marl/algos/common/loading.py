@@ -39,13 +39,22 @@ class UnsafeModelError(ValueError):
 # ---- model zips --------------------------------------------------------------------------------
 
 
+#: Bounds of a model zip's members once inflated [bytes]: its ``data`` JSON, and each other member
+#: (the policy's and optimiser's tensors: a paper network's are 0.1 MB).
+MAX_DATA_BYTES, MAX_MEMBER_BYTES = 10_000_000, 500_000_000
+
+
 def read_model_data(path: str | Path) -> dict[str, Any]:
     """The ``data`` JSON of an SB3 model zip as written (serialized entries unread); a ValueError
     naming the file if it is not a readable SB3 zip."""
     try:
         with zipfile.ZipFile(path) as archive:
+            for member in archive.infolist():  # sizes as declared, which bound what zipfile reads
+                limit = MAX_DATA_BYTES if member.filename == "data" else MAX_MEMBER_BYTES
+                if member.file_size > limit:
+                    raise ValueError(f"member {member.filename!r} inflates to {member.file_size:,} bytes (at most {limit:,})")
             data = json.loads(archive.read("data"))
-    except (OSError, KeyError, zipfile.BadZipFile, json.JSONDecodeError, UnicodeDecodeError) as error:
+    except (OSError, KeyError, ValueError, zipfile.BadZipFile, RecursionError) as error:
         raise ValueError(f"{path} is not a readable SB3 model file ({type(error).__name__}: {error}).") from None
     if not isinstance(data, dict) or not data:
         raise ValueError(f"{path} is not a readable SB3 model file (no data).")
@@ -262,7 +271,10 @@ def load_model(
         )
         objects = dict(custom_objects or {})
     else:
+        from sb3_marl.algos.common.policies import check_network_size
+
         objects = {**safe_custom_objects(algo_class, path), **(custom_objects or {})}
+        check_network_size(objects.get("policy_kwargs"), str(path))
     from stable_baselines3.common.base_class import BaseAlgorithm
 
     model = BaseAlgorithm.load.__func__(algo_class, path, custom_objects=objects, **kwargs)  # type: ignore[attr-defined]  # SB3's own loader

@@ -191,6 +191,39 @@ def unchecked_distributions() -> Iterator[None]:
         th.distributions.Distribution.set_default_validate_args(checked)
 
 
+#: The widest layer [units] and the most layer sizes a policy's ``policy_kwargs`` may name (the
+#: paper's network: 32 / 64 / 64 and 128 units): a small file cannot make a policy of gigabytes.
+MAX_LAYER_WIDTH, MAX_LAYER_SIZES = 4096, 64
+
+
+def check_network_size(policy_kwargs: Any, where: str) -> None:
+    """A ValueError naming ``where`` if the layer sizes of ``policy_kwargs`` (every integer of its
+    ``net_arch`` and ``features_extractor_kwargs``) exceed :data:`MAX_LAYER_WIDTH` units or
+    :data:`MAX_LAYER_SIZES` layers, before any layer is built."""
+    sizes: list[int] = []
+
+    def collect(value: Any) -> None:
+        if isinstance(value, bool):
+            return
+        if isinstance(value, int):
+            sizes.append(value)
+        elif isinstance(value, (list, tuple)):
+            for item in value:
+                collect(item)
+        elif isinstance(value, dict):
+            for item in value.values():
+                collect(item)
+
+    if isinstance(policy_kwargs, dict):
+        collect(policy_kwargs.get("net_arch"))
+        collect(policy_kwargs.get("features_extractor_kwargs"))
+    if len(sizes) > MAX_LAYER_SIZES or any(size > MAX_LAYER_WIDTH for size in sizes):
+        raise ValueError(
+            f"{where}: policy_kwargs names layers of up to {max(sizes):,} units ({len(sizes)} sizes); at most "
+            f"{MAX_LAYER_WIDTH:,} units and {MAX_LAYER_SIZES} sizes are allowed."
+        )
+
+
 def uses_action_masks(model: Any) -> bool:
     """Whether ``model`` acts on action masks (a maskable learner with ``action_masking`` on)."""
     return bool(getattr(model, "action_masking", False))
