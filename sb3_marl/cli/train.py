@@ -216,8 +216,9 @@ def _check_trained_agent(args: argparse.Namespace) -> None:
 
 
 def train_command(args: argparse.Namespace) -> int:
+    from sb3_marl.runs.callbacks import DivergedError
     from sb3_marl.runs.experiment import MARLExperimentManager
-    from sb3_marl.runs.folders import RunSpec
+    from sb3_marl.runs.folders import RunSpec, latest_checkpoint
 
     _check_train_args(args)
     set_num_threads(args.num_threads)
@@ -240,7 +241,13 @@ def train_command(args: argparse.Namespace) -> int:
             manager.learn(model)
         except OSError as error:  # a full disk, a folder removed under us: saving would likely fail too
             raise CommandFailed(_write_failure(manager, model, error)) from None
-        except Exception as error:  # a dead worker, a NaN, ...: keep what was learnt, then report
+        except DivergedError as error:  # NaN weights: nothing to keep from this point
+            last = latest_checkpoint(manager.save_path)
+            raise CommandFailed(
+                f"{error}. Nothing was saved from it; "
+                + (f"the last checkpoint is {last} (continue with -i {last})." if last else "no checkpoint was saved before.")
+            ) from None
+        except Exception as error:  # a dead worker, ...: keep what was learnt, then report
             try:
                 manager.save_trained_model(model)
             except OSError as save_error:

@@ -23,12 +23,39 @@ from sb3_marl.evaluation import EpisodeRecord, protocol_records, summarize
 DRIVING_SAMPLES = ("speed", "headway", "acceleration")
 
 
+class DivergedError(RuntimeError):
+    """Training made a weight of the policy NaN or infinite; nothing is saved from that point."""
+
+
+def check_finite(model: BaseAlgorithm) -> None:
+    """A :class:`DivergedError` naming the first policy tensor of ``model`` that is NaN or infinite."""
+    for name, tensor in model.policy.state_dict().items():
+        if tensor.is_floating_point() and not bool(th.isfinite(tensor).all()):
+            raise DivergedError(
+                f"training diverged at {model.num_timesteps} timesteps: the policy's weights {name} are NaN or "
+                "infinite (try a smaller learning rate or loss weights)"
+            )
+
+
 def atomic_save(model: BaseAlgorithm, path: str | Path) -> Path:
-    """``model.save(path)`` through a temporary file and a rename, so ``path`` is never half written."""
+    """``model.save(path)`` through a temporary file and a rename, so ``path`` is never half written;
+    a model whose weights are not finite is never saved (:class:`DivergedError`)."""
+    check_finite(model)
     path = Path(path).with_suffix(".zip")
     with replaced_atomically(path) as temporary:
         model.save(temporary)
     return path
+
+
+class FiniteWeightsCallback(BaseCallback):
+    """Stops training with a :class:`DivergedError` when an update has left a policy weight NaN or
+    infinite (checked as each rollout starts, before the policy acts on them)."""
+
+    def _on_rollout_start(self) -> None:
+        check_finite(self.model)
+
+    def _on_step(self) -> bool:
+        return True
 
 
 class AtomicCheckpointCallback(CheckpointCallback):
@@ -289,4 +316,11 @@ class ScenarioEvalCallback(BaseCallback):
         return summary
 
 
-__all__ = ["AtomicCheckpointCallback", "DrivingMetricsCallback", "ScenarioEvalCallback", "atomic_save"]
+__all__ = [
+    "AtomicCheckpointCallback",
+    "DivergedError",
+    "DrivingMetricsCallback",
+    "FiniteWeightsCallback",
+    "ScenarioEvalCallback",
+    "atomic_save",
+]

@@ -35,6 +35,7 @@ from sb3_marl.envs import copy_av_counts
 from sb3_marl.runs.callbacks import (
     AtomicCheckpointCallback,
     DrivingMetricsCallback,
+    FiniteWeightsCallback,
     ScenarioEvalCallback,
     StoreExecutedActions,
     atomic_save,
@@ -219,7 +220,7 @@ class MARLExperimentManager(ExperimentManager):
     def create_callbacks(self) -> None:
         if self.show_progress:
             self.callbacks.append(ProgressBarCallback())
-        self.callbacks.append(DrivingMetricsCallback())
+        self.callbacks += [FiniteWeightsCallback(), DrivingMetricsCallback()]
         self.callbacks += self._stored_action_callbacks()
         if self.save_freq > 0:
             self.callbacks.append(

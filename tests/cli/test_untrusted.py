@@ -230,6 +230,16 @@ def test_small_files_that_claim_large_sizes_are_refused_before_allocating(run, t
         read_replay_buffer(madqn.replay_buffer, tmp_path / "replay_buffer.npz")
 
 
+def test_training_that_diverges_stops_with_a_message_and_saves_nothing_from_it(tmp_path, capsys):
+    """An update that makes the weights NaN (learning rate 1e6) stops training at the next rollout
+    with one message and exit 1; no model with NaN weights is written."""
+    argv = ["train", "-n", "2000", "-f", str(tmp_path), "-params", "learning_rate:1e6", "n_steps:20", "--verbose", "0"]
+    assert main(argv) == 1
+    err = capsys.readouterr().err
+    assert "training diverged at " in err and "are NaN or infinite" in err and "Traceback" not in err
+    assert not list(tmp_path.rglob("*.zip"))
+
+
 def test_rl_zoo_run_yaml_still_reads(run):
     config = read_run_yaml(run / "ma2c" / f"{ENV_NAME}_1" / ENV_NAME / "config.yml")
     assert config["env_config"] == {"safety_supervisor": True} and config["n_steps"] == 20
