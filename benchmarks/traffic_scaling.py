@@ -92,6 +92,7 @@ def main() -> None:
         axis.set(xscale="log", yscale="log", xlabel="vehicles on the road", ylabel="µs per vehicle-step")
         axis.set_title(f"One env step, {args.lanes}-lane highway, {AVS} AVs")
         axis.legend()
+        figure.tight_layout()
         save_figure(figure, args.plot)
         print(f"plot: {args.plot}")
 
