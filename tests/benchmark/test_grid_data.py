@@ -31,41 +31,36 @@ def test_a_variant_extends_another_and_a_user_adds_an_experiment(tmp_path):
     assert grids == {"mine": ("mine",)}
 
 
-@pytest.mark.parametrize(
-    "text, message",
-    [
-        ("a: {hyperparams: 3}", r"variant 'a', hyperparams: expected a mapping"),
-        ("a: {extends: b}", r"variant 'a': extends 'b' is not a variant defined above it"),
-        ("a: {scenario: moon}", r"variant 'a', scenario='moon': expected one of \['lane-change', 'merge'\]"),
-        ("a: {curriculum: a}", r"variant 'a': curriculum 'a' is not a variant defined above it"),
-        ("a: {hyperparam: {}}", r"variant 'a': unknown keys \['hyperparam'\]"),
-        ("- a", r"must be a mapping"),
-        ("a: !!python/object/apply:os.system [echo]", r"not a plain-data YAML file"),
-    ],
-)
-def test_bad_variants_are_refused_naming_the_file_and_entry(tmp_path, text, message):
-    path = tmp_path / "variants.yml"
-    path.write_text(text)
-    with pytest.raises(ValueError, match=message) as error:
-        load_variants(path)
-    assert str(path) in str(error.value)
+def _variants(path):
+    return load_variants(path)
+
+
+def _experiments(path):
+    return load_experiments(path, {"default": {}})
 
 
 @pytest.mark.parametrize(
-    "text, message",
+    "read, text, message",
     [
-        ("experiments: {x: {c: [ma2c, nope]}}\ngrids: {}", r"curve 'c', variant='nope': expected one of \['default'\]"),
-        ("experiments: {x: {c: [sac, default]}}\ngrids: {}", r"curve 'c', learner='sac'"),
-        ("experiments: {x: {c: ma2c}}\ngrids: {}", r"curve 'c': expected \[learner, variant\]"),
-        ("experiments: {x: {c: [ma2c, default]}}\ngrids: {g: [y]}", r"grid 'g', experiment='y'"),
-        ("experiments: {}", r"expected the keys \['experiments', 'grids'\]"),
+        (_variants, "a: {hyperparams: 3}", r"variant 'a', hyperparams: expected a mapping"),
+        (_variants, "a: {extends: b}", r"variant 'a': extends 'b' is not a variant defined above it"),
+        (_variants, "a: {scenario: moon}", r"variant 'a', scenario='moon': expected one of \['lane-change', 'merge'\]"),
+        (_variants, "a: {curriculum: a}", r"variant 'a': curriculum 'a' is not a variant defined above it"),
+        (_variants, "a: {hyperparam: {}}", r"variant 'a': unknown keys \['hyperparam'\]"),
+        (_variants, "- a", r"must be a mapping"),
+        (_variants, "a: !!python/object/apply:os.system [echo]", r"not a plain-data YAML file"),
+        (_experiments, "experiments: {x: {c: [ma2c, nope]}}\ngrids: {}", r"variant='nope': expected one of \['default'\]"),
+        (_experiments, "experiments: {x: {c: [sac, default]}}\ngrids: {}", r"curve 'c', learner='sac'"),
+        (_experiments, "experiments: {x: {c: ma2c}}\ngrids: {}", r"curve 'c': expected \[learner, variant\]"),
+        (_experiments, "experiments: {x: {c: [ma2c, default]}}\ngrids: {g: [y]}", r"grid 'g', experiment='y'"),
+        (_experiments, "experiments: {}", r"expected the keys \['experiments', 'grids'\]"),
     ],
 )
-def test_bad_experiments_are_refused_naming_the_file_and_entry(tmp_path, text, message):
-    path = tmp_path / "experiments.yml"
+def test_bad_grid_files_are_refused_naming_the_file_and_entry(tmp_path, read, text, message):
+    path = tmp_path / "grid.yml"
     path.write_text(text)
     with pytest.raises(ValueError, match=message) as error:
-        load_experiments(path, {"default": {}})
+        read(path)
     assert str(path) in str(error.value)
 
 
