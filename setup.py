@@ -60,7 +60,19 @@ setup(
         # seaborn and scipy: rl_zoo3's own plotting scripts, run by the tests on our logs;
         # ruff and mypy: lint and types, run by `make test`
         # build: the packaging test builds the sdist; docs: the strict docs build
-        "dev": ["pytest>=8", "seaborn", "scipy", "ruff>=0.16,<0.17", "mypy>=2.3,<2.5", "build", *RAY, *TORCHRL, *RLLIB, *DOCS],
+        "dev": [
+            "pytest>=8",
+            "hypothesis>=6.100",
+            "seaborn",
+            "scipy",
+            "ruff>=0.16,<0.17",
+            "mypy>=2.3,<2.5",
+            "build",
+            *RAY,
+            *TORCHRL,
+            *RLLIB,
+            *DOCS,
+        ],
     },
     entry_points={"console_scripts": ["sb3-marl=sb3_marl.cli:main"]},
     classifiers=[

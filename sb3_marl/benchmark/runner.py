@@ -33,8 +33,8 @@ from sb3_marl.benchmark.grid import (
     check_budget,
     make_grid,
 )
-from sb3_marl.benchmark.trial import CHECKPOINT, RESULT, checkpoint_timesteps, final_evaluation, run_trial, trial_folder
-from sb3_marl.common.checks import check_integer, check_number, is_number
+from sb3_marl.benchmark.trial import CHECKPOINT, RESULT, checked_result, checkpoint_timesteps, run_trial, trial_folder
+from sb3_marl.common.checks import check_integer, check_number
 from sb3_marl.common.files import read_json_object, write_text
 from sb3_marl.envs import DENSITIES
 
@@ -298,8 +298,10 @@ def grid_status(
         )
     settings = read_json_object(settings_path)
     budget: Any = settings.get("budget")
-    if not is_number(budget):
-        raise ValueError(f"{settings_path}: 'budget' is {budget!r}, expected a fraction in (0, 1].")
+    try:
+        check_budget(budget)
+    except ValueError:
+        raise ValueError(f"{settings_path}: 'budget' is {budget!r}, expected a fraction in (0, 1].") from None
     statuses = []
     for spec in trials:
         folder = trial_folder(log_folder, spec)
@@ -307,9 +309,9 @@ def grid_status(
         if (folder / RESULT).is_file():
             try:
                 result = read_json_object(folder / RESULT)
-                final = final_evaluation(result)
-                status.state, status.timesteps = "finished", result["num_timesteps"]
-                status.return_mean, status.wall_time_s = final["return_mean"], result.get("wall_time_s")
+                final = checked_result(result)
+                status.state, status.timesteps = "finished", int(result["num_timesteps"])
+                status.return_mean, status.wall_time_s = float(final["return_mean"]), result.get("wall_time_s")
             except (ValueError, KeyError, TypeError, AttributeError) as error:  # a truncated or edited file: this trial only
                 status.state = "unreadable"
                 status.problem = f"{folder / RESULT}: {type(error).__name__}: {error}"

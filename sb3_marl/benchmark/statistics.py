@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from sb3_marl.benchmark.grid import EPISODE_STEPS, EXPERIMENTS, TrialSpec
-from sb3_marl.benchmark.trial import RESULT, TRIAL, final_evaluation
+from sb3_marl.benchmark.trial import RESULT, TRIAL, checked_result, final_evaluation
 from sb3_marl.common.files import inside, read_evaluations, read_json_object
 from sb3_marl.envs import DENSITIES
 
@@ -56,10 +56,23 @@ def load_trials(log_folder: str | Path, problems: list[str] | None = None) -> li
             if not npz:
                 continue
             evaluations = read_evaluations(npz[0])
+            timesteps, results = evaluations.get("timesteps"), evaluations.get("results")
+            if (
+                timesteps is None
+                or results is None
+                or timesteps.ndim != 1
+                or results.ndim != 2
+                or len(results) != len(timesteps)
+                or not np.issubdtype(timesteps.dtype, np.number)
+                or not np.issubdtype(results.dtype, np.number)
+            ):
+                raise ValueError(
+                    f"{npz[0]}: expected numeric 'timesteps' (evaluations,) and 'results' (evaluations, episodes)"
+                )
             result_path = info_path.parent / RESULT
             result = read_json_object(result_path) if result_path.is_file() else None
             if result is not None:
-                final_evaluation(result)  # a result without its evaluation is unreadable: KeyError
+                checked_result(result)  # a result without its evaluation is unreadable: KeyError
         except (ValueError, KeyError, TypeError) as error:
             if problems is None:
                 raise

@@ -25,6 +25,7 @@ import platform
 import shutil
 import socket
 import time
+from numbers import Real
 from pathlib import Path
 from typing import Any
 
@@ -54,10 +55,43 @@ def checkpoint_timesteps(checkpoint: Path) -> int:
     return read_json_object(checkpoint / "state.json")["num_timesteps"]
 
 
+#: The most episode returns a final evaluation may list (the paper's has 30).
+MAX_EVALUATION_EPISODES = 100_000
+
+
 def final_evaluation(result: dict[str, Any]) -> dict[str, Any]:
     """A finished trial's final evaluation: the paper's (30 seeded episodes of the trained model,
-    ``paper_evaluation``) where ``result`` has it, else its last periodic evaluation."""
-    return result.get("paper_evaluation") or result["final_evaluation"]
+    ``paper_evaluation``) where ``result`` has it, else its last periodic evaluation; checked as
+    data: a ValueError (KeyError when missing) unless its summary values are numbers, its
+    ``returns`` at most :data:`MAX_EVALUATION_EPISODES` numbers and ``supervisor_off`` alike."""
+    final = result.get("paper_evaluation") or result["final_evaluation"]
+    for summary in (final, *([final["supervisor_off"]] if isinstance(final, dict) and "supervisor_off" in final else [])):
+        if not isinstance(summary, dict):
+            raise ValueError(f"the final evaluation is {str(summary)[:80]!r}, expected an object")
+        numbers = {key: value for key, value in summary.items() if key.endswith(("_mean", "_std", "_rate", "_episode"))}
+        returns = summary.get("returns", [])
+        if not all(map(_real, numbers.values())) or not (
+            isinstance(returns, list) and len(returns) <= MAX_EVALUATION_EPISODES and all(map(_real, returns))
+        ):
+            raise ValueError("the final evaluation's summary values and 'returns' must be numbers")
+    return final
+
+
+def checked_result(result: dict[str, Any]) -> dict[str, Any]:
+    """A finished trial's ``result.json`` as data: its ``num_timesteps`` an integer, its
+    ``wall_time_s`` seconds or absent, its final evaluation readable (:func:`final_evaluation`);
+    a ValueError (KeyError when missing) otherwise. Returns the final evaluation."""
+    if not isinstance(result.get("num_timesteps"), int) or isinstance(result.get("num_timesteps"), bool):
+        raise ValueError(f"'num_timesteps' is {str(result.get('num_timesteps'))[:40]!r}, expected an integer")
+    wall_time = result.get("wall_time_s")
+    if wall_time is not None and not _real(wall_time):
+        raise ValueError(f"'wall_time_s' is {str(wall_time)[:40]!r}, expected seconds")
+    return final_evaluation(result)
+
+
+def _real(value: Any) -> bool:
+    """A real number, NaN included (an evaluation's mean of nothing), not a bool."""
+    return isinstance(value, Real) and not isinstance(value, bool)
 
 
 def write_json(path: Path, data: dict[str, Any]) -> None:

@@ -102,7 +102,7 @@ def npz_headers(path: str | Path) -> dict[str, tuple[tuple[int, ...], np.dtype]]
                 if dtype.hasobject:
                     raise ValueError(f"array {member.filename[:-4]!r} holds Python objects")
                 headers[member.filename[:-4]] = (tuple(shape), dtype)
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as error:
+    except Exception as error:  # zipfile alone raises BadZipFile, NotImplementedError, RuntimeError, EOFError, ...
         raise ValueError(f"{path} is not a readable npz of arrays ({type(error).__name__}: {error}).") from None
     return headers
 

@@ -54,7 +54,7 @@ def read_model_data(path: str | Path) -> dict[str, Any]:
                 if member.file_size > limit:
                     raise ValueError(f"member {member.filename!r} inflates to {member.file_size:,} bytes (at most {limit:,})")
             data = json.loads(archive.read("data"))
-    except (OSError, KeyError, ValueError, zipfile.BadZipFile, RecursionError) as error:
+    except Exception as error:  # zipfile alone raises BadZipFile, NotImplementedError, RuntimeError, EOFError, ...
         raise ValueError(f"{path} is not a readable SB3 model file ({type(error).__name__}: {error}).") from None
     if not isinstance(data, dict) or not data:
         raise ValueError(f"{path} is not a readable SB3 model file (no data).")
