@@ -177,16 +177,16 @@ def _integer(lo: int, hi: int | None = None) -> tuple[Check, str]:
     return check, f"an integer >= {lo}" + ("" if hi is None else f" and <= {hi}")
 
 
-def _pair(lo: float, integer: bool = False) -> tuple[Check, str]:
+def _pair(lo: float, integer: bool = False, hi: float | None = None) -> tuple[Check, str]:
     def check(v: Any) -> bool:
         if not isinstance(v, (list, tuple)) or len(v) != 2:
             return False
         if not all(is_integer(x) if integer else is_number(x) for x in v):
             return False
-        return lo <= v[0] <= v[1]
+        return lo <= v[0] <= v[1] and (hi is None or v[1] <= hi)
 
     kind = "integers" if integer else "numbers"
-    return check, f"a pair [min, max] of finite {kind} with {lo} <= min <= max"
+    return check, f"a pair [min, max] of finite {kind} with {lo} <= min <= max" + ("" if hi is None else f" <= {hi}")
 
 
 def _boolean() -> tuple[Check, str]:
@@ -210,29 +210,30 @@ def _any() -> tuple[Check, str]:
 
 
 _POSITIVE = _number(0, strict_lo=True)
+MAX_VEHICLES = 10_000  # the most AVs, HDVs or spawn slots of a lane a road may hold
 _NON_NEGATIVE = _number(0)
 
 _SCHEMA: dict[str, tuple[Check, str]] = {
-    "density": ((lambda v: not isinstance(v, bool) and v in DENSITIES), f"one of {sorted(DENSITIES)}"),
-    "n_avs": _integer(1),  # range against the density is checked below
-    "hdv_count_range": _pair(0, integer=True),
-    "road_length": _POSITIVE,
-    "lanes_count": _integer(1),
+    "density": ((lambda v: is_integer(v) and v in DENSITIES), f"one of {sorted(DENSITIES)}"),
+    "n_avs": _integer(1, MAX_VEHICLES),  # range against the density is checked below
+    "hdv_count_range": _pair(0, integer=True, hi=MAX_VEHICLES),
+    "road_length": _number(0, 1e6, strict_lo=True),  # [m]
+    "lanes_count": _integer(1, 64),
     "lane_width": _POSITIVE,
     "speed_limit": _POSITIVE,
     "spawn_start": _NON_NEGATIVE,
     "spawn_spacing": _POSITIVE,
     "spawn_position_noise": _NON_NEGATIVE,
-    "spawn_slots_per_lane": _integer(1),
+    "spawn_slots_per_lane": _integer(1, MAX_VEHICLES),
     "spawn_speed_range": _pair(0),
-    "simulation_frequency": _integer(1),
-    "policy_frequency": _integer(1),
-    "duration": _POSITIVE,
+    "simulation_frequency": _integer(1, 1000),  # [Hz]
+    "policy_frequency": _integer(1, 100),  # [Hz]
+    "duration": _number(0, 86_400, strict_lo=True),  # [s]
     "target_speeds": _speeds(),
     "hdv_politeness": _number(0, 1),
     "hdv_b_safe": _POSITIVE,
     "hdv_lane_change_threshold": _NON_NEGATIVE,
-    "obs_vehicles_count": _integer(1),
+    "obs_vehicles_count": _integer(1, 100),
     "obs_x_range": _POSITIVE,
     "obs_y_range": _POSITIVE,
     "obs_speed_range": _POSITIVE,
@@ -258,8 +259,8 @@ _SCHEMA: dict[str, tuple[Check, str]] = {
     "supervisor_joint_search": _boolean(),
     "supervisor_mobil_safety": _boolean(),
     "supervisor_shadow": _boolean(),
-    "screen_width": _integer(1),
-    "screen_height": _integer(1),
+    "screen_width": _integer(1, 10_000),
+    "screen_height": _integer(1, 10_000),
     "centering_position": _any(),
     "scaling": _POSITIVE,
     "show_trajectories": _boolean(),
@@ -288,7 +289,7 @@ def validate_config(config: dict[str, Any], scenario: str = LANE_CHANGE) -> None
     :raises ValueError: on an unknown key, a wrong type, a value out of range, or inconsistent keys
     """
     keys = _keys(scenario)
-    unknown = sorted(set(config) - set(keys))
+    unknown = sorted(set(config) - set(keys), key=repr)  # a key may be any value
     if unknown:
         raise ValueError(f"Unknown config key(s) {unknown} for the {scenario} scenario: allowed keys are {sorted(keys)}.")
     for key in keys:

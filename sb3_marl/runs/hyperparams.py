@@ -141,15 +141,16 @@ def is_q_learning(algo: str) -> bool:
 #: Keys that may be a linear schedule ``lin_<initial value>`` (rl_zoo3's schedule strings).
 SCHEDULE_KEYS = ("learning_rate", "clip_range", "clip_range_vf")
 #: Value checks of the algorithms' common arguments: key -> (kind, lowest, highest, also allowed).
-#: kind "int" accepts integers only, "float" any finite number; bounds are inclusive.
+#: kind "int" accepts integers only, "float" any finite number; bounds are inclusive (the sizes
+#: that allocate are bounded: a rollout or replay buffer of a valid config fits in memory).
 VALUE_RANGES: dict[str, tuple[str, float | None, float | None, tuple]] = {
-    "n_steps": ("int", 1, None, ()),
-    "batch_size": ("int", 1, None, (None,)),
-    "n_epochs": ("int", 1, None, ()),
-    "buffer_size": ("int", 1, None, ()),
+    "n_steps": ("int", 1, 100_000, ()),  # per slot: the rollout buffer holds n_steps x slots
+    "batch_size": ("int", 1, 10_000_000, (None,)),
+    "n_epochs": ("int", 1, 10_000, ()),
+    "buffer_size": ("int", 1, 10_000_000, ()),  # transitions of the replay buffer
     "learning_starts": ("int", 0, None, ()),
     "train_freq": ("int", 1, None, ()),
-    "gradient_steps": ("int", 1, None, (-1,)),
+    "gradient_steps": ("int", 1, 10_000, (-1,)),
     "target_update_interval": ("int", 1, None, ()),
     "stats_update_freq": ("int", 1, None, ()),
     "inverse_update_freq": ("int", 1, None, ()),

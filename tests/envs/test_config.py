@@ -30,6 +30,13 @@ BAD_CONFIGS = [
     ({"target_speeds": [30.0, 10.0]}, "target_speeds", "increasing"),
     ({"reward_speed_range": [10.0, 10.0]}, "reward_speed_range", "min < max"),
     ({"harsh_acceleration_threshold": 0.0}, "harsh_acceleration_threshold", "> 0"),
+    # values that would allocate gigabytes or overflow before any check did
+    ({"density": [1]}, "density", "[1, 2, 3]"),
+    ({"obs_vehicles_count": 10**9}, "obs_vehicles_count", "<= 100"),
+    ({"duration": 1e308}, "duration", "<= 86400"),
+    ({"simulation_frequency": 5 * 10**8}, "simulation_frequency", "<= 1000"),
+    ({"hdv_count_range": [0, 10**9]}, "hdv_count_range", "<= 10000"),
+    ({"road_length": 1e300}, "road_length", "<= 1000000"),
 ]
 
 
@@ -42,6 +49,11 @@ def test_bad_config_raises_naming_key_value_and_allowed(override, key, allowed):
     assert allowed in message
     if key != "lane_count":
         assert repr(override[key]) in message
+
+
+def test_a_config_key_that_is_not_a_string_is_named():
+    with pytest.raises(ValueError, match=r"Unknown config key\(s\) \[1\] for the lane-change scenario"):
+        gym.make(ENV_IDS[1], config={1: 2})
 
 
 def test_density_bounds_n_avs():
