@@ -107,11 +107,15 @@ def test_scenario_overrides_from_yaml(tmp_path):
         ("madqn", {"n_epochs": 3}, r"'n_epochs'.*exploration_fraction"),
         ("madqn", {"architecture": "separate"}, r"architecture 'separate' for 'madqn'.*\['default', 'shared'\]"),
         ("ma2c", {"policy": "LnMlpPolicy"}, r"policy 'LnMlpPolicy' for 'ma2c'.*MlpPolicy"),
+        # sizes that would allocate terabytes before the first step
+        ("ma2c", {"n_steps": 10**11}, r"n_steps=100000000000: expected an integer >= 1 and <= 100000"),
+        ("madqn", {"buffer_size": 10**11}, r"buffer_size=100000000000: expected an integer >= 1 and <= 10000000"),
+        ("ma2c", {"policy_kwargs": {"net_arch": [16000, 16000]}}, r"layers of up to 16,000 units"),
     ],
 )
 def test_bad_hyperparameters(algo, hyperparams, match):
     with pytest.raises(ValueError, match=match):
-        validate_hyperparams(algo, hyperparams)
+        validate_hyperparams(algo, hyperparams, ENV_IDS[1])
 
 
 def test_unknown_algorithm_and_missing_env_entry(tmp_path):
