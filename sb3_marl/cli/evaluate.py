@@ -19,6 +19,7 @@ from sb3_marl.cli.common import (
     UsageError,
     add_run_selection,
     check_file,
+    check_folder,
     find_run_of,
     load_model_of,
     positive,
@@ -166,8 +167,10 @@ def plot_command(args: argparse.Namespace) -> int:
                 runs[f"{algo} run {run_id(folder)}" + (f" ({overrides})" if overrides else "")] = folder
     if not runs:
         raise UsageError(f"No runs of {args.algos} on {args.env} under {args.folder}/ (exp ids: {args.exp_ids or 'all'}).")
+    output = args.output or os.path.join(args.folder, "plots")
+    check_folder("-o/--output", output)
     try:
-        written = plot_runs(runs, args.output or os.path.join(args.folder, "plots"), args.episode_window)
+        written = plot_runs(runs, output, args.episode_window)
     except ValueError as error:
         raise UsageError(str(error)) from None
     for path in written:

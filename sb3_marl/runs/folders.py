@@ -8,7 +8,6 @@ A run folder holds the final model ``<env name>.zip``, ``best_model.zip``, check
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -20,7 +19,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from sb3_marl.algos import get_algo
 from sb3_marl.algos.common.loading import UnsafeModelError, read_model_data, saved_policy_class
 from sb3_marl.algos.common.policies import model_policy, uses_action_masks
-from sb3_marl.common.files import inside, read_run_yaml
+from sb3_marl.common.files import inside, read_json_object, read_run_yaml
 from sb3_marl.evaluation import evaluate_protocols, protocol_label
 from sb3_marl.runs.hyperparams import validate_hyperparams
 
@@ -287,28 +286,36 @@ def summary_table(folder: str | Path) -> str:
         key=lambda p: (p.parent.parent.name, p.parent.name.rpartition("_")[0], run_id(p.parent)),
     ):
         try:
-            result = json.loads(evaluation_file.read_text())
-        except ValueError as error:
-            raise ValueError(f"{evaluation_file} is not readable JSON ({error}).") from None
-        run_folder = evaluation_file.parent
-        args = run_args(run_folder, result["env_id"])
-        label = [
-            result["algo"],
-            result["env_id"],
-            str(run_id(run_folder)),
-            str(args.get("seed", "-")),
-            run_overrides(run_folder, result["env_id"]) or "-",
-        ]
-        rows = [(label, result["num_timesteps"], result.get("protocol", "-"), result)]
-        for name, baseline in (result.get("baselines") or {}).items():
-            rows.append(([name, result["env_id"], "-", "-", "-"], "-", "reference policy", baseline))
-        for cells, timesteps, protocol, summary in rows:
-            for supervisor, metrics in (("on", summary), ("off", summary.get("supervisor_off"))):
-                if metrics is None:  # an evaluation from before both protocols existed
-                    continue
-                values = [*cells, str(timesteps), protocol, supervisor, *(fmt(metrics) for _, fmt in TABLE_COLUMNS)]
-                lines.append("| " + " | ".join(values) + " |")
+            lines += _summary_rows(evaluation_file, read_json_object(evaluation_file))
+        except (KeyError, TypeError, AttributeError) as error:  # an edited evaluation.json
+            raise ValueError(f"{evaluation_file} is not an evaluation written by `sb3-marl evaluate` ({error!r}).") from None
     return "\n".join(lines)
+
+
+def _summary_rows(evaluation_file: Path, result: dict[str, Any]) -> list[str]:
+    """The summary table's rows of one run's ``evaluation.json`` (``result``)."""
+    from sb3_marl.evaluation import TABLE_COLUMNS
+
+    run_folder = evaluation_file.parent
+    args = run_args(run_folder, result["env_id"])
+    label = [
+        result["algo"],
+        result["env_id"],
+        str(run_id(run_folder)),
+        str(args.get("seed", "-")),
+        run_overrides(run_folder, result["env_id"]) or "-",
+    ]
+    rows = [(label, result["num_timesteps"], result.get("protocol", "-"), result)]
+    for name, baseline in (result.get("baselines") or {}).items():
+        rows.append(([name, result["env_id"], "-", "-", "-"], "-", "reference policy", baseline))
+    lines = []
+    for cells, timesteps, protocol, summary in rows:
+        for supervisor, metrics in (("on", summary), ("off", summary.get("supervisor_off"))):
+            if metrics is None:  # an evaluation from before both protocols existed
+                continue
+            values = [*cells, str(timesteps), protocol, supervisor, *(fmt(metrics) for _, fmt in TABLE_COLUMNS)]
+            lines.append("| " + " | ".join(values) + " |")
+    return lines
 
 
 def check_model_file(path: str | Path, algo: str, trust_remote_code: bool = False) -> None:

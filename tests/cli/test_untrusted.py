@@ -240,6 +240,25 @@ def test_training_that_diverges_stops_with_a_message_and_saves_nothing_from_it(t
     assert not list(tmp_path.rglob("*.zip"))
 
 
+@pytest.mark.parametrize("edit", [{"supervisor_off": 5}, [1, 2]])
+def test_summary_and_plot_name_what_they_cannot_use(run, tmp_path, capsys, edit):
+    """An evaluation.json edited to a wrong type (`summary`), and `plot -o` naming a file: one
+    message each, naming the file or the flag."""
+    logs = tmp_path / "logs"
+    subprocess.run(["cp", "-r", str(run), str(logs)], check=True)
+    assert main(["evaluate", "-f", str(logs), "--eval-episodes", "1"]) == 0
+    (evaluation,) = logs.glob("ma2c/*_1/evaluation.json")
+    original = json.loads(evaluation.read_text())
+    evaluation.write_text(json.dumps({**original, **edit} if isinstance(edit, dict) else edit))
+    capsys.readouterr()
+    assert main(["summary", "-f", str(logs)]) == 2
+    err = capsys.readouterr().err
+    assert str(evaluation) in err and "Traceback" not in err
+    (tmp_path / "a_file").write_text("mine")
+    assert main(["plot", "-f", str(logs), "-o", str(tmp_path / "a_file")]) == 2
+    assert "-o/--output" in capsys.readouterr().err and (tmp_path / "a_file").read_text() == "mine"
+
+
 def test_rl_zoo_run_yaml_still_reads(run):
     config = read_run_yaml(run / "ma2c" / f"{ENV_NAME}_1" / ENV_NAME / "config.yml")
     assert config["env_config"] == {"safety_supervisor": True} and config["n_steps"] == 20
