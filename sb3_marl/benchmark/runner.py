@@ -15,6 +15,7 @@ from __future__ import annotations
 import itertools
 import json
 import os
+import re
 import socket
 import time
 from collections.abc import Iterator
@@ -188,12 +189,21 @@ def _run_waves(
         if _finished(log_folder, spec):
             outcome.completed.append(spec.trial_id)
         elif spec.trial_id in errors:
-            outcome.failed[spec.trial_id] = f"{type(errors[spec.trial_id]).__name__}: {errors[spec.trial_id]}"
+            outcome.failed[spec.trial_id] = failure_reason(errors[spec.trial_id])
         elif spec.starts_from is not None and spec.starts_from.trial_id in outcome.failed:
             outcome.failed[spec.trial_id] = f"not started: the trial it starts from ({spec.starts_from.trial_id}) failed"
         else:  # stopped before the end (Ctrl-C): continues from its checkpoint next time
             outcome.unfinished.append(spec.trial_id)
     return outcome
+
+
+def failure_reason(error: BaseException) -> str:
+    """A failed trial's error as one plain line: the trial's own exception (Ray wraps it in a
+    ``RayTaskError`` whose text starts with coloured worker details), without terminal colours."""
+    cause = getattr(error, "cause", None) or error
+    lines = [line for line in str(cause).splitlines() if line.strip() and not line.lstrip().startswith("ray::")]
+    text = lines[-1] if lines else ""
+    return re.sub(r"\x1b\[[0-9;]*m", "", f"{type(cause).__name__}: {text}")
 
 
 def _finished(log_folder: Path, spec: TrialSpec) -> bool:

@@ -162,3 +162,17 @@ def test_crafted_trial_files_are_named_and_links_out_of_the_grid_not_followed(tm
     before = (outside / "result.json").read_text()
     assert main(["benchmark", "evaluate", "-f", str(grid)]) == 2
     assert "outside" in capsys.readouterr().err and (outside / "result.json").read_text() == before
+
+
+def test_a_failed_trial_is_reported_by_its_own_error_without_terminal_colours():
+    """Ray wraps a trial's exception (e.g. a refused foreign checkpoint) in a RayTaskError whose
+    text starts with coloured worker details: the launcher reports the trial's own error."""
+    from ray.exceptions import RayTaskError
+
+    from sb3_marl.algos.common.loading import UnsafeModelError
+    from sb3_marl.benchmark.runner import failure_reason
+
+    cause = UnsafeModelError("model.zip: the entry 'policy_class' is pickled code sb3-marl cannot rebuild")
+    wrapped = RayTaskError("\x1b[36mray::ImplicitFunc.train()\x1b[39m", "Traceback (most recent call last): ...", cause)
+    for error in (wrapped, wrapped.as_instanceof_cause()):
+        assert failure_reason(error) == f"UnsafeModelError: {cause}"
