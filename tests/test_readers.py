@@ -175,3 +175,23 @@ def test_status_and_report_name_a_result_with_wrong_types(tmp_path, capsys, edit
     assert f"{folder / 'result.json'}: ValueError: " in captured.err and message in captured.err
     problems: list[str] = []
     assert load_trials(grid, problems) == [] and message in problems[0]
+
+
+@pytest.mark.parametrize(
+    "arrays",
+    [
+        {"timesteps": np.arange(3), "results": np.zeros(3)},  # 1-D results
+        {"timesteps": np.array(["a", "b", "c"]), "results": np.zeros((3, 2))},  # string timesteps
+        {"timesteps": np.arange(2), "results": np.zeros((3, 2))},  # lengths that disagree
+    ],
+)
+def test_the_report_leaves_out_a_trial_whose_evaluations_have_the_wrong_shape(tmp_path, arrays):
+    import shutil
+
+    folder = tmp_path / "grid" / "trials" / TRIAL.name
+    shutil.copytree(TRIAL, folder)
+    (npz,) = folder.glob("ma2c/*_1/evaluations.npz")
+    np.savez(npz, **arrays)
+    problems: list[str] = []
+    assert load_trials(tmp_path / "grid", problems) == []
+    assert str(npz) in problems[0] and "expected numeric 'timesteps'" in problems[0]
