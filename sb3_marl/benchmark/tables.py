@@ -60,6 +60,10 @@ PAPER_FINDINGS = {
         "Beyond the merging paper: MA2C on the merge trained and evaluated with the supervisor's MOBIL safety check",
         "not studied (the merging paper's supervisor checks the AVs' own headway only)",
     ),
+    "copies": (
+        "Beyond the paper: MA2C with 3, 9 and 18 scenario copies per VecEnv (the same budget in env steps)",
+        "not studied (the authors' MA2C steps one env)",
+    ),
     "rule-prior": (
         "Beyond the paper: MA2C and MAPPO started from the IDM/MOBIL rule driver and regularised toward it",
         "not studied (the authors' learners start from scratch); IDM/MOBIL's own row is in the reference section",

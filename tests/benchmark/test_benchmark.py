@@ -66,6 +66,7 @@ def test_grids_hold_each_trial_once():
         "merge",
         "curriculum",
         "mobil-safety",
+        "copies",
     }
     from sb3_marl.benchmark.grid import EXPERIMENTS
     from sb3_marl.benchmark.tables import PAPER_FINDINGS
