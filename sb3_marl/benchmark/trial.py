@@ -32,6 +32,7 @@ from typing import Any
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_marl.benchmark.grid import TrialSpec
+from sb3_marl.common.checks import is_integer
 from sb3_marl.common.files import REPLAY_BUFFER_FILE, read_json_object, write_replay_buffer, write_text
 
 RUN_ID = 1
@@ -61,10 +62,22 @@ MAX_EVALUATION_EPISODES = 100_000
 
 def final_evaluation(result: dict[str, Any]) -> dict[str, Any]:
     """A finished trial's final evaluation: the paper's (30 seeded episodes of the trained model,
-    ``paper_evaluation``) where ``result`` has it, else its last periodic evaluation; checked as
-    data: a ValueError (KeyError when missing) unless its summary values are numbers, its
-    ``returns`` at most :data:`MAX_EVALUATION_EPISODES` numbers and ``supervisor_off`` alike."""
-    final = result.get("paper_evaluation") or result["final_evaluation"]
+    ``paper_evaluation``) where ``result`` has it, else its last periodic evaluation."""
+    return result.get("paper_evaluation") or result["final_evaluation"]
+
+
+def checked_result(result: dict[str, Any]) -> dict[str, Any]:
+    """A finished trial's ``result.json`` as data, checked where it is read: its ``num_timesteps``
+    an integer, its ``wall_time_s`` seconds or absent, its final evaluation's (and its
+    ``supervisor_off``'s) summary values numbers and its ``returns`` at most
+    :data:`MAX_EVALUATION_EPISODES` numbers; a ValueError (KeyError when missing) otherwise.
+    Returns the final evaluation (:func:`final_evaluation`)."""
+    if not is_integer(result.get("num_timesteps")):
+        raise ValueError(f"'num_timesteps' is {str(result.get('num_timesteps'))[:40]!r}, expected an integer")
+    wall_time = result.get("wall_time_s")
+    if wall_time is not None and not _real(wall_time):
+        raise ValueError(f"'wall_time_s' is {str(wall_time)[:40]!r}, expected seconds")
+    final = final_evaluation(result)
     for summary in (final, *([final["supervisor_off"]] if isinstance(final, dict) and "supervisor_off" in final else [])):
         if not isinstance(summary, dict):
             raise ValueError(f"the final evaluation is {str(summary)[:80]!r}, expected an object")
@@ -75,18 +88,6 @@ def final_evaluation(result: dict[str, Any]) -> dict[str, Any]:
         ):
             raise ValueError("the final evaluation's summary values and 'returns' must be numbers")
     return final
-
-
-def checked_result(result: dict[str, Any]) -> dict[str, Any]:
-    """A finished trial's ``result.json`` as data: its ``num_timesteps`` an integer, its
-    ``wall_time_s`` seconds or absent, its final evaluation readable (:func:`final_evaluation`);
-    a ValueError (KeyError when missing) otherwise. Returns the final evaluation."""
-    if not isinstance(result.get("num_timesteps"), int) or isinstance(result.get("num_timesteps"), bool):
-        raise ValueError(f"'num_timesteps' is {str(result.get('num_timesteps'))[:40]!r}, expected an integer")
-    wall_time = result.get("wall_time_s")
-    if wall_time is not None and not _real(wall_time):
-        raise ValueError(f"'wall_time_s' is {str(wall_time)[:40]!r}, expected seconds")
-    return final_evaluation(result)
 
 
 def _real(value: Any) -> bool:

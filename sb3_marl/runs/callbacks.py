@@ -14,7 +14,7 @@ import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
 
-from sb3_marl.algos.common.policies import model_policy
+from sb3_marl.algos.common.policies import model_policy, non_finite_weights
 from sb3_marl.common.files import read_evaluations, replaced_atomically
 from sb3_marl.envs.lane_change_env import ACTIONS
 from sb3_marl.evaluation import EpisodeRecord, protocol_records, summarize
@@ -29,12 +29,12 @@ class DivergedError(RuntimeError):
 
 def check_finite(model: BaseAlgorithm) -> None:
     """A :class:`DivergedError` naming the first policy tensor of ``model`` that is NaN or infinite."""
-    for name, tensor in model.policy.state_dict().items():
-        if tensor.is_floating_point() and not bool(th.isfinite(tensor).all()):
-            raise DivergedError(
-                f"training diverged at {model.num_timesteps} timesteps: the policy's weights {name} are NaN or "
-                "infinite (try a smaller learning rate or loss weights)"
-            )
+    name = non_finite_weights(model.policy)
+    if name is not None:
+        raise DivergedError(
+            f"training diverged at {model.num_timesteps} timesteps: the policy's weights {name} are NaN or "
+            "infinite (try a smaller learning rate or loss weights)"
+        )
 
 
 def atomic_save(model: BaseAlgorithm, path: str | Path) -> Path:

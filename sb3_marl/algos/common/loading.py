@@ -285,14 +285,14 @@ def load_model(
 def check_finite_weights(model: Any, path: str | Path) -> None:
     """A ValueError naming ``path`` and the first tensor if any weight of ``model``'s policy is NaN
     or infinite (a run that diverged: every action it would take is meaningless)."""
-    import torch
+    from sb3_marl.algos.common.policies import non_finite_weights
 
-    for name, tensor in model.policy.state_dict().items():
-        if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
-            raise ValueError(
-                f"{path}: the model's weights {name} are not finite (NaN or inf): its training diverged; "
-                "it is not used (retrain, e.g. with a smaller learning rate or loss weights)."
-            )
+    name = non_finite_weights(model.policy)
+    if name is not None:
+        raise ValueError(
+            f"{path}: the model's weights {name} are not finite (NaN or inf): its training diverged; "
+            "it is not used (retrain, e.g. with a smaller learning rate or loss weights)."
+        )
 
 
 def _safe_load(

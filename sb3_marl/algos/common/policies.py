@@ -224,6 +224,15 @@ def check_network_size(policy_kwargs: Any, where: str) -> None:
         )
 
 
+def non_finite_weights(policy: Any) -> str | None:
+    """The name of the first floating-point tensor of ``policy``'s state that holds a NaN or an
+    infinity (a run that diverged), None if every weight is finite."""
+    for name, tensor in policy.state_dict().items():
+        if tensor.is_floating_point() and not bool(th.isfinite(tensor).all()):
+            return name
+    return None
+
+
 def uses_action_masks(model: Any) -> bool:
     """Whether ``model`` acts on action masks (a maskable learner with ``action_masking`` on)."""
     return bool(getattr(model, "action_masking", False))
