@@ -7,8 +7,8 @@ from __future__ import annotations
 import contextlib
 import signal
 import traceback
-from collections.abc import Callable, Sequence
-from typing import Any
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any, NamedTuple
 
 import gymnasium as gym
 import numpy as np
@@ -17,7 +17,7 @@ from stable_baselines3.common.env_util import is_wrapped
 from stable_baselines3.common.vec_env.base_vec_env import CloudpickleWrapper
 
 from sb3_marl.envs.config import with_supervisor
-from sb3_marl.envs.reward import apply_reward_mode
+from sb3_marl.envs.reward import REWARD_MODES, apply_reward_mode, mode_rewards
 
 #: Per-AV arrays of the scenario's info that each slot's info carries as scalars.
 PER_AGENT_INFO = (
@@ -35,26 +35,119 @@ PER_AGENT_INFO = (
 )
 
 
-def split_info(info: dict[str, Any], copy: int) -> list[dict[str, Any]]:
-    """Each AV's share of its copy's info (see :class:`ParameterSharingVecEnv`)."""
-    own = np.asarray(info["rewards"])
-    global_reward = float(own.mean())
-    terms = info.get("reward_terms", {})
-    slot_infos = []
-    for agent in range(own.size):
-        slot_info = {key: info[key][agent] for key in PER_AGENT_INFO if key in info}
-        slot_info.update(
-            copy=copy,
-            agent=agent,
-            reward=float(own[agent]),
-            global_reward=global_reward,
-            reward_terms={name: float(values[agent]) for name, values in terms.items()},
-        )
-        if "terminal_observation" in info:
-            slot_info["terminal_observation"] = info["terminal_observation"][agent]
-            slot_info["TimeLimit.truncated"] = bool(info["TimeLimit.truncated"])
-        slot_infos.append(slot_info)
-    return slot_infos
+#: Slot-info entries read as Python numbers (the others are the arrays' numpy values).
+FLOAT_ENTRIES, INT_ENTRIES = ("reward", "global_reward"), ("copy", "agent")
+
+
+def copy_arrays(info: dict[str, Any]) -> dict[str, Any]:
+    """What the slot infos of a copy's AVs carry, as per-AV arrays (n_avs, ...): the entries of
+    :data:`PER_AGENT_INFO`, ``reward`` (the AV's own), ``global_reward`` (the copy's mean) and
+    ``reward_terms`` (a dict of arrays)."""
+    own = np.asarray(info["rewards"], dtype=np.float64)
+    arrays: dict[str, Any] = {key: np.asarray(info[key]) for key in PER_AGENT_INFO if key in info}
+    arrays["reward"] = own
+    arrays["global_reward"] = mode_rewards(own, np.ones((own.size, own.size), dtype=np.bool_), REWARD_MODES.index("global"))
+    arrays["reward_terms"] = {name: np.asarray(values) for name, values in info.get("reward_terms", {}).items()}
+    return arrays
+
+
+def join_arrays(parts: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """The per-slot arrays of several copies' :func:`copy_arrays`, copy after copy (the entries all share)."""
+    keys = [key for key in parts[0] if key != "reward_terms" and all(key in part for part in parts)]
+    joined: dict[str, Any] = {key: np.concatenate([part[key] for part in parts]) for key in keys}
+    terms = [part["reward_terms"] for part in parts]
+    shared = [name for name in terms[0] if all(name in t for t in terms)]
+    joined["reward_terms"] = {name: np.concatenate([t[name] for t in terms]) for name in shared}
+    return joined
+
+
+class SlotInfo(dict):
+    """One slot's info (see :class:`~wrappers.ParameterSharingVecEnv`), a dict: its row of the
+    step's per-slot arrays, read when asked, and entries of its own (``terminal_observation``,
+    ``episode``, what wrappers add), stored as a dict's. Building one costs no more than an empty
+    dict; a consumer that wants every slot's value reads :attr:`arrays` whole."""
+
+    __slots__ = ("arrays", "deleted", "slot")
+
+    def __init__(self, arrays: dict[str, Any], slot: int) -> None:
+        super().__init__()
+        self.arrays, self.slot = arrays, slot
+        self.deleted: tuple[str, ...] = ()
+
+    def _row(self, key: str) -> Any:
+        if key == "reward_terms":
+            return {name: float(values[self.slot]) for name, values in self.arrays[key].items()}
+        value = self.arrays[key][self.slot]
+        return float(value) if key in FLOAT_ENTRIES else int(value) if key in INT_ENTRIES else value
+
+    def _shared(self, key: object) -> bool:
+        return key in self.arrays and not dict.__contains__(self, key) and key not in self.deleted
+
+    def __getitem__(self, key: str) -> Any:
+        if dict.__contains__(self, key):
+            return dict.__getitem__(self, key)
+        if key in self.deleted:
+            raise KeyError(key)
+        return self._row(key)
+
+    def get(self, key: str, default: Any = None) -> Any:
+        if key not in self:
+            return default
+        return self[key]
+
+    def __contains__(self, key: object) -> bool:
+        return dict.__contains__(self, key) or self._shared(key)
+
+    def __delitem__(self, key: str) -> None:
+        if dict.__contains__(self, key):
+            dict.__delitem__(self, key)
+        elif self._shared(key):
+            self.deleted = (*self.deleted, key)
+        else:
+            raise KeyError(key)
+
+    def __iter__(self) -> Iterator[str]:
+        yield from (key for key in self.arrays if self._shared(key))
+        yield from dict.__iter__(self)
+
+    def __len__(self) -> int:
+        return sum(1 for _ in self)
+
+    def keys(self) -> list[str]:  # type: ignore[override]
+        return list(self)
+
+    def items(self) -> list[tuple[str, Any]]:  # type: ignore[override]
+        return [(key, self[key]) for key in self]
+
+    def values(self) -> list[Any]:  # type: ignore[override]
+        return [self[key] for key in self]
+
+    def copy(self) -> dict[str, Any]:
+        """A plain dict of every entry (SB3's ``VecMonitor`` copies infos)."""
+        return dict(self.items())
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, dict) and dict(self.items()) == dict(other.items())
+
+    __hash__ = None
+
+    def __repr__(self) -> str:
+        return f"SlotInfo({dict(self.items())!r})"
+
+
+def slot_infos(arrays: dict[str, Any]) -> list[SlotInfo]:
+    """One :class:`SlotInfo` per slot of the per-slot ``arrays``."""
+    return [SlotInfo(arrays, slot) for slot in range(len(arrays["reward"]))]
+
+
+class Ending(NamedTuple):
+    """How a copy's episode ended: its last observations (n_avs, ...), whether by a time limit or
+    the road's end (SB3's ``TimeLimit.truncated``; a crash is a termination), and the slot-info
+    arrays of the new episode's first observations."""
+
+    terminal_observation: np.ndarray
+    time_limit: bool
+    reset_arrays: dict[str, Any]
 
 
 class CopyRunner:
@@ -94,8 +187,8 @@ class CopyRunner:
     def spaces(self) -> tuple[spaces.Space, spaces.Space]:
         return self.env.observation_space, self.env.action_space
 
-    def reset(self, seed: int | None, options: dict[str, Any]) -> tuple[np.ndarray, list[dict[str, Any]]]:
-        """Observations (n_avs, ...) and per-AV reset infos."""
+    def reset(self, seed: int | None, options: dict[str, Any]) -> tuple[np.ndarray, dict[str, Any]]:
+        """Observations (n_avs, ...) and the per-AV arrays of the slot infos (:func:`copy_arrays`)."""
         options = self._episode_options(seed, options)
         obs, info = self.env.reset(seed=seed, **({"options": options} if options else {}))
         missing = [key for key in ("rewards", "neighbours") if key not in info]
@@ -104,20 +197,28 @@ class CopyRunner:
                 f"Copy {self.copy} is not a multi-agent scenario env: its info lacks {missing} "
                 "(per-AV rewards and the local reward's neighbour sets)."
             )
-        return obs, split_info(info, self.copy)
+        return obs, copy_arrays(info)
 
-    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool, list[dict], list[dict] | None]:
-        """Step with one action per AV: observations, rewards in the reward mode, done, per-AV
-        infos, and per-AV reset infos of the new episode when done (else None)."""
+    def restart(self) -> tuple[np.ndarray, dict[str, Any]]:
+        """:meth:`reset` after an episode ended (no seed: the copy's generator goes on)."""
+        obs, info = self.env.reset(options=self._episode_options(None) or None)
+        return obs, copy_arrays(info)
+
+    def begin_episode(self) -> None:
+        """:meth:`restart` without the first observation (the scenario's ``begin``: a batch observes)."""
+        self.env.unwrapped.begin(options=self._episode_options(None) or None)  # type: ignore[attr-defined]
+
+    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool, dict[str, Any], Ending | None]:
+        """Step with one action per AV: observations (the new episode's when done), rewards in
+        the reward mode, done, the per-AV arrays of the slot infos (:func:`copy_arrays`) and, when
+        done, how the episode ended."""
         obs, _, terminated, truncated, info = self.env.step(actions)
-        done = bool(terminated or truncated)
-        reset_infos = None
-        if done:
-            info["terminal_observation"] = obs
-            info["TimeLimit.truncated"] = bool(truncated and not terminated)
-            obs, reset_info = self.env.reset(options=self._episode_options(None) or None)
-            reset_infos = split_info(reset_info, self.copy)
-        return obs, apply_reward_mode(info, self.reward_mode), done, split_info(info, self.copy), reset_infos
+        ending = None
+        if terminated or truncated:
+            terminal = obs
+            obs, reset_arrays = self.restart()
+            ending = Ending(terminal, bool(truncated and not terminated), reset_arrays)
+        return obs, apply_reward_mode(info, self.reward_mode), ending is not None, copy_arrays(info), ending
 
     def get_attr(self, name: str) -> Any:
         return self.env.get_wrapper_attr(name)

@@ -28,8 +28,9 @@ from sb3_marl.envs import (  # importing sb3_marl.envs registers the scenario id
     av_counts,
     copy_av_counts,
 )
+from sb3_marl.envs.batch import RoadBatch, batchable
 from sb3_marl.envs.reward import REWARD_MODES
-from wrappers.copies import CopyRunner, LocalCopies, WorkerCopies
+from wrappers.copies import CopyRunner, Ending, LocalCopies, WorkerCopies, join_arrays, slot_infos
 
 VEC_BACKENDS = ("dummy", "subproc")
 #: Copy methods whose result has one row per AV; ``env_method`` hands each slot its own row.
@@ -99,6 +100,9 @@ class ParameterSharingVecEnv(VecEnv):
         call fails with a ``TimeoutError`` naming its copies (a stopped worker never blocks)
     :param supervisor_dropout: probability in [0, 1] that a training episode of a copy runs without
         the scenario's safety supervisor (see :class:`CopyRunner`; 0: always as configured)
+    :param batched: step the copies of a lane-change scenario id in one compiled call
+        (:class:`~sb3_marl.envs.batch.RoadBatch`; ``dummy`` backend, no rendering; the same
+        episodes as stepping them one by one, which ``False`` does, and the other cases)
     """
 
     def __init__(
@@ -114,6 +118,7 @@ class ParameterSharingVecEnv(VecEnv):
         start_method: str | None = None,
         worker_timeout: float = 120.0,
         supervisor_dropout: float = 0.0,
+        batched: bool = True,
     ) -> None:
         check_sharing_options(reward_mode, n_copies)
         check_supervisor_dropout(supervisor_dropout)
@@ -160,6 +165,11 @@ class ParameterSharingVecEnv(VecEnv):
             self.close()
             raise
         self.n_avs: list[int] = n_avs
+        local = self.groups[0]
+        envs = [runner.env.unwrapped for runner in local.runners] if isinstance(local, LocalCopies) else []
+        use_batch = batched and isinstance(env, str) and render_mode is None and envs and all(map(batchable, envs))
+        self.batch = RoadBatch(envs, reward_mode) if use_batch else None  # type: ignore[arg-type]
+        self._copies_touched = False
         starts = np.concatenate([[0], np.cumsum(n_avs)])
         self.slices: list[slice] = [slice(int(a), int(b)) for a, b in itertools.pairwise(starts)]
         self.slot_copy = np.repeat(np.arange(n_copies), n_avs)
@@ -214,6 +224,7 @@ class ParameterSharingVecEnv(VecEnv):
     def _submit(self, calls: dict[int, tuple[str, tuple]]) -> list[tuple[int, list[int]]]:
         """Send ``{copy: (method, args)}`` to the groups; returns what :meth:`_collect` needs."""
         self._check_open()
+        self._hand_over_copies()
         pending = []
         for group, copies in enumerate(self.group_copies):
             mine = [k for k in copies if k in calls]
@@ -221,6 +232,14 @@ class ParameterSharingVecEnv(VecEnv):
                 self._guard(group, self.groups[group].submit, [(self.placement[k][1], *calls[k]) for k in mine])
                 pending.append((group, mine))
         return pending
+
+    def _hand_over_copies(self) -> None:
+        """Before anything reads or changes the copies' envs: give them the batch's state, and take
+        theirs back before the next batched step."""
+        batch = getattr(self, "batch", None)
+        if batch is not None:
+            batch.sync()
+            self._copies_touched = True
 
     def _check_open(self) -> None:
         if getattr(self, "closed", False):
@@ -255,10 +274,16 @@ class ParameterSharingVecEnv(VecEnv):
     def reset(self) -> np.ndarray:
         """Reset every copy (with the seeds/options set by ``seed``/``set_options``, if any)."""
         calls = {k: ("reset", (self._seeds[sl.start], self._options[sl.start])) for k, sl in enumerate(self.slices)}
-        for k, (obs, slot_infos) in self._run(calls).items():
+        results = self._run(calls)
+        for k, (obs, _) in results.items():
             self._obs[self.slices[k]] = obs
-            self.reset_infos[self.slices[k]] = slot_infos
-        self._update_current(self.reset_infos)
+        if self.batch is not None:
+            for k in range(self.n_copies):
+                self.batch.load(k)  # the copies were reset by their envs (reset options may reconfigure)
+            self._copies_touched = False
+        arrays = self._slot_arrays([results[k][1] for k in range(self.n_copies)])
+        self.reset_infos = list(slot_infos(arrays))
+        self._current = {method: arrays[key].copy() for method, key in CACHED_METHODS.items() if key in arrays}
         self._episode_returns[:] = 0.0
         self._episode_lengths[:] = 0
         self._reset_seeds()
@@ -279,42 +304,89 @@ class ParameterSharingVecEnv(VecEnv):
             raise ValueError(
                 f"Invalid actions at slots {bad.tolist()}: {actions[bad].tolist()}, expected integers in [0, {n_actions - 1}]."
             )
-        self._pending = self._submit({k: ("step", (actions[sl],)) for k, sl in enumerate(self.slices)})
+        if self.batch is not None:
+            self._check_open()
+            self._actions = actions.astype(np.int64)
+        else:
+            self._pending = self._submit({k: ("step", (actions[sl],)) for k, sl in enumerate(self.slices)})
 
     def step_wait(self) -> VecEnvStepReturn:
-        rewards = np.zeros(self.num_envs, dtype=np.float32)
-        dones = np.zeros(self.num_envs, dtype=bool)
-        infos: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
-        current_infos = list(infos)  # infos of the observations returned: the new episode's after a reset
-        for k, (obs, slot_rewards, done, slot_infos, reset_infos) in self._collect(self._pending).items():
-            sl = self.slices[k]
-            self._obs[sl] = obs
-            rewards[sl] = slot_rewards
-            dones[sl] = done
-            infos[sl] = current_infos[sl] = slot_infos
-            self._episode_returns[sl] += slot_rewards
-            self._episode_lengths[sl] += 1
-            if done:
-                elapsed = round(time.time() - self._t_start, 6)
-                for slot, slot_info in zip(range(sl.start, sl.stop), slot_infos):
-                    slot_info["episode"] = {
-                        "r": float(self._episode_returns[slot]),
-                        "l": int(self._episode_lengths[slot]),
-                        "t": elapsed,
-                    }
-                self._episode_returns[sl] = 0.0
-                self._episode_lengths[sl] = 0
-                self.reset_infos[sl] = current_infos[sl] = reset_infos
-        self._update_current(current_infos)
-        return self._obs.copy(), rewards, dones, infos
+        if self.batch is not None:
+            return self._step_batch()
+        results = self._collect(self._pending)
+        rewards = np.zeros(self.num_envs)
+        endings: dict[int, Ending] = {}
+        for k, (obs, slot_rewards, _, _, ending) in results.items():
+            self._obs[self.slices[k]] = obs
+            rewards[self.slices[k]] = slot_rewards
+            if ending is not None:
+                endings[k] = ending
+        return self._finish(rewards, self._slot_arrays([results[k][3] for k in range(self.n_copies)]), endings)
 
-    def _update_current(self, slot_infos: list[dict[str, Any]]) -> None:
-        """Keep the action masks and rule actions of the current observations, from their slot infos."""
-        self._current = {
-            method: np.array([info[key] for info in slot_infos])
-            for method, key in CACHED_METHODS.items()
-            if all(key in info for info in slot_infos)
-        }
+    def _step_batch(self) -> VecEnvStepReturn:
+        """One compiled step of every copy (:class:`~sb3_marl.envs.batch.RoadBatch`); the copies
+        whose episode ended begin a new one (their envs draw it) and are observed in one call."""
+        assert self.batch is not None
+        if self._copies_touched:
+            for k in range(self.n_copies):
+                self.batch.load(k)
+            self._copies_touched = False
+        step, arrays, rewards = self.batch.step(self._actions)
+        arrays.update(copy=self.slot_copy, agent=self.slot_agent)
+        self._obs[:] = step.obs
+        ended = np.flatnonzero(step.terminated | step.truncated)
+        endings: dict[int, Ending] = {}
+        if ended.size:
+            for k in ended.tolist():
+                self._local_runner(k).begin_episode()
+                self.batch.load(k, check=False)
+            start, start_arrays = self.batch.start(ended)
+            for k in ended.tolist():
+                sl = self.slices[k]
+                self._obs[sl] = start.obs[sl]
+                reset_arrays = {key: value[sl] for key, value in start_arrays.items() if key != "reward_terms"}
+                reset_arrays["reward_terms"] = {name: values[sl] for name, values in start_arrays["reward_terms"].items()}
+                endings[k] = Ending(step.obs[sl], bool(step.truncated[k]), reset_arrays)
+        return self._finish(rewards, arrays, endings)
+
+    def _local_runner(self, k: int) -> CopyRunner:
+        local = self.groups[0]
+        assert isinstance(local, LocalCopies)
+        return local.runners[k]
+
+    def _slot_arrays(self, parts: list[dict[str, Any]]) -> dict[str, Any]:
+        """The copies' slot-info arrays joined over the slots, with each slot's copy and AV index."""
+        return {**join_arrays(parts), "copy": self.slot_copy, "agent": self.slot_agent}
+
+    def _finish(self, rewards: np.ndarray, arrays: dict[str, Any], endings: dict[int, Ending]) -> VecEnvStepReturn:
+        """The step's return from every slot's reward, the slot-info arrays and the copies whose
+        episode ended (their observations in ``self._obs`` already the new episode's)."""
+        self._episode_returns += rewards
+        self._episode_lengths += 1
+        infos = slot_infos(arrays)
+        dones = np.zeros(self.num_envs, dtype=bool)
+        self._current = {method: arrays[key].copy() for method, key in CACHED_METHODS.items() if key in arrays}
+        elapsed = round(time.time() - self._t_start, 6)
+        for k, ending in endings.items():
+            sl = self.slices[k]
+            dones[sl] = True
+            new_infos = slot_infos({**ending.reset_arrays, "copy": self.slot_copy[sl], "agent": self.slot_agent[sl]})
+            self.reset_infos[sl] = new_infos
+            for agent, slot in enumerate(range(sl.start, sl.stop)):
+                info = infos[slot]
+                info["terminal_observation"] = ending.terminal_observation[agent]
+                info["TimeLimit.truncated"] = ending.time_limit
+                info["episode"] = {
+                    "r": float(self._episode_returns[slot]),
+                    "l": int(self._episode_lengths[slot]),
+                    "t": elapsed,
+                }
+            for method, key in CACHED_METHODS.items():
+                if method in self._current and key in ending.reset_arrays:
+                    self._current[method][sl] = ending.reset_arrays[key]
+            self._episode_returns[sl] = 0.0
+            self._episode_lengths[sl] = 0
+        return self._obs.copy(), rewards.astype(np.float32), dones, list(infos)
 
     # ---- VecEnv plumbing --------------------------------------------------------------------
 
@@ -379,6 +451,7 @@ class ParameterSharingVecEnv(VecEnv):
             raise RuntimeError("copy_env() needs vec_backend='dummy': subproc copies live in worker processes.")
         local = self.groups[0]
         assert isinstance(local, LocalCopies)
+        self._hand_over_copies()
         return local.runners[copy].env.unwrapped
 
     def close(self) -> None:

@@ -148,6 +148,15 @@ class LaneChangeEnv(AbstractEnv):
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
         """Spawn a new episode; ``options={"config": {...}}`` reconfigures first, as in highway-env."""
+        self.begin(seed=seed, options=options)
+        obs, info = self._observe_start()
+        if self.render_mode == "human":
+            self.render()
+        return obs, info
+
+    def begin(self, *, seed: int | None = None, options: dict | None = None) -> None:
+        """:meth:`reset` without the first observation: the new episode's :attr:`state` (for
+        :class:`~sb3_marl.envs.batch.RoadBatch`, which observes many copies at once)."""
         gym.Env.reset(self, seed=seed)
         if options and "config" in options:
             self.configure(options["config"])
@@ -162,10 +171,6 @@ class LaneChangeEnv(AbstractEnv):
         self.n_hdvs = int(self.np_random.integers(lo, hi + 1))
         self.state = self._spawn()
         self._road = None
-        obs, info = self._observe_start()
-        if self.render_mode == "human":
-            self.render()
-        return obs, info
 
     def place(
         self, avs: Sequence[tuple[float, int, float]], hdvs: Sequence[tuple[float, int, float]] = ()

@@ -173,9 +173,29 @@ def apply_reward_mode(info: dict[str, Any], reward_mode: str) -> np.ndarray:
     (the paper's) is the mean of the per-AV rewards over the AV's neighbour set
     (:func:`neighbour_matrix`), ``global`` the mean over all AVs, ``individual`` the AV's own."""
     own = np.asarray(info["rewards"], dtype=np.float64)
-    if reward_mode == "individual":
-        return own
-    if reward_mode == "global":
-        return np.full_like(own, own.mean())
-    neighbours = np.asarray(info["neighbours"], dtype=np.float64)
-    return neighbours @ own / neighbours.sum(axis=1)
+    neighbours = np.asarray(info["neighbours"], dtype=np.bool_)
+    return mode_rewards(own, neighbours, REWARD_MODES.index(reward_mode))
+
+
+@numba.njit(cache=True)
+def mode_rewards(own: np.ndarray, neighbours: np.ndarray, mode: int) -> np.ndarray:
+    """:func:`apply_reward_mode` on arrays: ``own`` (n,) rewards, ``neighbours`` (n, n) bool sets,
+    ``mode`` an index of :data:`REWARD_MODES`."""
+    n = own.size
+    if mode == 2:
+        return own.copy()
+    rewards = np.empty(n)
+    if mode == 1:
+        total = 0.0
+        for j in range(n):
+            total += own[j]
+        rewards[:] = total / n
+        return rewards
+    for i in range(n):
+        total, count = 0.0, 0
+        for j in range(n):
+            if neighbours[i, j]:
+                total += own[j]
+                count += 1
+        rewards[i] = total / count
+    return rewards

@@ -69,7 +69,7 @@ def test_episode_records_from_slot_infos_equal_those_from_the_copy():
 
     from sb3_marl.envs import LaneChangeEnv
     from sb3_marl.evaluation import EpisodeRecord
-    from wrappers.copies import split_info
+    from wrappers.copies import copy_arrays, slot_infos
 
     env = LaneChangeEnv(config={"density": 3, "safety_supervisor": True})
     env.reset(seed=3)
@@ -79,7 +79,8 @@ def test_episode_records_from_slot_infos_equal_those_from_the_copy():
         actions = np.array([rng.choice(np.flatnonzero(row)) for row in env.action_masks()])
         _, reward, terminated, truncated, info = env.step(actions)
         from_copy.add_step(reward, info)
-        for slot_info in split_info(info, copy=0):
+        arrays = copy_arrays(info)
+        for slot_info in slot_infos({**arrays, "copy": np.zeros(env.n_avs, dtype=int), "agent": np.arange(env.n_avs)}):
             from_slots.add_slot_step(slot_info)
         done = terminated or truncated
     assert from_copy.length > 1 and from_copy.lane_changes > 0 and from_copy.interventions > 0
