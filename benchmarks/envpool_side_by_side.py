@@ -4,7 +4,8 @@ EnvPool's ``Highway-v0`` (sail-sg/envpool: single-agent, no safety supervisor) i
 lane-change road is driven: 2 lanes, 12 vehicles (the ego and 11 others), 15 Hz simulation, 5 Hz
 policy, a batch of ``--copies`` envs stepped on one thread. Ours: the parameter-sharing VecEnv of
 ``--copies`` scenario copies at ``--density`` (every AV a slot), in-process, with the safety
-supervisor off and on. Both take seeded uniformly random actions (ours: among each AV's available
+supervisor off and on, the copies stepped in one compiled call (the default, ``RoadBatch``) and one by
+one (``batched=False``, ``_one_by_one``). Both take seeded uniformly random actions (ours: among each AV's available
 meta-actions, drawn in one vectorised call) and auto-reset. The three are measured in turn for
 ``--rounds`` rounds and the median of each is printed (single timings on a shared 2-core VM drift
 by a third), as ``name: value unit`` lines: env-steps/s (one road advanced by one policy step) and
@@ -76,12 +77,14 @@ def main() -> None:
     rng = np.random.default_rng(0)
     runs: dict[str, tuple[Callable[[], float], float]] = {}
     for supervisor in (False, True):
-        venv = ParameterSharingVecEnv(
-            ENV_IDS[args.density], n_copies=args.copies, seed=0, config={"safety_supervisor": supervisor}
-        )
-        venv.reset()
-        name = f"ours_density{args.density}_{args.copies}copies_supervisor_{'on' if supervisor else 'off'}"
-        runs[name] = (lambda venv=venv: ours_round(venv, args.steps, rng), venv.num_envs / args.copies)
+        for batched in (True, False):
+            venv = ParameterSharingVecEnv(
+                ENV_IDS[args.density], n_copies=args.copies, seed=0, config={"safety_supervisor": supervisor}, batched=batched
+            )
+            venv.reset()
+            name = f"ours_density{args.density}_{args.copies}copies_supervisor_{'on' if supervisor else 'off'}"
+            name += "" if batched else "_one_by_one"
+            runs[name] = (lambda venv=venv: ours_round(venv, args.steps, rng), venv.num_envs / args.copies)
     envpool = load_envpool()
     if envpool is None:
         print("envpool: not installed (pip install envpool==1.2.5); EnvPool's numbers are left out")
@@ -113,6 +116,10 @@ def main() -> None:
     for name, (_, avs_per_road) in runs.items():
         print(f"{name}: {medians[name]:.0f} env-steps/s")
         print(f"{name}_av_steps: {medians[name] * avs_per_road:.0f} AV-steps/s")
+    for name in medians:
+        if name.endswith("_one_by_one"):
+            batched = name.removesuffix("_one_by_one")
+            print(f"{batched}_batched_vs_one_by_one: {medians[batched] / medians[name]:.2f} x")
     peer = next((medians[name] for name in medians if name.startswith("envpool")), None)
     if peer is not None:
         for name in medians:

@@ -20,6 +20,7 @@ from sb3_marl.sim.kernel import (
     OBSTACLE_DIAGONAL,
     OBSTACLE_LENGTH,
     OBSTACLE_WIDTH,
+    PRESENT,
     SPEED,
     WIDTH,
     X,
@@ -116,3 +117,19 @@ def handle_collision(state: np.ndarray, i: int, j: int, dt: float) -> None:
             state[j, IMPACT_X], state[j, IMPACT_Y], state[j, HAS_IMPACT] = -tx / 2, -ty / 2, 1.0
     if intersecting:
         state[i, CRASHED] = state[j, CRASHED] = 1.0
+
+
+@numba.njit(cache=True)
+def handle_collisions(state: np.ndarray, dt: float) -> None:
+    """:func:`handle_collision` of every pair of present rows (i < j, highway-env's order), without
+    the call where the two centres are so far apart along x that its pre-check would return at
+    once (1 m of margin over it for rounding): the same outcome, without an all-pairs cost of calls."""
+    n = state.shape[0]
+    reach = max(DIAGONAL, OBSTACLE_DIAGONAL) + 1.0  # [m]
+    for i in range(n):
+        if not state[i, PRESENT]:
+            continue
+        bound, x = reach + abs(state[i, SPEED]) * dt, state[i, X]
+        for j in range(i + 1, n):
+            if state[j, PRESENT] and not abs(state[j, X] - x) > bound:
+                handle_collision(state, i, j, dt)

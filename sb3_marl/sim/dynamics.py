@@ -9,7 +9,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from sb3_marl.sim.collisions import handle_collision
+from sb3_marl.sim.collisions import handle_collisions
 from sb3_marl.sim.drivers import act
 from sb3_marl.sim.kernel import (
     ACCELERATION,
@@ -112,11 +112,7 @@ def policy_step(
             state[i, TARGET_SPEED] = 0.0
     for _ in range(frames):
         drive(state, dt, lanes, speed_limit)
-        for i in range(n):
-            if state[i, PRESENT]:
-                for j in range(i + 1, n):
-                    if state[j, PRESENT]:
-                        handle_collision(state, i, j, dt)
+        handle_collisions(state, dt)
         for k in range(n):
             if state[k, PRESENT] and state[k, X] > road_end:
                 if state[k, IS_HDV]:

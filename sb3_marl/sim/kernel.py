@@ -127,8 +127,12 @@ def not_zero(value: float) -> float:
 
 @numba.njit(cache=True)
 def wrap_to_pi(angle: float) -> float:
-    """highway-env's ``utils.wrap_to_pi`` [rad] (Python's float modulo)."""
-    return ((angle + np.pi) % (2 * np.pi)) - np.pi
+    """highway-env's ``utils.wrap_to_pi`` [rad] (Python's float modulo; skipped where it returns
+    its argument exactly, within [0, 2π), which is where almost every angle falls)."""
+    shifted = angle + np.pi
+    if not 0 <= shifted < 2 * np.pi:
+        shifted %= 2 * np.pi
+    return shifted - np.pi
 
 
 @numba.njit(cache=True)

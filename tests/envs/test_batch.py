@@ -1,0 +1,121 @@
+"""The batched step (:class:`~sb3_marl.envs.batch.RoadBatch`) gives the episodes of stepping the
+scenario copies one by one: the same observations, rewards, masks, executed actions, events and
+slot infos, step by step, with the same seeds."""
+
+from __future__ import annotations
+
+import copy
+import pickle
+
+import numpy as np
+import pytest
+
+from sb3_marl.envs import ENV_IDS, MERGE_ENV_IDS
+from wrappers import ParameterSharingVecEnv
+from wrappers.copies import SlotInfo
+
+#: Slot-info entries compared (beside observations, rewards, dones and masks).
+ENTRIES = (
+    "speed",
+    "headway",
+    "acceleration",
+    "lane_change",
+    "crashed",
+    "exited",
+    "proposed_action",
+    "executed_action",
+    "intervened",
+    "rule_action",
+    "reward",
+    "global_reward",
+    "copy",
+    "agent",
+)
+
+
+def _trace(env_id: str, batched: bool, steps: int, config: dict, reward_mode: str = "local", **kwargs) -> list:
+    """Everything the VecEnv returns over ``steps`` steps of random masked actions."""
+    options = {"n_copies": 4, "reward_mode": reward_mode, "seed": 7, "config": config, "batched": batched}
+    venv = ParameterSharingVecEnv(env_id, **options, **kwargs)
+    assert (venv.batch is not None) == batched
+    rng = np.random.default_rng(1)
+    trace: list = [venv.reset(), [dict(info) for info in venv.reset_infos]]
+    for _ in range(steps):
+        masks = venv.action_masks()
+        actions = np.array([rng.choice(np.flatnonzero(row)) for row in masks])
+        obs, rewards, dones, infos = venv.step(actions)
+        trace += [obs, rewards, dones, masks, venv.rule_actions()]
+        for info in infos:
+            trace.append([info[key] for key in ENTRIES] + [info["reward_terms"]])
+            if "terminal_observation" in info:
+                episode = info["episode"]
+                trace += [info["terminal_observation"], info["TimeLimit.truncated"], episode["r"], episode["l"]]
+    venv.close()
+    return trace
+
+
+def _assert_same(batched: list, one_by_one: list) -> None:
+    assert len(batched) == len(one_by_one)
+    for step, (a, b) in enumerate(zip(batched, one_by_one)):
+        if isinstance(a, np.ndarray):
+            assert a.dtype == b.dtype and np.array_equal(a, b), step
+        else:
+            assert repr(a) == repr(b), step  # types and values, bit for bit
+
+
+@pytest.mark.parametrize("density", sorted(ENV_IDS))
+@pytest.mark.parametrize("supervisor", [False, True])
+def test_batched_episodes_equal_one_by_one(density, supervisor):
+    config = {"safety_supervisor": supervisor}
+    batched, one_by_one = (_trace(ENV_IDS[density], flag, 120, config) for flag in (True, False))
+    ends = sum(1 for item in batched if isinstance(item, np.ndarray) and item.dtype == bool and item.ndim == 1 and item.any())
+    assert ends > 0  # episodes ended (crashes or the road's end) and copies were reset in between
+    _assert_same(batched, one_by_one)
+
+
+@pytest.mark.parametrize(
+    ("config", "options"),
+    [
+        ({"supervisor_shadow": True, "obs_target_speed": True}, {"reward_mode": "global"}),
+        ({"safety_supervisor": True}, {"supervisor_dropout": 0.5, "reward_mode": "individual"}),
+    ],
+)
+def test_batched_options_equal_one_by_one(config, options):
+    """Shadow mode, the target-speed column, the per-episode supervisor dropout, the reward modes."""
+    batched, one_by_one = (_trace(ENV_IDS[2], flag, 80, config, **options) for flag in (True, False))
+    _assert_same(batched, one_by_one)
+
+
+def test_the_copies_envs_follow_the_batch():
+    """A copy's env, read between batched steps, holds the batch's state; changed, the batch takes it."""
+    venv = ParameterSharingVecEnv(ENV_IDS[1], n_copies=2, seed=0)
+    venv.reset()
+    for _ in range(3):
+        venv.step(np.ones(venv.num_envs, dtype=np.int64))
+    env = venv.copy_env(0)
+    assert env.steps_done == venv.batch.steps[0] and np.array_equal(env.state, venv.batch.states[: len(env.state)])
+    env.place(avs=[(100.0 + 40 * i, 0, 25.0) for i in range(env.n_avs)])
+    venv.step(np.ones(venv.num_envs, dtype=np.int64))
+    x = venv.copy_env(0).state[: env.n_avs, 0]
+    assert np.allclose(x, 100.0 + 40 * np.arange(env.n_avs) + 25.0 / 5, atol=0.5)  # one policy step from the placed AVs
+    venv.close()
+
+
+def test_the_merge_and_subprocesses_step_one_by_one():
+    assert ParameterSharingVecEnv(MERGE_ENV_IDS[1], n_copies=1).batch is None
+    assert ParameterSharingVecEnv(ENV_IDS[1], n_copies=1, batched=False).batch is None
+
+
+def test_slot_infos_behave_as_dicts():
+    arrays = {"reward": np.array([1.0, 2.0]), "speed": np.array([3.0, 4.0]), "reward_terms": {"speed": np.array([0.5, 0.25])}}
+    info = SlotInfo(arrays, 1)
+    info["episode"] = {"r": 1.0}
+    assert isinstance(info, dict) and len(info) == 4 and "speed" in info and info.get("missing", 7) == 7
+    assert info.copy() == {"reward": 2.0, "speed": 4.0, "reward_terms": {"speed": 0.25}, "episode": {"r": 1.0}}
+    assert dict(info) == {**info} == info.copy() and info == info.copy()
+    del info["speed"]
+    assert "speed" not in info and list(info) == ["reward", "reward_terms", "episode"]
+    with pytest.raises(KeyError):
+        info["speed"]
+    for clone in (copy.deepcopy(info), pickle.loads(pickle.dumps(info))):
+        assert clone == info
