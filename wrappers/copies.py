@@ -5,10 +5,11 @@ worker process (the ``subproc`` backend of :class:`~wrappers.ParameterSharingVec
 from __future__ import annotations
 
 import contextlib
+import multiprocessing as mp
 import signal
 import traceback
-from collections.abc import Callable, Iterator, Sequence
-from typing import Any, NamedTuple
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -17,137 +18,8 @@ from stable_baselines3.common.env_util import is_wrapped
 from stable_baselines3.common.vec_env.base_vec_env import CloudpickleWrapper
 
 from sb3_marl.envs.config import with_supervisor
-from sb3_marl.envs.reward import REWARD_MODES, apply_reward_mode, mode_rewards
-
-#: Per-AV arrays of the scenario's info that each slot's info carries as scalars.
-PER_AGENT_INFO = (
-    "speed",
-    "headway",
-    "acceleration",
-    "lane_change",
-    "crashed",
-    "exited",
-    "action_mask",
-    "proposed_action",
-    "executed_action",
-    "intervened",
-    "rule_action",
-)
-
-
-#: Slot-info entries read as Python numbers (the others are the arrays' numpy values).
-FLOAT_ENTRIES, INT_ENTRIES = ("reward", "global_reward"), ("copy", "agent")
-
-
-def copy_arrays(info: dict[str, Any]) -> dict[str, Any]:
-    """What the slot infos of a copy's AVs carry, as per-AV arrays (n_avs, ...): the entries of
-    :data:`PER_AGENT_INFO`, ``reward`` (the AV's own), ``global_reward`` (the copy's mean) and
-    ``reward_terms`` (a dict of arrays)."""
-    own = np.asarray(info["rewards"], dtype=np.float64)
-    arrays: dict[str, Any] = {key: np.asarray(info[key]) for key in PER_AGENT_INFO if key in info}
-    arrays["reward"] = own
-    arrays["global_reward"] = mode_rewards(own, np.ones((own.size, own.size), dtype=np.bool_), REWARD_MODES.index("global"))
-    arrays["reward_terms"] = {name: np.asarray(values) for name, values in info.get("reward_terms", {}).items()}
-    return arrays
-
-
-def join_arrays(parts: Sequence[dict[str, Any]]) -> dict[str, Any]:
-    """The per-slot arrays of several copies' :func:`copy_arrays`, copy after copy (the entries all share)."""
-    keys = [key for key in parts[0] if key != "reward_terms" and all(key in part for part in parts)]
-    joined: dict[str, Any] = {key: np.concatenate([part[key] for part in parts]) for key in keys}
-    terms = [part["reward_terms"] for part in parts]
-    shared = [name for name in terms[0] if all(name in t for t in terms)]
-    joined["reward_terms"] = {name: np.concatenate([t[name] for t in terms]) for name in shared}
-    return joined
-
-
-class SlotInfo(dict):
-    """One slot's info (see :class:`~wrappers.ParameterSharingVecEnv`), a dict: its row of the
-    step's per-slot arrays, read when asked, and entries of its own (``terminal_observation``,
-    ``episode``, what wrappers add), stored as a dict's. Building one costs no more than an empty
-    dict; a consumer that wants every slot's value reads :attr:`arrays` whole."""
-
-    __slots__ = ("arrays", "deleted", "slot")
-
-    def __init__(self, arrays: dict[str, Any], slot: int) -> None:
-        super().__init__()
-        self.arrays, self.slot = arrays, slot
-        self.deleted: tuple[str, ...] = ()
-
-    def _row(self, key: str) -> Any:
-        if key == "reward_terms":
-            return {name: float(values[self.slot]) for name, values in self.arrays[key].items()}
-        value = self.arrays[key][self.slot]
-        return float(value) if key in FLOAT_ENTRIES else int(value) if key in INT_ENTRIES else value
-
-    def _shared(self, key: object) -> bool:
-        return key in self.arrays and not dict.__contains__(self, key) and key not in self.deleted
-
-    def __getitem__(self, key: str) -> Any:
-        if dict.__contains__(self, key):
-            return dict.__getitem__(self, key)
-        if key in self.deleted:
-            raise KeyError(key)
-        return self._row(key)
-
-    def get(self, key: str, default: Any = None) -> Any:
-        if key not in self:
-            return default
-        return self[key]
-
-    def __contains__(self, key: object) -> bool:
-        return dict.__contains__(self, key) or self._shared(key)
-
-    def __delitem__(self, key: str) -> None:
-        if dict.__contains__(self, key):
-            dict.__delitem__(self, key)
-        elif self._shared(key):
-            self.deleted = (*self.deleted, key)
-        else:
-            raise KeyError(key)
-
-    def __iter__(self) -> Iterator[str]:
-        yield from (key for key in self.arrays if self._shared(key))
-        yield from dict.__iter__(self)
-
-    def __len__(self) -> int:
-        return sum(1 for _ in self)
-
-    def keys(self) -> list[str]:  # type: ignore[override]
-        return list(self)
-
-    def items(self) -> list[tuple[str, Any]]:  # type: ignore[override]
-        return [(key, self[key]) for key in self]
-
-    def values(self) -> list[Any]:  # type: ignore[override]
-        return [self[key] for key in self]
-
-    def copy(self) -> dict[str, Any]:
-        """A plain dict of every entry (SB3's ``VecMonitor`` copies infos)."""
-        return dict(self.items())
-
-    def __eq__(self, other: object) -> bool:
-        return isinstance(other, dict) and dict(self.items()) == dict(other.items())
-
-    __hash__ = None
-
-    def __repr__(self) -> str:
-        return f"SlotInfo({dict(self.items())!r})"
-
-
-def slot_infos(arrays: dict[str, Any]) -> list[SlotInfo]:
-    """One :class:`SlotInfo` per slot of the per-slot ``arrays``."""
-    return [SlotInfo(arrays, slot) for slot in range(len(arrays["reward"]))]
-
-
-class Ending(NamedTuple):
-    """How a copy's episode ended: its last observations (n_avs, ...), whether by a time limit or
-    the road's end (SB3's ``TimeLimit.truncated``; a crash is a termination), and the slot-info
-    arrays of the new episode's first observations."""
-
-    terminal_observation: np.ndarray
-    time_limit: bool
-    reset_arrays: dict[str, Any]
+from sb3_marl.envs.reward import apply_reward_mode
+from wrappers.slot_infos import Ending, copy_arrays
 
 
 class CopyRunner:
@@ -329,3 +201,106 @@ class WorkerCopies:
         if self.process.is_alive():
             self.process.terminate()
         self.remote.close()
+
+
+class CopyGroups:
+    """The copies and where they run: in this process (``n_workers`` None) or spread round-robin
+    over ``n_workers`` worker processes; calls go to every group at once.
+
+    :param runners: a factory of each copy's :class:`CopyRunner`, in copy order
+    :param start_method: multiprocessing start method of the workers (default: ``forkserver``
+        where available, as SB3's ``SubprocVecEnv``)
+    :param timeout: seconds a worker may take to answer one call
+    """
+
+    def __init__(
+        self,
+        runners: Sequence[Callable[[], CopyRunner]],
+        n_workers: int | None = None,
+        start_method: str | None = None,
+        timeout: float = 120.0,
+    ) -> None:
+        n_copies, n_groups = len(runners), n_workers or 1
+        #: copy k runs in group placement[k][0] at index placement[k][1]
+        self.placement = [(k % n_groups, k // n_groups) for k in range(n_copies)]
+        self.group_copies = [list(range(g, n_copies, n_groups)) for g in range(n_groups)]
+        self.groups: list[LocalCopies | WorkerCopies]
+        if n_workers is None:
+            self.groups = [LocalCopies(runners)]
+        else:
+            if start_method is None:
+                start_method = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
+            context = mp.get_context(start_method)
+            self.groups = [WorkerCopies([runners[k] for k in copies], context, timeout) for copies in self.group_copies]
+
+    def local_runners(self) -> list[CopyRunner]:
+        """The copies' runners when they run in this process (else none)."""
+        local = self.groups[0]
+        return local.runners if isinstance(local, LocalCopies) else []
+
+    def submit(self, calls: dict[int, tuple[str, tuple]]) -> list[tuple[int, list[int]]]:
+        """Send ``{copy: (method, args)}`` to the groups; returns what :meth:`collect` needs."""
+        pending = []
+        for group, copies in enumerate(self.group_copies):
+            mine = [k for k in copies if k in calls]
+            if mine:
+                self._guard(group, self.groups[group].submit, [(self.placement[k][1], *calls[k]) for k in mine])
+                pending.append((group, mine))
+        return pending
+
+    def collect(self, pending: list[tuple[int, list[int]]]) -> dict[int, Any]:
+        """``{copy: result}`` of the calls :meth:`submit` sent."""
+        results: dict[int, Any] = {}
+        for group, copies in pending:
+            results.update(zip(copies, self._guard(group, self.groups[group].collect)))
+        return results
+
+    def _guard(self, group: int, method: Callable, *args: Any) -> Any:
+        """A dead worker process becomes an error naming its copies, never a hang."""
+        try:
+            return method(*args)
+        except TimeoutError as error:
+            raise TimeoutError(f"{error} It hosts scenario copies {self.group_copies[group]}.") from None
+        except (EOFError, BrokenPipeError, ConnectionResetError) as error:
+            worker = self.groups[group]
+            code = worker.process.exitcode if isinstance(worker, WorkerCopies) else None
+            raise RuntimeError(
+                f"Worker process {group} of scenario copies {self.group_copies[group]} died (exit code {code}); "
+                "see its traceback above."
+            ) from error
+
+    def close(self) -> None:
+        for group in self.groups:
+            with contextlib.suppress(EOFError, BrokenPipeError, ConnectionResetError):
+                group.close()  # a dead worker has nothing left to close
+
+
+def per_agent_spaces(copy_spaces: dict[int, tuple]) -> tuple[spaces.Box, spaces.Discrete, list[int]]:
+    """Per-slot spaces and AV counts of the copies' ``{copy: (observation space, action space)}``;
+    a clear error for envs that are not multi-agent scenarios."""
+    n_avs: list[int] = []
+    obs_space: spaces.Box | None = None
+    action_space: spaces.Discrete | None = None
+    for k, (copy_obs, copy_actions) in sorted(copy_spaces.items()):
+        if not (
+            isinstance(copy_actions, spaces.MultiDiscrete)
+            and isinstance(copy_obs, spaces.Box)
+            and copy_obs.shape[:1] == copy_actions.shape
+            and len(set(copy_actions.nvec.tolist())) == 1
+        ):
+            raise ValueError(
+                f"Copy {k} is not a multi-agent scenario env: expected a MultiDiscrete action space "
+                f"(one action per AV) and a Box observation space with one row per AV, got "
+                f"{copy_actions} and {copy_obs}."
+            )
+        agent_obs = spaces.Box(copy_obs.low[0], copy_obs.high[0], dtype=copy_obs.dtype)  # type: ignore[arg-type]
+        agent_actions: spaces.Discrete = spaces.Discrete(int(copy_actions.nvec[0]))
+        if obs_space is not None and (agent_obs != obs_space or agent_actions != action_space):
+            raise ValueError(
+                f"Copy {k} has per-AV spaces {agent_obs}, {agent_actions}, unlike copy 0's "
+                f"{obs_space}, {action_space}: all copies must share one per-AV observation and action space."
+            )
+        obs_space, action_space = agent_obs, agent_actions
+        n_avs.append(int(copy_actions.shape[0]))
+    assert obs_space is not None and action_space is not None, "no scenario copy"
+    return obs_space, action_space, n_avs

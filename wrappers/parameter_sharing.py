@@ -5,9 +5,7 @@ One shared policy then drives all AVs (parameter sharing), trained by any SB3 al
 
 from __future__ import annotations
 
-import contextlib
 import itertools
-import multiprocessing as mp
 import os
 import time
 from collections.abc import Callable, Sequence
@@ -16,7 +14,6 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from gymnasium import spaces
 from stable_baselines3.common.vec_env import VecEnv
 from stable_baselines3.common.vec_env.base_vec_env import (
     VecEnvIndices,
@@ -30,7 +27,8 @@ from sb3_marl.envs import (  # importing sb3_marl.envs registers the scenario id
 )
 from sb3_marl.envs.batch import RoadBatch, batchable
 from sb3_marl.envs.reward import REWARD_MODES
-from wrappers.copies import CopyRunner, Ending, LocalCopies, WorkerCopies, join_arrays, slot_infos
+from wrappers.copies import CopyGroups, CopyRunner, per_agent_spaces
+from wrappers.slot_infos import Ending, join_arrays, slot_infos
 
 VEC_BACKENDS = ("dummy", "subproc")
 #: Copy methods whose result has one row per AV; ``env_method`` hands each slot its own row.
@@ -128,7 +126,7 @@ class ParameterSharingVecEnv(VecEnv):
         n_copies = (1 if callable(env) else len(av_counts(env, config))) if n_copies is None else n_copies
         copy_counts = [None] * n_copies if callable(env) else copy_av_counts(env, config, n_copies)
         if vec_backend == "dummy":
-            n_workers = 1
+            n_workers = None  # in this process
         elif n_workers is None:
             n_workers = min(n_copies, os.cpu_count() or 1)
         else:
@@ -148,25 +146,15 @@ class ParameterSharingVecEnv(VecEnv):
                     float(supervisor_dropout),
                 )
             )
-        #: copy k runs in group placement[k][0] at index placement[k][1]
-        self.placement = [(k % n_workers, k // n_workers) for k in range(n_copies)]
-        self.group_copies = [list(range(g, n_copies, n_workers)) for g in range(n_workers)]
-        if vec_backend == "dummy":
-            self.groups: list[LocalCopies | WorkerCopies] = [LocalCopies(runners)]
-        else:
-            if start_method is None:
-                start_method = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
-            context = mp.get_context(start_method)
-            self.groups = [WorkerCopies([runners[k] for k in copies], context, worker_timeout) for copies in self.group_copies]
+        self.copies = CopyGroups(runners, n_workers, start_method, worker_timeout)
         try:
             copy_spaces = self._run(dict.fromkeys(range(n_copies), ("spaces", ())))
-            single_obs_space, single_action_space, n_avs = self._check_spaces(copy_spaces)
+            single_obs_space, single_action_space, n_avs = per_agent_spaces(copy_spaces)
         except Exception:
             self.close()
             raise
         self.n_avs: list[int] = n_avs
-        local = self.groups[0]
-        envs = [runner.env.unwrapped for runner in local.runners] if isinstance(local, LocalCopies) else []
+        envs = [runner.env.unwrapped for runner in self.copies.local_runners()]
         use_batch = batched and isinstance(env, str) and render_mode is None and envs and all(map(batchable, envs))
         self.batch = RoadBatch(envs, reward_mode) if use_batch else None  # type: ignore[arg-type]
         self._copies_touched = False
@@ -188,50 +176,15 @@ class ParameterSharingVecEnv(VecEnv):
 
     @property
     def n_copies(self) -> int:
-        return len(self.placement)
-
-    def _check_spaces(self, copy_spaces: dict[int, tuple]) -> tuple[spaces.Box, spaces.Discrete, list[int]]:
-        """Per-slot spaces and AV counts; a clear error for envs that are not multi-agent scenarios."""
-        n_avs: list[int] = []
-        obs_space: spaces.Box | None = None
-        action_space: spaces.Discrete | None = None
-        for k, (copy_obs, copy_actions) in sorted(copy_spaces.items()):
-            if not (
-                isinstance(copy_actions, spaces.MultiDiscrete)
-                and isinstance(copy_obs, spaces.Box)
-                and copy_obs.shape[:1] == copy_actions.shape
-                and len(set(copy_actions.nvec.tolist())) == 1
-            ):
-                raise ValueError(
-                    f"Copy {k} is not a multi-agent scenario env: expected a MultiDiscrete action space "
-                    f"(one action per AV) and a Box observation space with one row per AV, got "
-                    f"{copy_actions} and {copy_obs}."
-                )
-            agent_obs = spaces.Box(copy_obs.low[0], copy_obs.high[0], dtype=copy_obs.dtype)  # type: ignore[arg-type]
-            agent_actions: spaces.Discrete = spaces.Discrete(int(copy_actions.nvec[0]))
-            if obs_space is not None and (agent_obs != obs_space or agent_actions != action_space):
-                raise ValueError(
-                    f"Copy {k} has per-AV spaces {agent_obs}, {agent_actions}, unlike copy 0's "
-                    f"{obs_space}, {action_space}: all copies must share one per-AV observation and action space."
-                )
-            obs_space, action_space = agent_obs, agent_actions
-            n_avs.append(int(copy_actions.shape[0]))
-        assert obs_space is not None and action_space is not None, "no scenario copy"
-        return obs_space, action_space, n_avs
+        return len(self.copies.placement)
 
     # ---- running calls on copies -----------------------------------------------------------
 
     def _submit(self, calls: dict[int, tuple[str, tuple]]) -> list[tuple[int, list[int]]]:
-        """Send ``{copy: (method, args)}`` to the groups; returns what :meth:`_collect` needs."""
+        """Send ``{copy: (method, args)}`` to the copies; returns what :meth:`_collect` needs."""
         self._check_open()
         self._hand_over_copies()
-        pending = []
-        for group, copies in enumerate(self.group_copies):
-            mine = [k for k in copies if k in calls]
-            if mine:
-                self._guard(group, self.groups[group].submit, [(self.placement[k][1], *calls[k]) for k in mine])
-                pending.append((group, mine))
-        return pending
+        return self.copies.submit(calls)
 
     def _hand_over_copies(self) -> None:
         """Before anything reads or changes the copies' envs: give them the batch's state, and take
@@ -246,28 +199,11 @@ class ParameterSharingVecEnv(VecEnv):
             raise RuntimeError("This ParameterSharingVecEnv is closed: create a new one.")
 
     def _collect(self, pending: list[tuple[int, list[int]]]) -> dict[int, Any]:
-        results: dict[int, Any] = {}
-        for group, copies in pending:
-            results.update(zip(copies, self._guard(group, self.groups[group].collect)))
-        return results
+        return self.copies.collect(pending)
 
     def _run(self, calls: dict[int, tuple[str, tuple]]) -> dict[int, Any]:
         """Run ``{copy: (CopyRunner method, args)}``, all groups in parallel; ``{copy: result}``."""
         return self._collect(self._submit(calls))
-
-    def _guard(self, group: int, method: Callable, *args: Any) -> Any:
-        """A dead worker process becomes an error naming its copies, never a hang."""
-        try:
-            return method(*args)
-        except TimeoutError as error:
-            raise TimeoutError(f"{error} It hosts scenario copies {self.group_copies[group]}.") from None
-        except (EOFError, BrokenPipeError, ConnectionResetError) as error:
-            worker = self.groups[group]
-            code = worker.process.exitcode if isinstance(worker, WorkerCopies) else None
-            raise RuntimeError(
-                f"Worker process {group} of scenario copies {self.group_copies[group]} died (exit code {code}); "
-                "see its traceback above."
-            ) from error
 
     # ---- stepping -------------------------------------------------------------------------
 
@@ -338,7 +274,7 @@ class ParameterSharingVecEnv(VecEnv):
         endings: dict[int, Ending] = {}
         if ended.size:
             for k in ended.tolist():
-                self._local_runner(k).begin_episode()
+                self.copies.local_runners()[k].begin_episode()
                 self.batch.load(k, check=False)
             start, start_arrays = self.batch.start(ended)
             for k in ended.tolist():
@@ -348,11 +284,6 @@ class ParameterSharingVecEnv(VecEnv):
                 reset_arrays["reward_terms"] = {name: values[sl] for name, values in start_arrays["reward_terms"].items()}
                 endings[k] = Ending(step.obs[sl], bool(step.truncated[k]), reset_arrays)
         return self._finish(rewards, arrays, endings)
-
-    def _local_runner(self, k: int) -> CopyRunner:
-        local = self.groups[0]
-        assert isinstance(local, LocalCopies)
-        return local.runners[k]
 
     def _slot_arrays(self, parts: list[dict[str, Any]]) -> dict[str, Any]:
         """The copies' slot-info arrays joined over the slots, with each slot's copy and AV index."""
@@ -449,13 +380,10 @@ class ParameterSharingVecEnv(VecEnv):
         """The unwrapped scenario env of a copy (``dummy`` backend only: workers keep theirs)."""
         if self.vec_backend != "dummy":
             raise RuntimeError("copy_env() needs vec_backend='dummy': subproc copies live in worker processes.")
-        local = self.groups[0]
-        assert isinstance(local, LocalCopies)
         self._hand_over_copies()
-        return local.runners[copy].env.unwrapped
+        return self.copies.local_runners()[copy].env.unwrapped
 
     def close(self) -> None:
         self.closed = True
-        for group in getattr(self, "groups", []):
-            with contextlib.suppress(EOFError, BrokenPipeError, ConnectionResetError):
-                group.close()  # a dead worker has nothing left to close
+        if hasattr(self, "copies"):
+            self.copies.close()

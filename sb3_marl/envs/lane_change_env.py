@@ -29,14 +29,12 @@ __all__ = ["ACTIONS", "ACTION_INDEX", "LaneChangeEnv"]
 class LaneChangeEnv(AbstractEnv):
     """One-way highway where ``n_avs`` AVs share the road with IDM/MOBIL human drivers.
 
-    - ``reset`` spawns ``n_avs`` AVs and a number of HDVs sampled from the density's range in
-      random grid slots (see :func:`~sb3_marl.sim.road.spawn`) and returns
-      observations of shape ``(n_avs, obs_vehicles_count, 5)``.
-    - ``step(actions)`` takes an int array ``(n_avs,)`` of meta-actions
-      (0 LANE_LEFT, 1 IDLE, 2 LANE_RIGHT, 3 FASTER, 4 SLOWER), simulates
-      ``simulation_frequency / policy_frequency`` frames of 1 / simulation_frequency s and returns
-      the observations, the mean AV reward (the global reward, a scalar for gymnasium),
-      ``terminated``, ``truncated`` and an info dict of per-AV arrays (see :meth:`_info`).
+    - ``reset`` spawns ``n_avs`` AVs and a number of HDVs sampled from the density's range in random
+      grid slots (:func:`~sb3_marl.sim.road.spawn`); observations are ``(n_avs, obs_vehicles_count, 5)``.
+    - ``step(actions)`` takes one meta-action per AV (0 LANE_LEFT, 1 IDLE, 2 LANE_RIGHT, 3 FASTER,
+      4 SLOWER), simulates ``simulation_frequency / policy_frequency`` frames of 1 /
+      simulation_frequency s and returns the observations, the mean AV reward (a scalar for
+      gymnasium), ``terminated``, ``truncated`` and an info dict of per-AV arrays (:meth:`_observe`).
     - With ``safety_supervisor``, the proposed actions pass the priority-based safety supervisor
       (:mod:`sb3_marl.safety.supervisor`) first, which replaces those predicted to collide; with
       ``supervisor_shadow`` and the supervisor off, it only reports where it would have
@@ -60,10 +58,8 @@ class LaneChangeEnv(AbstractEnv):
     viewer: EnvViewer | None  # highway-env's renderer (AbstractEnv sets it)
 
     metadata = {"render_modes": ["human", "rgb_array"]}
-    #: the config's scenario (:mod:`~sb3_marl.envs.config`: keys, densities)
-    scenario: str = cfg.LANE_CHANGE
-    #: ``"compiled"`` (default) or ``"stock"`` (see :mod:`~sb3_marl.sim.simulator`)
-    simulator: str = COMPILED
+    scenario: str = cfg.LANE_CHANGE  #: the config's scenario (:mod:`~sb3_marl.envs.config`)
+    simulator: str = COMPILED  #: ``"compiled"`` (default) or ``"stock"`` (:mod:`~sb3_marl.sim.simulator`)
     _state: np.ndarray = np.zeros((0, kernel.COLUMNS))  # AbstractEnv.__init__ resets the env
     _road: Road | None = None
     _road_current = False  # whether _road's vehicles are the current state
@@ -155,8 +151,7 @@ class LaneChangeEnv(AbstractEnv):
         return obs, info
 
     def begin(self, *, seed: int | None = None, options: dict | None = None) -> None:
-        """:meth:`reset` without the first observation: the new episode's :attr:`state` (for
-        :class:`~sb3_marl.envs.batch.RoadBatch`, which observes many copies at once)."""
+        """:meth:`reset` without observing: the new episode's :attr:`state` (a RoadBatch observes)."""
         gym.Env.reset(self, seed=seed)
         if options and "config" in options:
             self.configure(options["config"])

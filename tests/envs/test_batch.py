@@ -12,7 +12,7 @@ import pytest
 
 from sb3_marl.envs import ENV_IDS, MERGE_ENV_IDS
 from wrappers import ParameterSharingVecEnv
-from wrappers.copies import SlotInfo
+from wrappers.slot_infos import SlotInfo
 
 #: Slot-info entries compared (beside observations, rewards, dones and masks).
 ENTRIES = (

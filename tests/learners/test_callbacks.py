@@ -69,7 +69,7 @@ def test_episode_records_from_slot_infos_equal_those_from_the_copy():
 
     from sb3_marl.envs import LaneChangeEnv
     from sb3_marl.evaluation import EpisodeRecord
-    from wrappers.copies import copy_arrays, slot_infos
+    from wrappers.slot_infos import copy_arrays, slot_infos
 
     env = LaneChangeEnv(config={"density": 3, "safety_supervisor": True})
     env.reset(seed=3)

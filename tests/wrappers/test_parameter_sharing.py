@@ -267,8 +267,8 @@ def test_bad_actions():
 def test_dead_worker_raises_naming_the_copy():
     vec = ParameterSharingVecEnv(ENV_IDS[1], vec_backend="subproc", n_workers=2, seed=0)
     vec.reset()
-    assert vec.group_copies == [[0, 2], [1]]
-    worker = vec.groups[1].process
+    assert vec.copies.group_copies == [[0, 2], [1]]
+    worker = vec.copies.groups[1].process
     worker.kill()
     worker.join()
     with pytest.raises(RuntimeError, match=r"Worker process 1 of scenario copies \[1\] died"):
@@ -279,7 +279,7 @@ def test_dead_worker_raises_naming_the_copy():
 def test_stopped_worker_times_out_naming_the_copy():
     vec = ParameterSharingVecEnv(ENV_IDS[1], vec_backend="subproc", n_workers=2, seed=0, worker_timeout=2.0)
     vec.reset()
-    worker = vec.groups[1].process
+    worker = vec.copies.groups[1].process
     os.kill(worker.pid, signal.SIGSTOP)
     try:
         start = time.perf_counter()
