@@ -98,7 +98,7 @@ class ParameterSharingVecEnv(VecEnv):
         call fails with a ``TimeoutError`` naming its copies (a stopped worker never blocks)
     :param supervisor_dropout: probability in [0, 1] that a training episode of a copy runs without
         the scenario's safety supervisor (see :class:`CopyRunner`; 0: always as configured)
-    :param batched: step the copies of a lane-change scenario id in one compiled call
+    :param batched: step the copies of a scenario id (lane change or merge) in one compiled call
         (:class:`~sb3_marl.envs.batch.RoadBatch`; ``dummy`` backend, no rendering; the same
         episodes as stepping them one by one, which ``False`` does, and the other cases)
     """

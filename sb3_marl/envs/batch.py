@@ -1,295 +1,75 @@
-"""Every copy of the lane-change scenario stepped in one compiled call (:class:`RoadBatch`).
+"""Every copy of a scenario stepped in one compiled call (:class:`RoadBatch`).
 
-The copies' state arrays (the kernel's layout, AVs first) lie one after the other in one array,
-copy k's rows at ``offsets[k]:offsets[k + 1]``; the AV slots of all copies likewise, copy k's at
-``slot_starts[k]:slot_starts[k + 1]``. One call of :func:`step_copies` does for every copy what
-:meth:`LaneChangeEnv.step <sb3_marl.envs.lane_change_env.LaneChangeEnv.step>` does for one — the
-safety supervisor, the frames of the policy step, observations, reward terms, neighbour sets,
-action masks and the rule driver's actions — with the same compiled functions, so the same
-seeds give the same episodes (tests/envs/test_batch.py compares them step by step). The scenario
-envs stay the copies' owners: they spawn every episode (their seeded generators, once per
-finished episode), and get their state back when asked (:meth:`RoadBatch.sync`).
-
-Units: m, m/s, m/s², s, Hz.
+The copies' states lie in one array and one call of
+:func:`~sb3_marl.envs.batch_kernel.step_copies` steps them all (the supervisor, the frames of the
+step, observations, rewards, neighbour sets, masks, the rule driver's actions), with the same
+compiled functions as the single scenario env, so the same seeds give the same episodes
+(tests/envs/test_batch.py compares them step by step). The scenario envs stay the copies' owners:
+they spawn every episode (their seeded generators, once per finished episode), and get their state
+back when asked (:meth:`RoadBatch.sync`). Units: m, m/s, m/s², s, Hz.
 """
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from typing import Any
 
-import numba
 import numpy as np
 
+from sb3_marl.envs import merge_env
+from sb3_marl.envs.batch_kernel import BatchStep, StepParameters, copy_rewards, start_copies, step_copies
 from sb3_marl.envs.lane_change_env import LaneChangeEnv
-from sb3_marl.envs.observation import _observe
-from sb3_marl.envs.reward import REWARD_MODES, REWARD_TERMS, _neighbour_matrix, _terms, _weighted, mode_rewards
-from sb3_marl.safety.rooms import SLOWER, Horizon
-from sb3_marl.safety.supervisor import headway_margins, supervise_arrays
+from sb3_marl.envs.merge_env import ON_RAMP_SIDE, MergeEnv
+from sb3_marl.envs.reward import REWARD_MODES, REWARD_TERMS, _weighted
 from sb3_marl.sim import kernel
-from sb3_marl.sim.drivers import rule_actions
-from sb3_marl.sim.dynamics import policy_step
-from sb3_marl.sim.lanes import lane_changes
-from sb3_marl.sim.meta_actions import available_actions, meta_action_targets
+from sb3_marl.sim.merge_road import ENDS, MERGE_END, MERGING_LANE
 
 #: Config keys that may differ between the copies of one batch (or between episodes of a copy).
 PER_COPY_KEYS = ("n_avs", "safety_supervisor", "supervisor_shadow")
 
 
-class StepParameters(NamedTuple):
-    """What a step reads from the scenario config (compiled code takes it as one argument)."""
-
-    horizon: Horizon
-    policy_frequency: float  # [Hz]
-    max_steps: int  # policy steps of a full episode
-    headway_time: float  # [s]
-    min_gap: float  # [m], the supervisor's
-    repeat_actions: bool
-    rear_avs: bool
-    emergency_brake: bool
-    joint_search: bool
-    mobil_safety: bool
-    politeness: float  # the rule driver's MOBIL parameters
-    b_safe: float  # [m/s²]
-    lane_change_threshold: float  # [m/s²]
-    rule_acceleration_threshold: float  # [m/s²]
-    headway_max_distance: float  # [m]
-    v_min: float  # [m/s], reward_speed_range
-    v_max: float  # [m/s]
-    harsh_threshold: float  # [m/s²]
-    rows: int  # observed vehicles
-    road_length: float  # [m]
-    x_range: float  # [m]
-    y_range: float  # [m]
-    v_range: float  # [m/s]
-    target_speed_column: bool
-
-    @classmethod
-    def of(cls, env: LaneChangeEnv) -> StepParameters:
-        """The parameters of a lane-change scenario env's current config."""
-        c, horizon = env.config, env.horizon
-        return cls(
-            horizon,
-            float(c["policy_frequency"]),
-            env.max_steps,
-            float(c["headway_time"]),
-            float(c["supervisor_min_gap"]),
-            bool(c["supervisor_repeat_actions"]),
-            bool(c["supervisor_rear_avs"]),
-            bool(c["supervisor_emergency_brake"]),
-            bool(c["supervisor_joint_search"]),
-            bool(c["supervisor_mobil_safety"]),
-            float(c["hdv_politeness"]),
-            float(c["hdv_b_safe"]),
-            float(c["hdv_lane_change_threshold"]),
-            float(c["rule_acceleration_threshold"]),
-            float(c["headway_max_distance"]),
-            float(c["reward_speed_range"][0]),
-            float(c["reward_speed_range"][1]),
-            float(c["harsh_acceleration_threshold"]),
-            int(c["obs_vehicles_count"]),
-            env.road_length,
-            float(c["obs_x_range"]),
-            float(c["obs_y_range"]),
-            float(c["obs_speed_range"]),
-            bool(c["obs_target_speed"]),
-        )
-
-
-class BatchStep(NamedTuple):
-    """One step of every copy: arrays over the AV slots (copy by copy, AVs in order) unless stated."""
-
-    states: np.ndarray  # (rows, COLUMNS) the copies' new states, one after the other
-    offsets: np.ndarray  # (copies + 1,) where each copy's rows start
-    obs: np.ndarray  # (slots, vehicles, features) float32
-    terms: np.ndarray  # (7, slots) reward.REWARD_TERMS then the headway distance [m]; headway as d / (v t_d)
-    neighbours: np.ndarray  # (slots, max AVs) bool, column j: AV j of the slot's copy
-    crashed: np.ndarray
-    exited: np.ndarray
-    speed: np.ndarray  # [m/s]
-    acceleration: np.ndarray  # [m/s²]
-    lane_change: np.ndarray
-    action_mask: np.ndarray  # (slots, 5) bool, of the new observation
-    executed: np.ndarray  # int
-    braking: np.ndarray  # bool, the supervisor's emergency brake
-    intervened: np.ndarray  # bool
-    rule_action: np.ndarray  # int, in the new state
-    terminated: np.ndarray  # (copies,) bool: an AV crashed
-    truncated: np.ndarray  # (copies,) bool: the time limit, or every AV past the road end
-
-
-@numba.njit(cache=True)
-def _allocate(states: np.ndarray, offsets: np.ndarray, slot_starts: np.ndarray, p: StepParameters) -> BatchStep:
-    """A :class:`BatchStep` of the copies' slots: no action yet (-1), nothing moved or crashed."""
-    n_copies, slots = offsets.size - 1, slot_starts[-1]
-    max_avs = 0
-    for k in range(n_copies):
-        max_avs = max(max_avs, slot_starts[k + 1] - slot_starts[k])
-    features = 6 if p.target_speed_column else 5
-    return BatchStep(
-        states,
-        offsets,
-        np.zeros((slots, p.rows, features), dtype=np.float32),
-        np.ones((7, slots)),  # (a headway ratio of 1: a log of 0 where nothing is observed)
-        np.zeros((slots, max_avs), dtype=np.bool_),
-        np.zeros(slots, dtype=np.bool_),
-        np.zeros(slots, dtype=np.bool_),
-        np.zeros(slots),
-        np.zeros(slots),
-        np.zeros(slots, dtype=np.bool_),
-        np.zeros((slots, 5), dtype=np.bool_),
-        np.full(slots, -1, dtype=np.int64),
-        np.zeros(slots, dtype=np.bool_),
-        np.zeros(slots, dtype=np.bool_),
-        np.zeros(slots, dtype=np.int64),
-        np.zeros(n_copies, dtype=np.bool_),
-        np.zeros(n_copies, dtype=np.bool_),
+def step_parameters(env: LaneChangeEnv) -> StepParameters:
+    """What a step of ``env``'s scenario reads from its current config."""
+    c, horizon, merge = env.config, env.horizon, isinstance(env, MergeEnv)
+    no_table = np.zeros(1, dtype=np.int64)
+    return StepParameters(
+        horizon,
+        float(c["policy_frequency"]),
+        env.max_steps,
+        float(c["headway_time"]),
+        float(c["supervisor_min_gap"]),
+        bool(c["supervisor_repeat_actions"]),
+        bool(c["supervisor_rear_avs"]),
+        bool(c["supervisor_emergency_brake"]),
+        bool(c["supervisor_joint_search"]),
+        bool(c["supervisor_mobil_safety"]),
+        float(c["hdv_politeness"]),
+        float(c["hdv_b_safe"]),
+        float(c["hdv_lane_change_threshold"]),
+        float(c["rule_acceleration_threshold"]),
+        float(c["headway_max_distance"]),
+        float(c["reward_speed_range"][0]),
+        float(c["reward_speed_range"][1]),
+        float(c["harsh_acceleration_threshold"]),
+        int(c["obs_vehicles_count"]),
+        env.road_length,
+        float(c["obs_x_range"]),
+        float(c["obs_y_range"]),
+        float(c["obs_speed_range"]),
+        bool(c["obs_target_speed"]),
+        merge,
+        merge and c["supervisor_priority"] == "merging",
+        merge_env.ROUTE if merge else np.zeros((1, 1), dtype=np.bool_),
+        merge_env.ACROSS if merge else no_table,
+        merge_env.ACROSS_FROM if merge else np.zeros(1),
+        merge_env.NEXT_ON_ROUTE if merge else no_table,
     )
-
-
-@numba.njit(cache=True)
-def step_copies(
-    states: np.ndarray,
-    offsets: np.ndarray,
-    slot_starts: np.ndarray,
-    actions: np.ndarray,
-    supervise: np.ndarray,
-    shadow: np.ndarray,
-    steps: np.ndarray,
-    p: StepParameters,
-) -> BatchStep:
-    """One policy step of every copy (see the module doc); ``steps`` (copies,) counts each copy's
-    policy steps so far and is advanced in place."""
-    h = p.horizon
-    n_copies = offsets.size - 1
-    r = _allocate(np.empty_like(states), np.zeros(n_copies + 1, dtype=np.int64), slot_starts, p)
-    for k in range(n_copies):
-        a, b = slot_starts[k], slot_starts[k + 1]
-        n = b - a
-        before = states[offsets[k] : offsets[k + 1]]
-        proposed = actions[a:b]
-        acting, brake = proposed.copy(), np.zeros(n, dtype=np.bool_)
-        if supervise[k] or shadow[k]:
-            supervised, brake_to_stop = _supervise(before, n, proposed, p)
-            r.intervened[a:b] = (supervised != proposed) | brake_to_stop
-            if supervise[k]:
-                acting, brake = supervised, brake_to_stop
-        r.executed[a:b], r.braking[a:b] = acting, brake
-        speed_before, targets_before = before[:n, kernel.SPEED].copy(), before[:n, kernel.TARGET_LANE].copy()
-        state = policy_step(before, acting, h.frames_per_step, h.dt, h.lanes, h.road_end, h.speed_limit, h.ladder, brake)
-        steps[k] += 1
-        r.offsets[k + 1] = r.offsets[k] + state.shape[0]
-        r.states[r.offsets[k] : r.offsets[k + 1]] = state
-        r.acceleration[a:b] = (state[:n, kernel.SPEED] - speed_before) * p.policy_frequency
-        r.lane_change[a:b] = lane_changes(h.lanes, targets_before, state)
-        _observe_into(r, state, a, b, p)
-        r.terminated[k] = r.crashed[a:b].any()
-        r.truncated[k] = not r.terminated[k] and (steps[k] >= p.max_steps or r.exited[a:b].all())
-    return r
-
-
-@numba.njit(cache=True)
-def start_copies(
-    states: np.ndarray, offsets: np.ndarray, slot_starts: np.ndarray, copies: np.ndarray, p: StepParameters
-) -> BatchStep:
-    """The first observation (and what the slot infos carry) of the new episodes of ``copies``;
-    the other copies' slots are left empty."""
-    r = _allocate(states, offsets, slot_starts, p)
-    for k in copies:
-        _observe_into(r, states[offsets[k] : offsets[k + 1]], slot_starts[k], slot_starts[k + 1], p)
-    return r
-
-
-@numba.njit(cache=True)
-def _observe_into(r: BatchStep, state: np.ndarray, a: int, b: int, p: StepParameters) -> None:
-    """Write the observation of one copy's ``state`` (its AVs at slots ``a:b``) into ``r``, with its
-    reward terms, neighbour sets, action masks and the rule driver's actions (``r``'s acceleration
-    and lane changes of the slots already set), as :meth:`LaneChangeEnv._observe`."""
-    h, n = p.horizon, b - a
-    x, heading = state[:, kernel.X], state[:, kernel.HEADING]
-    v = state[:, kernel.SPEED]
-    lane = state[:, kernel.LANE].astype(np.int64)
-    visible = (x <= h.road_end) & (state[:, kernel.IS_OBSTACLE] == 0)
-    r.crashed[a:b] = state[:n, kernel.CRASHED] > 0
-    r.exited[a:b] = state[:n, kernel.COLLIDABLE] == 0
-    r.speed[a:b] = v[:n]
-    r.terms[:, a:b] = _terms(
-        x,
-        lane,
-        visible,
-        v,
-        n,
-        r.crashed[a:b],
-        r.acceleration[a:b],
-        r.lane_change[a:b],
-        p.headway_max_distance,
-        p.headway_time,
-        p.v_min,
-        p.v_max,
-        p.harsh_threshold,
-    )
-    r.neighbours[a:b, :n] = _neighbour_matrix(x, lane, visible, n)
-    vx, vy = v * np.cos(heading), v * np.sin(heading)
-    y = state[:, kernel.Y]
-    r.obs[a:b, :, :5] = _observe(x, y, vx, vy, visible, n, p.rows, p.road_length, p.x_range, p.y_range, p.v_range)
-    if p.target_speed_column:
-        for i in range(n):
-            r.obs[a + i, 0, 5] = np.float32(min(max(state[i, kernel.TARGET_SPEED] / p.v_range, -1.0), 1.0))
-    r.action_mask[a:b] = available_actions(state, n, h.lanes, h.ladder)
-    r.rule_action[a:b] = rule_actions(
-        state,
-        n,
-        h.lanes,
-        h.speed_limit,
-        h.ladder,
-        p.politeness,
-        p.b_safe,
-        p.lane_change_threshold,
-        p.rule_acceleration_threshold,
-    )
-
-
-@numba.njit(cache=True)
-def _supervise(state: np.ndarray, n: int, proposed: np.ndarray, p: StepParameters) -> tuple[np.ndarray, np.ndarray]:
-    """:class:`~sb3_marl.safety.supervisor.Supervisor` of the lane change (priority: the headway
-    margin): the executed meta-actions and which AVs brake to a stop."""
-    h = p.horizon
-    candidate_lane, candidate_speed = meta_action_targets(state, n, h.lanes, h.ladder)
-    choices = available_actions(state, n, h.lanes, h.ladder)
-    if p.emergency_brake:
-        for i in range(n):
-            choices[i, SLOWER] |= state[i, kernel.TARGET_SPEED] < h.ladder[0]
-    executed, _, brake = supervise_arrays(
-        state,
-        candidate_lane,
-        candidate_speed,
-        choices,
-        proposed,
-        headway_margins(state, n, h.lanes, p.headway_time),
-        h,
-        p.min_gap,
-        p.repeat_actions,
-        p.rear_avs,
-        p.emergency_brake,
-        p.joint_search,
-        p.mobil_safety,
-    )
-    return executed, brake
-
-
-@numba.njit(cache=True)
-def _copy_rewards(own: np.ndarray, neighbours: np.ndarray, slot_starts: np.ndarray, mode: int) -> np.ndarray:
-    """Every slot's reward in a reward mode (:data:`~sb3_marl.envs.reward.REWARD_MODES` index), copy by copy."""
-    rewards = np.empty(own.size)
-    for k in range(slot_starts.size - 1):
-        a, b = slot_starts[k], slot_starts[k + 1]
-        rewards[a:b] = mode_rewards(own[a:b], neighbours[a:b, : b - a], mode)
-    return rewards
 
 
 class RoadBatch:
-    """The copies of one lane-change scenario config (they may differ only in :data:`PER_COPY_KEYS`)
-    stepped together; copy k's env spawns its episodes, and :meth:`load` takes its state after each
-    reset.
+    """The copies of one scenario config (lane change or merge; they may differ only in
+    :data:`PER_COPY_KEYS`) stepped together; copy k's env spawns its episodes, and :meth:`load`
+    takes its state after each reset. On the merge it also keeps which AVs started on the ramp and
+    when they reached the main road (the env's ``ramp_av`` and ``merge_time``).
 
     :param envs: the copies' unwrapped scenario envs, each reset
     :param reward_mode: ``local``, ``global`` or ``individual`` (:data:`~sb3_marl.envs.reward.REWARD_MODES`)
@@ -299,7 +79,7 @@ class RoadBatch:
         self.envs = envs
         self.mode = REWARD_MODES.index(reward_mode)
         self._shared = _shared_config(envs[0])
-        self.parameters = StepParameters.of(envs[0])
+        self.parameters = step_parameters(envs[0])
         self.n_avs = np.array([env.n_avs for env in envs], dtype=np.int64)
         self.slot_starts = np.concatenate([[0], np.cumsum(self.n_avs)]).astype(np.int64)
         self.states = np.concatenate([env.state for env in envs])
@@ -307,6 +87,8 @@ class RoadBatch:
         self.steps = np.zeros(len(envs), dtype=np.int64)
         self.supervise, self.shadow = np.zeros(len(envs), dtype=np.bool_), np.zeros(len(envs), dtype=np.bool_)
         self._stale = False  # whether the envs' states are behind the batch's
+        self.ramp_av = np.zeros(int(self.slot_starts[-1]), dtype=np.bool_)
+        self.merge_time = np.full(int(self.slot_starts[-1]), np.nan)  # [s]
         for k in range(len(envs)):
             self.load(k)
 
@@ -326,6 +108,10 @@ class RoadBatch:
         self.steps[k] = env.steps_done
         self.supervise[k] = bool(env.config["safety_supervisor"])
         self.shadow[k] = bool(env.config["supervisor_shadow"])
+        if self.parameters.merge:  # a new situation: as MergeEnv._scenario_info at step 0
+            sl = slice(self.slot_starts[k], self.slot_starts[k + 1])
+            self.ramp_av[sl] = ON_RAMP_SIDE[env.state[: env.n_avs, kernel.LANE].astype(np.int64)]
+            self.merge_time[sl] = np.nan
 
     def step(self, actions: np.ndarray) -> tuple[BatchStep, dict[str, Any], np.ndarray]:
         """Step every copy with one meta-action per slot (int array (slots,)): the step, the slot
@@ -335,8 +121,12 @@ class RoadBatch:
             self.states, self.offsets, self.slot_starts, actions, self.supervise, self.shadow, self.steps, self.parameters
         )
         self.states, self.offsets, self._stale = result.states[: result.offsets[-1]], result.offsets, True
+        if self.parameters.merge:
+            merged = self.ramp_av & np.isnan(self.merge_time) & ~ON_RAMP_SIDE[result.lane]
+            steps = np.repeat(self.steps, self.n_avs)
+            self.merge_time[merged] = steps[merged] / self.envs[0].config["policy_frequency"]
         arrays = self.slot_arrays(result, actions)
-        return result, arrays, _copy_rewards(arrays["reward"], result.neighbours, self.slot_starts, self.mode)
+        return result, arrays, copy_rewards(arrays["reward"], result.neighbours, self.slot_starts, self.mode)
 
     def start(self, copies: np.ndarray) -> tuple[BatchStep, dict[str, Any]]:
         """The first observations of the new episodes of ``copies`` (each :meth:`load`-ed) and
@@ -360,6 +150,11 @@ class RoadBatch:
             float(c["speed_weight"]),
             float(c["comfort_weight"]) if c["comfort"] else 0.0,
         )
+        names = dict(zip(REWARD_TERMS, terms[:6]))
+        if self.parameters.merge:  # MergeEnv's merging-lane cost, in numpy as there
+            cost = -np.exp(-((result.x - MERGE_END) ** 2) / (10 * ENDS[2]))
+            names["merging_lane"] = np.where(result.lane == MERGING_LANE, cost, 0.0)
+            own = own + c["merging_lane_weight"] * names["merging_lane"]
         return {
             "speed": result.speed,
             "headway": terms[6],
@@ -373,8 +168,8 @@ class RoadBatch:
             "intervened": result.intervened,
             "rule_action": result.rule_action,
             "reward": own,
-            "global_reward": _copy_rewards(own, result.neighbours, self.slot_starts, REWARD_MODES.index("global")),
-            "reward_terms": dict(zip(REWARD_TERMS, terms[:6])),
+            "global_reward": copy_rewards(own, result.neighbours, self.slot_starts, REWARD_MODES.index("global")),
+            "reward_terms": names,
         }
 
     def sync(self) -> None:
@@ -387,6 +182,9 @@ class RoadBatch:
                 env.time += 1.0 / env.config["policy_frequency"]  # as the env's own steps add it up
             env.state = self.states[self.offsets[k] : self.offsets[k + 1]].copy()
             env.steps, env.done = int(self.steps[k]) * frames, False
+            if self.parameters.merge:
+                sl = slice(self.slot_starts[k], self.slot_starts[k + 1])
+                env._ramp_avs, env._merge_time = self.ramp_av[sl].copy(), self.merge_time[sl].copy()
         self._stale = False
 
 
@@ -395,6 +193,6 @@ def _shared_config(env: LaneChangeEnv) -> dict[str, Any]:
 
 
 def batchable(env: Any) -> bool:
-    """Whether a copy can be stepped in a :class:`RoadBatch`: the lane-change scenario itself,
+    """Whether a copy can be stepped in a :class:`RoadBatch`: the lane change or the merge itself,
     compiled, drawing no frames."""
-    return type(env) is LaneChangeEnv and not env._uses_objects()
+    return type(env) in (LaneChangeEnv, MergeEnv) and not env._uses_objects()

@@ -63,11 +63,11 @@ def _assert_same(batched: list, one_by_one: list) -> None:
             assert repr(a) == repr(b), step  # types and values, bit for bit
 
 
-@pytest.mark.parametrize("density", sorted(ENV_IDS))
+@pytest.mark.parametrize("env_id", [*ENV_IDS.values(), *MERGE_ENV_IDS.values()])
 @pytest.mark.parametrize("supervisor", [False, True])
-def test_batched_episodes_equal_one_by_one(density, supervisor):
+def test_batched_episodes_equal_one_by_one(env_id, supervisor):
     config = {"safety_supervisor": supervisor}
-    batched, one_by_one = (_trace(ENV_IDS[density], flag, 120, config) for flag in (True, False))
+    batched, one_by_one = (_trace(env_id, flag, 120, config) for flag in (True, False))
     ends = sum(1 for item in batched if isinstance(item, np.ndarray) and item.dtype == bool and item.ndim == 1 and item.any())
     assert ends > 0  # episodes ended (crashes or the road's end) and copies were reset in between
     _assert_same(batched, one_by_one)
@@ -101,9 +101,25 @@ def test_the_copies_envs_follow_the_batch():
     venv.close()
 
 
-def test_the_merge_and_subprocesses_step_one_by_one():
-    assert ParameterSharingVecEnv(MERGE_ENV_IDS[1], n_copies=1).batch is None
-    assert ParameterSharingVecEnv(ENV_IDS[1], n_copies=1, batched=False).batch is None
+def test_the_merge_keeps_its_merge_times_in_a_batch():
+    """The merge's ramp AVs and merge times, which its env's info reports, follow the batch."""
+    venv = ParameterSharingVecEnv(MERGE_ENV_IDS[1], n_copies=3, seed=0, config={"safety_supervisor": True})
+    venv.reset()
+    for _ in range(60):
+        venv.step(np.full(venv.num_envs, 1, dtype=np.int64))  # IDLE: the supervisor takes the ramp AVs across
+    assert venv.batch.ramp_av.any() and np.isfinite(venv.batch.merge_time).any()
+    for k in range(venv.n_copies):
+        env, sl = venv.copy_env(k), venv.slices[k]
+        assert np.array_equal(env._ramp_avs, venv.batch.ramp_av[sl])
+        assert np.array_equal(env._merge_time, venv.batch.merge_time[sl], equal_nan=True)
+    venv.close()
+
+
+@pytest.mark.parametrize("options", [{"batched": False}, {"render_mode": "rgb_array"}, {"vec_backend": "subproc"}])
+def test_what_steps_one_by_one(options):
+    venv = ParameterSharingVecEnv(ENV_IDS[1], n_copies=2, **options)
+    assert venv.batch is None
+    venv.close()
 
 
 def test_slot_infos_behave_as_dicts():

@@ -1,0 +1,267 @@
+"""The compiled step of every copy of a scenario at once (:func:`step_copies`), for
+:class:`~sb3_marl.envs.batch.RoadBatch`.
+
+The copies' state arrays (the kernel's layout, AVs first) lie one after the other in one array,
+copy k's rows at ``offsets[k]:offsets[k + 1]``; the AV slots of all copies likewise, copy k's at
+``slot_starts[k]:slot_starts[k + 1]``. For every copy, one call does what
+:meth:`LaneChangeEnv.step <sb3_marl.envs.lane_change_env.LaneChangeEnv.step>` does for one (the
+merge's differences switched by :class:`StepParameters`' ``merge``) — the safety supervisor, the
+frames of the policy step, observations, reward terms, neighbour sets, action masks and the rule
+driver's actions — with the same compiled functions. Units: m, m/s, m/s², s, Hz.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numba
+import numpy as np
+
+from sb3_marl.envs.merge_env import _merge_priorities, _regional_neighbours
+from sb3_marl.envs.observation import _observe
+from sb3_marl.envs.reward import _neighbour_matrix, _terms, mode_rewards
+from sb3_marl.safety.rooms import SLOWER, Horizon
+from sb3_marl.safety.supervisor import headway_margins, supervise_arrays
+from sb3_marl.sim import kernel
+from sb3_marl.sim.drivers import rule_actions
+from sb3_marl.sim.dynamics import policy_step
+from sb3_marl.sim.lanes import lane_changes
+from sb3_marl.sim.meta_actions import available_actions, meta_action_targets
+
+
+class StepParameters(NamedTuple):
+    """What a step reads from the scenario config (compiled code takes it as one argument)."""
+
+    horizon: Horizon
+    policy_frequency: float  # [Hz]
+    max_steps: int  # policy steps of a full episode
+    headway_time: float  # [s]
+    min_gap: float  # [m], the supervisor's
+    repeat_actions: bool
+    rear_avs: bool
+    emergency_brake: bool
+    joint_search: bool
+    mobil_safety: bool
+    politeness: float  # the rule driver's MOBIL parameters
+    b_safe: float  # [m/s²]
+    lane_change_threshold: float  # [m/s²]
+    rule_acceleration_threshold: float  # [m/s²]
+    headway_max_distance: float  # [m]
+    v_min: float  # [m/s], reward_speed_range
+    v_max: float  # [m/s]
+    harsh_threshold: float  # [m/s²]
+    rows: int  # observed vehicles
+    road_length: float  # [m]
+    x_range: float  # [m]
+    y_range: float  # [m]
+    v_range: float  # [m/s]
+    target_speed_column: bool
+    merge: bool  # the merge's reward term and regional neighbour sets (sb3_marl.envs.merge_env)
+    merging_priority: bool  # the merge's order of service of the supervisor
+    route: np.ndarray  # the merge's lane tables (merge_env.ROUTE, ACROSS, ACROSS_FROM, NEXT_ON_ROUTE)
+    across: np.ndarray
+    across_from: np.ndarray
+    next_on_route: np.ndarray
+
+
+class BatchStep(NamedTuple):
+    """One step of every copy: arrays over the AV slots (copy by copy, AVs in order) unless stated."""
+
+    states: np.ndarray  # (rows, COLUMNS) the copies' new states, one after the other
+    offsets: np.ndarray  # (copies + 1,) where each copy's rows start
+    obs: np.ndarray  # (slots, vehicles, features) float32
+    terms: np.ndarray  # (7, slots) reward.REWARD_TERMS then the headway distance [m]; headway as d / (v t_d)
+    neighbours: np.ndarray  # (slots, max AVs) bool, column j: AV j of the slot's copy
+    crashed: np.ndarray
+    exited: np.ndarray
+    speed: np.ndarray  # [m/s]
+    acceleration: np.ndarray  # [m/s²]
+    lane_change: np.ndarray
+    action_mask: np.ndarray  # (slots, 5) bool, of the new observation
+    executed: np.ndarray  # int
+    braking: np.ndarray  # bool, the supervisor's emergency brake
+    intervened: np.ndarray  # bool
+    rule_action: np.ndarray  # int, in the new state
+    x: np.ndarray  # [m] each AV's position after the step
+    lane: np.ndarray  # int, each AV's lane after the step
+    terminated: np.ndarray  # (copies,) bool: an AV crashed
+    truncated: np.ndarray  # (copies,) bool: the time limit, or every AV past the road end
+
+
+@numba.njit(cache=True)
+def _allocate(states: np.ndarray, offsets: np.ndarray, slot_starts: np.ndarray, p: StepParameters) -> BatchStep:
+    """A :class:`BatchStep` of the copies' slots: no action yet (-1), nothing moved or crashed."""
+    n_copies, slots = offsets.size - 1, slot_starts[-1]
+    max_avs = 0
+    for k in range(n_copies):
+        max_avs = max(max_avs, slot_starts[k + 1] - slot_starts[k])
+    features = 6 if p.target_speed_column else 5
+    return BatchStep(
+        states,
+        offsets,
+        np.zeros((slots, p.rows, features), dtype=np.float32),
+        np.ones((7, slots)),  # (a headway ratio of 1: a log of 0 where nothing is observed)
+        np.zeros((slots, max_avs), dtype=np.bool_),
+        np.zeros(slots, dtype=np.bool_),
+        np.zeros(slots, dtype=np.bool_),
+        np.zeros(slots),
+        np.zeros(slots),
+        np.zeros(slots, dtype=np.bool_),
+        np.zeros((slots, 5), dtype=np.bool_),
+        np.full(slots, -1, dtype=np.int64),
+        np.zeros(slots, dtype=np.bool_),
+        np.zeros(slots, dtype=np.bool_),
+        np.zeros(slots, dtype=np.int64),
+        np.zeros(slots),
+        np.zeros(slots, dtype=np.int64),
+        np.zeros(n_copies, dtype=np.bool_),
+        np.zeros(n_copies, dtype=np.bool_),
+    )
+
+
+@numba.njit(cache=True)
+def step_copies(
+    states: np.ndarray,
+    offsets: np.ndarray,
+    slot_starts: np.ndarray,
+    actions: np.ndarray,
+    supervise: np.ndarray,
+    shadow: np.ndarray,
+    steps: np.ndarray,
+    p: StepParameters,
+) -> BatchStep:
+    """One policy step of every copy (see the module doc); ``steps`` (copies,) counts each copy's
+    policy steps so far and is advanced in place."""
+    h = p.horizon
+    n_copies = offsets.size - 1
+    r = _allocate(np.empty_like(states), np.zeros(n_copies + 1, dtype=np.int64), slot_starts, p)
+    for k in range(n_copies):
+        a, b = slot_starts[k], slot_starts[k + 1]
+        n = b - a
+        before = states[offsets[k] : offsets[k + 1]]
+        proposed = actions[a:b]
+        acting, brake = proposed.copy(), np.zeros(n, dtype=np.bool_)
+        if supervise[k] or shadow[k]:
+            supervised, brake_to_stop = _supervise(before, n, proposed, p)
+            r.intervened[a:b] = (supervised != proposed) | brake_to_stop
+            if supervise[k]:
+                acting, brake = supervised, brake_to_stop
+        r.executed[a:b], r.braking[a:b] = acting, brake
+        speed_before, targets_before = before[:n, kernel.SPEED].copy(), before[:n, kernel.TARGET_LANE].copy()
+        state = policy_step(before, acting, h.frames_per_step, h.dt, h.lanes, h.road_end, h.speed_limit, h.ladder, brake)
+        steps[k] += 1
+        r.offsets[k + 1] = r.offsets[k] + state.shape[0]
+        r.states[r.offsets[k] : r.offsets[k + 1]] = state
+        r.acceleration[a:b] = (state[:n, kernel.SPEED] - speed_before) * p.policy_frequency
+        r.lane_change[a:b] = lane_changes(h.lanes, targets_before, state)
+        _observe_into(r, state, a, b, p)
+        r.terminated[k] = r.crashed[a:b].any()
+        r.truncated[k] = not r.terminated[k] and (steps[k] >= p.max_steps or r.exited[a:b].all())
+    return r
+
+
+@numba.njit(cache=True)
+def start_copies(
+    states: np.ndarray, offsets: np.ndarray, slot_starts: np.ndarray, copies: np.ndarray, p: StepParameters
+) -> BatchStep:
+    """The first observation (and what the slot infos carry) of the new episodes of ``copies``;
+    the other copies' slots are left empty."""
+    r = _allocate(states, offsets, slot_starts, p)
+    for k in copies:
+        _observe_into(r, states[offsets[k] : offsets[k + 1]], slot_starts[k], slot_starts[k + 1], p)
+    return r
+
+
+@numba.njit(cache=True)
+def _observe_into(r: BatchStep, state: np.ndarray, a: int, b: int, p: StepParameters) -> None:
+    """Write the observation of one copy's ``state`` (its AVs at slots ``a:b``) into ``r``, with its
+    reward terms, neighbour sets, action masks and the rule driver's actions (``r``'s acceleration
+    and lane changes of the slots already set), as :meth:`LaneChangeEnv._observe`."""
+    h, n = p.horizon, b - a
+    x, heading = state[:, kernel.X], state[:, kernel.HEADING]
+    v = state[:, kernel.SPEED]
+    lane = state[:, kernel.LANE].astype(np.int64)
+    visible = (x <= h.road_end) & (state[:, kernel.IS_OBSTACLE] == 0)
+    r.crashed[a:b] = state[:n, kernel.CRASHED] > 0
+    r.exited[a:b] = state[:n, kernel.COLLIDABLE] == 0
+    r.speed[a:b] = v[:n]
+    r.terms[:, a:b] = _terms(
+        x,
+        lane,
+        visible,
+        v,
+        n,
+        r.crashed[a:b],
+        r.acceleration[a:b],
+        r.lane_change[a:b],
+        p.headway_max_distance,
+        p.headway_time,
+        p.v_min,
+        p.v_max,
+        p.harsh_threshold,
+    )
+    r.x[a:b], r.lane[a:b] = x[:n], lane[:n]
+    if p.merge:
+        r.neighbours[a:b, :n] = _regional_neighbours(state, n, p.route, p.across, p.across_from)
+    else:
+        r.neighbours[a:b, :n] = _neighbour_matrix(x, lane, visible, n)
+    vx, vy = v * np.cos(heading), v * np.sin(heading)
+    y = state[:, kernel.Y]
+    r.obs[a:b, :, :5] = _observe(x, y, vx, vy, visible, n, p.rows, p.road_length, p.x_range, p.y_range, p.v_range)
+    if p.target_speed_column:
+        for i in range(n):
+            r.obs[a + i, 0, 5] = np.float32(min(max(state[i, kernel.TARGET_SPEED] / p.v_range, -1.0), 1.0))
+    r.action_mask[a:b] = available_actions(state, n, h.lanes, h.ladder)
+    r.rule_action[a:b] = rule_actions(
+        state,
+        n,
+        h.lanes,
+        h.speed_limit,
+        h.ladder,
+        p.politeness,
+        p.b_safe,
+        p.lane_change_threshold,
+        p.rule_acceleration_threshold,
+    )
+
+
+@numba.njit(cache=True)
+def _supervise(state: np.ndarray, n: int, proposed: np.ndarray, p: StepParameters) -> tuple[np.ndarray, np.ndarray]:
+    """:class:`~sb3_marl.safety.supervisor.Supervisor` of a copy (priority: the headway margin, or
+    the merge's): the executed meta-actions and which AVs brake to a stop."""
+    h = p.horizon
+    candidate_lane, candidate_speed = meta_action_targets(state, n, h.lanes, h.ladder)
+    choices = available_actions(state, n, h.lanes, h.ladder)
+    if p.emergency_brake:
+        for i in range(n):
+            choices[i, SLOWER] |= state[i, kernel.TARGET_SPEED] < h.ladder[0]
+    if p.merging_priority:
+        priority = _merge_priorities(state, n, p.headway_time, p.next_on_route)
+    else:
+        priority = headway_margins(state, n, h.lanes, p.headway_time)
+    executed, _, brake = supervise_arrays(
+        state,
+        candidate_lane,
+        candidate_speed,
+        choices,
+        proposed,
+        priority,
+        h,
+        p.min_gap,
+        p.repeat_actions,
+        p.rear_avs,
+        p.emergency_brake,
+        p.joint_search,
+        p.mobil_safety,
+    )
+    return executed, brake
+
+
+@numba.njit(cache=True)
+def copy_rewards(own: np.ndarray, neighbours: np.ndarray, slot_starts: np.ndarray, mode: int) -> np.ndarray:
+    """Every slot's reward in a reward mode (:data:`~sb3_marl.envs.reward.REWARD_MODES` index), copy by copy."""
+    rewards = np.empty(own.size)
+    for k in range(slot_starts.size - 1):
+        a, b = slot_starts[k], slot_starts[k + 1]
+        rewards[a:b] = mode_rewards(own[a:b], neighbours[a:b, : b - a], mode)
+    return rewards
