@@ -1,18 +1,24 @@
-# The two commands of the README's quick start; each sets up .venv on first use.
+# The two commands of the README's quick start; each sets up .venv on first use: `make run` with
+# the runtime only (the package and its dependencies), `make test` adds the dev extra.
 VENV ?= .venv
 PYTHON := $(VENV)/bin/python
-STAMP := $(VENV)/.installed
+RUNTIME := $(VENV)/.installed-runtime
+DEV := $(VENV)/.installed-dev
 
 .PHONY: install run test benchmark clean
 
-$(STAMP): setup.py pyproject.toml
+$(RUNTIME): setup.py pyproject.toml
 	python3 -m venv $(VENV)
 	$(PYTHON) -m pip install --quiet --upgrade pip
 	$(PYTHON) -m pip install --quiet torch==2.13.0
-	$(PYTHON) -m pip install --quiet -e ".[dev]"
-	touch $(STAMP)
+	$(PYTHON) -m pip install --quiet -e .
+	touch $(RUNTIME)
 
-install: $(STAMP)
+$(DEV): $(RUNTIME)
+	$(PYTHON) -m pip install --quiet -e ".[dev]"
+	touch $(DEV)
+
+install: $(DEV)
 
 ## run: the main job: train MA2C on density 1 (short budget), evaluate it beside the reference
 ## policies, plot the learning curves; TensorBoard logs in logs/tensorboard
@@ -20,20 +26,20 @@ install: $(STAMP)
 RUN_ENV ?= sb3_marl/LaneChange-density1-v0
 RUN_TIMESTEPS ?= 100000
 RUN_LOGS ?= logs
-run: $(STAMP)
+run: $(RUNTIME)
 	$(VENV)/bin/sb3-marl train --algo ma2c --env $(RUN_ENV) -n $(RUN_TIMESTEPS) --eval-freq 20000 --eval-episodes 6 --progress -f $(RUN_LOGS)
 	$(VENV)/bin/sb3-marl evaluate --algo ma2c --env $(RUN_ENV) --eval-episodes 30 --with-baselines -f $(RUN_LOGS)
 	$(VENV)/bin/sb3-marl plot --algo ma2c --env $(RUN_ENV) -f $(RUN_LOGS)
 	@echo "TensorBoard: $(VENV)/bin/tensorboard --logdir $(RUN_LOGS)/tensorboard"
 
 ## test: lint (ruff), format check, types (mypy), then the whole test suite
-test: $(STAMP)
+test: $(DEV)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
 	$(VENV)/bin/mypy sb3_marl wrappers
 	$(PYTHON) -m pytest -q
 
-benchmark: $(STAMP)
+benchmark: $(RUNTIME)
 	$(PYTHON) benchmarks/env_throughput.py
 
 clean:
