@@ -54,7 +54,7 @@ def add_parsers(commands: Any) -> None:
         "--eval-episodes", type=positive(maximum=MAX_EPISODES), default=5, help="episodes per evaluation (default: 5)"
     )
     train.add_argument("--save-freq", type=every, default=-1, help="checkpoint every N AV-steps; -1 disables")
-    train.add_argument("-c", "--conf-file", default=None, help="YAML instead of zoo_configs/<algo>.yml")
+    train.add_argument("-c", "-conf", "--conf-file", default=None, help="YAML instead of zoo_configs/<algo>.yml")
     train.add_argument(
         "-params",
         "--hyperparams",
@@ -64,7 +64,20 @@ def add_parsers(commands: Any) -> None:
         metavar="KEY:VALUE",
         help="override hyperparameters, e.g. n_steps:20 reward_mode:'global'",
     )
+    train.add_argument(
+        "--env-kwargs",
+        nargs="+",
+        action=StoreHyperparams,
+        default={},
+        metavar="KEY:VALUE",
+        help="scenario config overrides (merged into env_config), e.g. safety_supervisor:False",
+    )
     train.add_argument("-i", "--trained-agent", default="", help="continue training this model zip (counts on)")
+    train.add_argument(
+        "--save-replay-buffer",
+        action="store_true",
+        help="write an off-policy learner's replay buffer beside the final model (replay_buffer.npz)",
+    )
     train.add_argument(
         "--vec-env", default="dummy", choices=["dummy", "subproc"], help="scenario copies in process or in workers"
     )
@@ -74,7 +87,7 @@ def add_parsers(commands: Any) -> None:
     train.add_argument(
         "--reward-mode", choices=["local", "global", "individual"], default=None, help="overrides the config's reward_mode"
     )
-    train.add_argument("--progress", action="store_true", help="progress bar (tqdm + rich)")
+    train.add_argument("-P", "--progress", action="store_true", help="progress bar (tqdm + rich)")
     train.add_argument("--device", default="auto", help="torch device (default: auto)")
     add_trust_remote_code(train)
     add_num_threads(train)
@@ -89,7 +102,38 @@ def add_parsers(commands: Any) -> None:
         help="0: quiet; 1 (default): set-up, progress and evaluation lines; 2: also SB3's logger tables",
     )
     _add_search_flags(train.add_argument_group("hyperparameter search (rl-zoo's -optimize, Optuna)"))
+    _add_refused_flags(train)
     train.set_defaults(handler=train_command)
+
+
+#: rl-zoo's train flags that have no meaning here -> why (refused with that message).
+REFUSED_FLAGS = {
+    ("-uuid", "--uuid"): "run folders are created exclusively (<env>_<id>, the next free id): two runs never share one",
+    ("--gym-packages",): "the scenarios register themselves when sb3_marl is imported",
+    ("--eval-env-kwargs",): "evaluation runs the training scenario with the supervisor on and off (--env-kwargs sets both)",
+    ("--n-eval-envs",): "evaluation runs one scenario copy per AV count of the density, as training",
+    ("--truncate-last-trajectory",): "training never stops mid-episode here: no HER replay buffer to truncate",
+    ("--optimization-log-path", "--no-optim-plots", "--max-total-trials", "--trial-id"): (
+        "-optimize keeps its study in --storage (resumed from there) and writes no per-trial logs"
+    ),
+    ("--track", "--wandb-project-name", "--wandb-entity", "--wandb-group", "-tags", "--wandb-tags"): (
+        "Weights & Biases is not a dependency: TensorBoard logs are in <log-folder>/tensorboard "
+        "(wandb sync <that folder> uploads them)"
+    ),
+}
+
+
+class _Refused(argparse.Action):
+    """An rl-zoo flag without a meaning here: a usage error that says why."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: Any, values: Any, option_string: Any = None) -> None:
+        reason = next(why for flags, why in REFUSED_FLAGS.items() if option_string in flags)
+        parser.error(f"{option_string} (rl-zoo's) has no meaning here: {reason}.")
+
+
+def _add_refused_flags(train: Any) -> None:
+    for flags in REFUSED_FLAGS:
+        train.add_argument(*flags, nargs="*", action=_Refused, default=None, help=argparse.SUPPRESS)
 
 
 def _add_search_flags(search: Any) -> None:
@@ -151,8 +195,16 @@ def _check_train_args(args: argparse.Namespace) -> None:
     from sb3_marl.algos import get_algo
     from sb3_marl.algos.common.loading import safe_custom_objects
     from sb3_marl.runs.folders import check_model_file
+    from sb3_marl.runs.hyperparams import is_q_learning
 
     check_seed(args.seed)
+    if args.env_kwargs:  # rl-zoo's --env-kwargs: the scenario's config, merged key by key
+        args.hyperparams = {
+            **args.hyperparams,
+            "env_config": {**(args.hyperparams.get("env_config") or {}), **args.env_kwargs},
+        }
+    if args.save_replay_buffer and not is_q_learning(args.algo):
+        raise UsageError(f"--save-replay-buffer: {args.algo} learns on-policy and has no replay buffer (madqn has one).")
     check_folder("-f/--log-folder", args.log_folder)
     check_folder("-tb/--tensorboard-log", args.tensorboard_log)
     check_device(args.device)

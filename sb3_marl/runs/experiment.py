@@ -30,7 +30,7 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_marl.algos import ALGOS
 from sb3_marl.algos.common.policies import unchecked_distributions
-from sb3_marl.common.files import REPLAY_BUFFER_FILE, read_replay_buffer
+from sb3_marl.common.files import REPLAY_BUFFER_FILE, read_replay_buffer, write_replay_buffer
 from sb3_marl.envs import copy_av_counts
 from sb3_marl.runs.callbacks import (
     AtomicCheckpointCallback,
@@ -390,6 +390,9 @@ class MARLExperimentManager(ExperimentManager):
     def save_trained_model(self, model: BaseAlgorithm) -> None:
         path = atomic_save(model, os.path.join(self.save_path, f"{self.env_name}.zip"))
         print(f"Saved the model ({model.num_timesteps} timesteps) to {path}")
+        buffer = getattr(model, "replay_buffer", None)
+        if self.spec.save_replay_buffer and buffer is not None:
+            write_replay_buffer(buffer, os.path.join(self.save_path, REPLAY_BUFFER_FILE))
 
 
 __all__ = ["EVAL_SEED_OFFSET", "MARLExperimentManager"]

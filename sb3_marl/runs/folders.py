@@ -40,6 +40,8 @@ class RunSpec:
     :param run_id: write to ``<env>_<run_id>/`` (an existing folder is continued) instead of the next free id
     :param monitor_file: name of the training episodes' monitor file in the run folder
     :param evaluate_at_end: evaluate the final model too (if the last evaluation was not at the last step)
+    :param save_replay_buffer: write an off-policy learner's replay buffer beside the final model
+        (``replay_buffer.npz``, data; ``-i`` continues with it)
     """
 
     algo: str
@@ -65,6 +67,7 @@ class RunSpec:
     run_id: int | None = None
     monitor_file: str = "monitor.csv"
     evaluate_at_end: bool = False
+    save_replay_buffer: bool = False
     # rl-zoo's -optimize (Optuna)
     optimize_hyperparameters: bool = False
     n_trials: int = 500
