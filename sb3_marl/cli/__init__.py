@@ -6,7 +6,7 @@
     sb3-marl record-video --algo ma2c --env sb3_marl/LaneChange-density1-v0 -f logs
     sb3-marl push-to-hub --algo ma2c --env sb3_marl/LaneChange-density1-v0 -f logs -orga ORG [--dry-run PATH]
     sb3-marl load-from-hub --repo-id ORG/NAME -f logs
-    sb3-marl baselines --density 1        (reference policies: random, cruise and IDM/MOBIL)
+    sb3-marl baselines                    (reference policies: random, cruise and IDM/MOBIL)
     sb3-marl summary -f logs              (markdown table of the evaluated runs)
     sb3-marl benchmark --grid paper --budget 0.05   (the paper's experiments as Ray Tune trials)
     sb3-marl benchmark status -f logs/benchmark     (where each trial stands)

@@ -7,6 +7,7 @@ import argparse
 import math
 import os
 import signal
+import sys
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -41,6 +42,22 @@ class StoreHyperparams(argparse.Action):
             except ValueError as error:
                 parser.error(f"argument {option_string}: {error}")
         setattr(namespace, self.dest, parsed)
+
+
+class Deprecated(argparse.Action):
+    """An old spelling of a flag, kept (hidden) for one release: it sets the new flag's value and
+    says, on stderr, which name to use instead.
+
+    :param new: the flag's current name
+    """
+
+    def __init__(self, option_strings: list[str], dest: str, new: str, **kwargs: Any) -> None:
+        super().__init__(option_strings, dest, help=argparse.SUPPRESS, **kwargs)
+        self.new = new
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: Any, values: Any, option_string: Any = None) -> None:
+        print(f"{option_string} is deprecated and goes in the next release: use {self.new}.", file=sys.stderr)
+        setattr(namespace, self.dest, values)
 
 
 def positive(kind: type = int, maximum: float | None = None, minimum: int = 1) -> Any:

@@ -16,6 +16,7 @@ from sb3_marl.cli.common import (
     MAX_COUNT,
     MAX_EPISODES,
     CommandFailed,
+    Deprecated,
     UsageError,
     add_run_selection,
     check_file,
@@ -25,8 +26,8 @@ from sb3_marl.cli.common import (
     positive,
 )
 from sb3_marl.common.files import write_text
-from sb3_marl.envs import DENSITIES, ENV_IDS, MERGE_ENV_IDS, SCENARIO_IDS, make_scenario
-from sb3_marl.envs.config import LANE_CHANGE, MERGE, SCENARIO_DENSITIES
+from sb3_marl.envs import DENSITIES, ENV_IDS, MERGE_ENV_IDS, SCENARIO_IDS, av_counts, make_scenario
+from sb3_marl.envs.config import LANE_CHANGE, MERGE, SUPERVISOR_PROTOCOLS
 
 
 def add_parsers(commands: Any) -> None:
@@ -65,7 +66,12 @@ def add_parsers(commands: Any) -> None:
 
     video = commands.add_parser("record-video", help="mp4 of evaluation episodes, rendered headless")
     add_run_selection(video)
-    video.add_argument("--n-episodes", type=positive(maximum=MAX_COUNT), default=1, help="episodes in the video (default: 1)")
+    video.add_argument(
+        "--eval-episodes", type=positive(maximum=MAX_COUNT), default=1, help="episodes in the video (default: 1)"
+    )
+    video.add_argument(
+        "--n-episodes", dest="eval_episodes", type=positive(maximum=MAX_COUNT), action=Deprecated, new="--eval-episodes"
+    )
     video.add_argument("-o", "--output", default=None, help="mp4 file (default: <run>/videos/<model>.mp4)")
     video.set_defaults(handler=record_video_command)
 
@@ -75,17 +81,28 @@ def add_parsers(commands: Any) -> None:
     summary.set_defaults(handler=summary_command)
 
     baselines = commands.add_parser("baselines", help="metrics of the reference policies (random, cruise, IDM/MOBIL)")
-    baselines.add_argument("--density", type=int, choices=sorted(DENSITIES), default=1, help="traffic density")
+    baselines.add_argument("--env", default=DEFAULT_ENV, choices=SCENARIO_IDS, help="scenario id")
     baselines.add_argument(
-        "--scenario", choices=[LANE_CHANGE, MERGE], default=LANE_CHANGE, help="the lane change or the on-ramp merge"
-    )
-    baselines.add_argument(
-        "--episodes", type=positive(maximum=MAX_EPISODES), default=20, help="episodes per policy and AV count"
+        "--eval-episodes", type=positive(maximum=MAX_EPISODES), default=20, help="episodes per policy, AV count and protocol"
     )
     baselines.add_argument("--seed", type=int, default=0, help="first episode seed")
     baselines.add_argument(
-        "--out", type=Path, default=Path("logs/scenario_baselines.md"), help="markdown table (and .json beside)"
+        "--supervisor",
+        nargs="+",
+        choices=list(SUPERVISOR_PROTOCOLS),
+        default=list(SUPERVISOR_PROTOCOLS),
+        help="safety supervisor protocols: on (the authors'), off (the policy alone)",
     )
+    baselines.add_argument(
+        "-o", "--output", type=Path, default=None, help="markdown table, .json beside (default: logs/baselines_<env>.md)"
+    )
+    # the old spellings, for one release
+    baselines.add_argument(
+        "--episodes", dest="eval_episodes", type=positive(maximum=MAX_EPISODES), action=Deprecated, new="--eval-episodes"
+    )
+    baselines.add_argument("--out", dest="output", type=Path, action=Deprecated, new="-o/--output")
+    baselines.add_argument("--density", type=int, choices=sorted(DENSITIES), action=Deprecated, new="--env")
+    baselines.add_argument("--scenario", choices=[LANE_CHANGE, MERGE], action=Deprecated, new="--env")
     baselines.set_defaults(handler=baselines_command)
 
 
@@ -138,7 +155,7 @@ def record_video_command(args: argparse.Namespace) -> int:
             model_policy(model, args.deterministic),
             args.env,
             output,
-            args.n_episodes,
+            args.eval_episodes,
             args.seed + EVAL_SEED_OFFSET,
             run.env_config,
         )
@@ -198,26 +215,32 @@ def summary_command(args: argparse.Namespace) -> int:
 
 
 def baselines_command(args: argparse.Namespace) -> int:
-    check_file("--out", args.out)
+    from sb3_marl.envs.config import with_supervisor
     from sb3_marl.evaluation import markdown_table, run_episodes, summarize
     from sb3_marl.evaluation.baselines import BASELINES
 
-    env_id = (MERGE_ENV_IDS if args.scenario == MERGE else ENV_IDS)[args.density]
-    lo, hi = SCENARIO_DENSITIES[args.scenario][args.density]["avs"]
+    env_id = args.env
+    if args.density is not None or args.scenario is not None:  # the old --density / --scenario
+        scenario = args.scenario or LANE_CHANGE
+        env_id = (MERGE_ENV_IDS if scenario == MERGE else ENV_IDS)[args.density or 1]
+    output = args.output or Path("logs") / f"baselines_{env_id.replace('/', '-')}.md"
+    check_file("-o/--output", output)
     rows, results = [], []
     start = time.perf_counter()
     for name, policy_class in BASELINES.items():
-        for n_avs in range(lo, hi + 1):
-            env = make_scenario(env_id, {"n_avs": n_avs})
-            summary = summarize(run_episodes(env, policy_class(), args.episodes, seed=args.seed))
-            results.append({"policy": name, "n_avs": n_avs, **summary})
-            rows.append(({"policy": name, "n_avs": n_avs}, summary))
+        for n_avs in av_counts(env_id):
+            for protocol in args.supervisor:
+                env = make_scenario(env_id, with_supervisor({"n_avs": n_avs}, protocol))
+                summary = summarize(run_episodes(env, policy_class(), args.eval_episodes, seed=args.seed))
+                label = {"policy": name, "n_avs": n_avs, "supervisor": protocol}
+                results.append({**label, **summary})
+                rows.append((label, summary))
     table = (
-        f"Scenario {env_id}: {args.episodes} episodes per row, "
-        f"seeds {args.seed}..{args.seed + args.episodes - 1}\n\n" + markdown_table(rows)
+        f"Scenario {env_id}: {args.eval_episodes} episodes per row, "
+        f"seeds {args.seed}..{args.seed + args.eval_episodes - 1}\n\n" + markdown_table(rows)
     )
     print(table)
-    write_text(args.out, table + "\n")
-    write_text(args.out.with_suffix(".json"), json.dumps(results, indent=2))
-    print(f"\nwrote {args.out} and {args.out.with_suffix('.json')} in {time.perf_counter() - start:.1f} s")
+    write_text(output, table + "\n")
+    write_text(output.with_suffix(".json"), json.dumps(results, indent=2))
+    print(f"\nwrote {output} and {output.with_suffix('.json')} in {time.perf_counter() - start:.1f} s")
     return 0

@@ -1,6 +1,7 @@
 """The sb3-marl command line: rl-zoo log layout, TensorBoard metrics, evaluate, plot, video, resume,
 interruption and bad input. Real training runs, kept tiny (a few thousand AV-steps)."""
 
+import argparse
 import json
 import os
 import pickle
@@ -18,7 +19,7 @@ from stable_baselines3 import A2C
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from sb3_marl.algos.a2c import MaskableA2C
-from sb3_marl.cli import main
+from sb3_marl.cli import build_parser, main
 from sb3_marl.runs.callbacks import atomic_save
 
 ENV = "sb3_marl/LaneChange-density1-v0"
@@ -327,12 +328,46 @@ def test_bad_input_fails_before_any_work(argv, message, tmp_path, capsys):
 
 def test_baselines_table(tmp_path, capsys):
     out = tmp_path / "baselines.md"
-    assert main(["baselines", "--episodes", "1", "--out", str(out)]) == 0
+    assert main(["baselines", "--eval-episodes", "1", "-o", str(out)]) == 0
     rows = json.loads(out.with_suffix(".json").read_text())
-    assert [(r["policy"], r["n_avs"]) for r in rows] == [(p, n) for p in ("random", "cruise", "idm-mobil") for n in (1, 2, 3)]
-    assert "| idm-mobil | 3 |" in out.read_text() and "ramp AVs merged" not in out.read_text()
-    assert main(["baselines", "--scenario", "merge", "--episodes", "1", "--out", str(out)]) == 0
-    assert "| ramp AVs merged | time to merge [s] | stranded/ep |" in out.read_text()
+    expected = [(p, n, s) for p in ("random", "cruise", "idm-mobil") for n in (1, 2, 3) for s in ("on", "off")]
+    assert [(r["policy"], r["n_avs"], r["supervisor"]) for r in rows] == expected
+    assert "| idm-mobil | 3 | on |" in out.read_text() and "ramp AVs merged" not in out.read_text()
+    merge = "sb3_marl/Merge-density1-v0"
+    assert main(["baselines", "--env", merge, "--eval-episodes", "1", "--supervisor", "off", "-o", str(out)]) == 0
+    assert "| ramp AVs merged | time to merge [s] | stranded/ep |" in out.read_text() and "| on |" not in out.read_text()
+
+
+def test_baselines_old_spellings_still_work_for_one_release(tmp_path, capsys):
+    """--density, --scenario, --episodes, --out: hidden, each with a message naming the new flag."""
+    out = tmp_path / "old.md"
+    assert main(["baselines", "--scenario", "merge", "--density", "2", "--episodes", "1", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    renamed = {"--scenario": "--env", "--density": "--env", "--episodes": "--eval-episodes", "--out": "-o/--output"}
+    for old, new in renamed.items():
+        assert f"{old} is deprecated and goes in the next release: use {new}." in err
+    assert "Scenario sb3_marl/Merge-density2-v0: 1 episodes per row" in out.read_text()
+
+
+def test_one_name_per_idea_across_subcommands():
+    """Every subcommand's visible flags spell an idea one way: episodes --eval-episodes, the
+    scenario --env, an output file -o/--output, a log folder -f."""
+    commands = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    old = {"--episodes", "--n-episodes", "--out", "--density", "--scenario", "--folder-out"}
+    seen = {
+        (name, flag)
+        for name, parser in commands.choices.items()
+        for action in parser._actions
+        if action.help != argparse.SUPPRESS
+        for flag in action.option_strings
+    }
+    assert not [item for item in seen if item[1] in old]
+    for name, parser in commands.choices.items():
+        flags = {flag for action in parser._actions if action.help != argparse.SUPPRESS for flag in action.option_strings}
+        if "--output" in flags:
+            assert "-o" in flags, name
+        if any("episode" in flag for flag in flags if "with" not in flag and "window" not in flag):
+            assert "--eval-episodes" in flags, (name, sorted(flags))
 
 
 def test_two_trainings_started_together_get_their_own_run_folders(tmp_path):

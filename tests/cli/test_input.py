@@ -228,4 +228,4 @@ def test_every_flag_has_help_and_help_shows_the_defaults(capsys):
     with pytest.raises(SystemExit):
         main(["baselines", "--help"])
     out = " ".join(capsys.readouterr().out.split())
-    assert "first episode seed (default: 0)" in out and "(default: logs/scenario_baselines.md)" in out
+    assert "first episode seed (default: 0)" in out and "(default: logs/baselines_<env>.md)" in out

@@ -14,7 +14,10 @@ ENV = "sb3_marl/LaneChange-density1-v0"
 #: (rl-zoo's command after ``python train.py``, with ours substituted), then what it must set
 MEANINGFUL = [
     (f"--algo ma2c --env {ENV}", {}),
-    (f"--algo madqn --env {ENV} -params train_freq:4 gradient_steps:4", {"hyperparams": {"train_freq": 4, "gradient_steps": 4}}),
+    (
+        f"--algo madqn --env {ENV} -params train_freq:4 gradient_steps:4",
+        {"hyperparams": {"train_freq": 4, "gradient_steps": 4}},
+    ),
     (
         f"--algo mappo --env {ENV} -n 50000 -optimize --n-trials 1000 --n-jobs 2 --sampler tpe --pruner median",
         {"n_timesteps": 50000, "optimize_hyperparameters": True, "n_trials": 1000, "n_jobs": 2},
@@ -22,7 +25,10 @@ MEANINGFUL = [
     (f"--algo mappo --env {ENV} -conf my_config.yml", {"conf_file": "my_config.yml"}),
     (f"--algo mappo --env {ENV} --eval-freq 10000 --eval-episodes 10", {"eval_freq": 10000, "eval_episodes": 10}),
     (f"--algo madqn --env {ENV} --save-freq 100000", {"save_freq": 100000}),
-    (f"--algo madqn --env {ENV} -i logs/madqn/model.zip -n 5000", {"trained_agent": "logs/madqn/model.zip", "n_timesteps": 5000}),
+    (
+        f"--algo madqn --env {ENV} -i logs/madqn/model.zip -n 5000",
+        {"trained_agent": "logs/madqn/model.zip", "n_timesteps": 5000},
+    ),
     (f"--algo mappo --env {ENV} --env-kwargs safety_supervisor:False", {"env_kwargs": {"safety_supervisor": False}}),
     (f"--algo madqn --env {ENV} --save-replay-buffer", {"save_replay_buffer": True}),
     (f"--algo mappo --env {ENV} -P", {"progress": True}),
@@ -55,10 +61,8 @@ def test_rl_zoo_flags_without_a_meaning_here_say_why(command, capsys):
 def test_env_kwargs_reach_the_scenario_and_the_replay_buffer_is_saved(tmp_path):
     """A short MADQN run with rl-zoo's --env-kwargs and --save-replay-buffer: the run's saved
     config has the override, and replay_buffer.npz lies beside the final model."""
-    code = main(
-        ["train", "--algo", "madqn", "--env", ENV, "-n", "300", "--eval-freq", "-1", "-f", str(tmp_path), "--verbose", "0"]
-        + ["--env-kwargs", "comfort:False", "--save-replay-buffer", "-params", "learning_starts:100"]
-    )
+    short = ["-n", "300", "--eval-freq", "-1", "-f", str(tmp_path), "--verbose", "0", "-params", "learning_starts:100"]
+    code = main(["train", "--algo", "madqn", "--env", ENV, *short, "--env-kwargs", "comfort:False", "--save-replay-buffer"])
     assert code == 0
     run = tmp_path / "madqn" / "sb3_marl-LaneChange-density1-v0_1"
     assert (run / "replay_buffer.npz").is_file()

@@ -510,12 +510,10 @@ def test_unusable_evaluate_outputs_are_refused_before_the_evaluation(run, tmp_pa
     assert "-o/--output" in err and ("not a regular file" in err or "is a folder" in err)
 
 
-@pytest.mark.parametrize("command", [["evaluate", "--eval-episodes", "3000"], ["baselines", "--episodes", "3000"]])
+@pytest.mark.parametrize("command", [["evaluate", "--eval-episodes", "3000"], ["baselines", "--eval-episodes", "3000"]])
 def test_ctrl_c_is_one_line_and_exit_130(run, tmp_path, command):
     """Ctrl-C during a long evaluation: exit 130 with one line on stderr, no traceback, no file."""
-    extra = (
-        ["-f", str(run), "-o", str(tmp_path / "out.json")] if command[0] == "evaluate" else ["--out", str(tmp_path / "b.md")]
-    )
+    extra = ["-f", str(run), "-o", str(tmp_path / "out.json")] if command[0] == "evaluate" else ["-o", str(tmp_path / "b.md")]
     process = subprocess.Popen([SB3_MARL, *command, *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     time.sleep(8)
     process.send_signal(signal.SIGINT)
@@ -530,13 +528,13 @@ def test_ctrl_c_is_one_line_and_exit_130(run, tmp_path, command):
     [
         (["train", "--n-envs", "1000000000"], "--n-envs"),
         (["train", "--eval-episodes", "1000000000"], "--eval-episodes"),
-        (["baselines", "--episodes", "1000000000"], "--episodes"),
+        (["baselines", "--eval-episodes", "1000000000"], "--eval-episodes"),
         (["train", "-params", "n_copies:100000"], "n_copies"),
     ],
 )
 def test_sizes_that_allocate_are_bounded_before_any_folder(argv, flag, tmp_path, capsys):
     try:
-        code = main([*argv, "-f" if argv[0] == "train" else "--out", str(tmp_path / "out")])
+        code = main([*argv, "-f" if argv[0] == "train" else "-o", str(tmp_path / "out")])
     except SystemExit as error:  # argparse's own exit for a flag's type
         code = error.code
     assert code == 2
