@@ -30,7 +30,6 @@ run: $(RUNTIME)
 	$(VENV)/bin/sb3-marl train --algo ma2c --env $(RUN_ENV) -n $(RUN_TIMESTEPS) --eval-freq 20000 --eval-episodes 6 --progress -f $(RUN_LOGS)
 	$(VENV)/bin/sb3-marl evaluate --algo ma2c --env $(RUN_ENV) --eval-episodes 30 --with-baselines -f $(RUN_LOGS)
 	$(VENV)/bin/sb3-marl plot --algo ma2c --env $(RUN_ENV) -f $(RUN_LOGS)
-	@echo "TensorBoard: $(VENV)/bin/tensorboard --logdir $(RUN_LOGS)/tensorboard"
 
 ## test: lint (ruff), format check, types (mypy), then the whole test suite
 test: $(DEV)

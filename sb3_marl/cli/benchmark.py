@@ -31,13 +31,13 @@ def add_parsers(commands: Any) -> None:
         "action",
         nargs="?",
         choices=["run", "report", "status", "evaluate"],
-        default="run",
-        help="run the grid (default), report on it, list where its trials stand, or evaluate "
+        default=None,
+        help="run the grid (default when --grid is given), report on it, list where its trials stand, or evaluate "
         "its finished trials under both supervisor protocols where they lack one or predate the current supervisor",
     )
     benchmark.add_argument(
         "--grid",
-        default="paper",
+        default=None,
         choices=list(GRIDS),
         help="paper (the five experiments of the paper and our intervention-penalty one) or one experiment (default: paper)",
     )
@@ -94,6 +94,14 @@ def _budget(text: str) -> float:
 
 
 def benchmark_command(args: argparse.Namespace) -> int:
+    if args.action is None and args.grid is None:
+        raise UsageError(
+            "sb3-marl benchmark with neither an action nor --grid would start the whole paper grid at its full "
+            "budget (81 trials of 1M env steps with --seeds 3: hours of every core). Start it with "
+            "`sb3-marl benchmark --grid paper` (or `run`); `--budget 0.01` runs a short one; `status`, "
+            "`report` and `evaluate` read a grid folder."
+        )
+    args.action, args.grid = args.action or "run", args.grid or "paper"
     if args.action == "report":
         from sb3_marl.benchmark.report import write_report
 

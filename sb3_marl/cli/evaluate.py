@@ -175,6 +175,8 @@ def plot_command(args: argparse.Namespace) -> int:
 
     runs = {}
     for algo in args.algos:
+        if not run_folders(args.folder, algo, args.env):
+            print(f"no runs of {algo} on {args.env} under {args.folder}/: left out of the plots")
         for folder in run_folders(args.folder, algo, args.env):
             if args.exp_ids is None or run_id(folder) in args.exp_ids:
                 try:

@@ -256,6 +256,12 @@ def test_a_trial_whose_worker_dies_is_retried_from_its_checkpoint(local_ray, tmp
     assert (trial / "ma2c" / "sb3_marl-LaneChange-density1-v0_1" / f"resumed_at_{resumed_at}.monitor.csv").is_file()
 
 
+def test_benchmark_alone_does_not_start_the_full_grid(capsys, tmp_path):
+    assert main(["benchmark", "-f", str(tmp_path)]) == 2
+    assert "would start the whole paper grid at its full budget" in capsys.readouterr().err
+    assert not any(tmp_path.iterdir())
+
+
 @pytest.mark.parametrize(
     ("argv", "message"),
     [

@@ -140,10 +140,12 @@ def test_evaluate_prints_and_saves_the_paper_metrics(logs, capsys):
     assert f"| ma2c | {result['num_timesteps']} |" in out and "| random | - |" in out and "| idm-mobil | - |" in out
 
 
-def test_plot_and_rl_zoo3_plots_read_our_logs(logs, tmp_path, monkeypatch):
-    assert main(["plot", "-f", str(logs), "-w", "2", "-o", str(tmp_path / "plots")]) == 0
+def test_plot_and_rl_zoo3_plots_read_our_logs(logs, tmp_path, monkeypatch, capsys):
+    assert main(["plot", "--algo", "ma2c", "mappo", "-f", str(logs), "-w", "2", "-o", str(tmp_path / "plots")]) == 0
     for name in ("train_return.png", "eval_return.png", "collision_rate.png"):
         assert imageio.imread(tmp_path / "plots" / name).std() > 0, name
+    out = capsys.readouterr().out
+    assert f"no runs of mappo on sb3_marl/LaneChange-density1-v0 under {logs}/: left out of the plots" in out
 
     from matplotlib import pyplot as plt
     from rl_zoo3.plots.all_plots import all_plots
