@@ -304,7 +304,9 @@ def grid_status(
     settings_path = Path(log_folder) / SETTINGS_FILE
     if not settings_path.is_file():
         raise FileNotFoundError(
-            f"No benchmark in {log_folder}/ (no {SETTINGS_FILE}): run `sb3-marl benchmark -f {log_folder}` first."
+            f"No benchmark in {log_folder}/ (no {SETTINGS_FILE}): start one there, e.g. a short one with "
+            f"`sb3-marl benchmark --grid {grid} --budget 0.01 -f {log_folder}` (the committed full-budget grid is "
+            "results/paper-grid)."
         )
     settings = read_json_object(settings_path)
     budget: Any = settings.get("budget")

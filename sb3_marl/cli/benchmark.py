@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import re
 import signal
 import sys
 from pathlib import Path
@@ -46,7 +47,10 @@ def add_parsers(commands: Any) -> None:
         "--budget", type=_budget, default=1.0, help="fraction of the paper's 1M env steps per trial (default: 1)"
     )
     benchmark.add_argument(
-        "--seeds", type=positive(maximum=MAX_COUNT), default=PAPER_SEEDS, help="seeds per trial setting (default: 2)"
+        "--seeds",
+        type=positive(maximum=MAX_COUNT),
+        default=None,
+        help=f"seeds per trial setting (default: {PAPER_SEEDS}; status: as many as -f holds, at least {PAPER_SEEDS})",
     )
     benchmark.add_argument(
         "--densities", type=int, nargs="+", choices=sorted(DENSITIES), default=sorted(DENSITIES), help="traffic densities"
@@ -102,6 +106,8 @@ def benchmark_command(args: argparse.Namespace) -> int:
             "`report` and `evaluate` read a grid folder."
         )
     args.action, args.grid = args.action or "run", args.grid or "paper"
+    if args.seeds is None:
+        args.seeds = max(PAPER_SEEDS, _seeds_in(args.log_folder)) if args.action == "status" else PAPER_SEEDS
     if args.action == "report":
         from sb3_marl.benchmark.report import write_report
 
@@ -179,6 +185,13 @@ def _benchmark_evaluate(args: argparse.Namespace) -> int:
         f"re-evaluated {len(done)} of {len(results)} finished trials under both supervisor protocols (the current supervisor)"
     )
     return 0
+
+
+def _seeds_in(folder: str) -> int:
+    """How many seeds the trial folders in ``folder/trials`` span (``..._seed<N>``: N + 1; 0: none)."""
+    trials = Path(folder) / "trials"
+    seeds = [int(m[1]) for p in (trials.iterdir() if trials.is_dir() else ()) if (m := re.search(r"_seed(\d+)$", p.name))]
+    return max(seeds, default=-1) + 1
 
 
 def _benchmark_status(args: argparse.Namespace) -> int:

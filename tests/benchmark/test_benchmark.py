@@ -443,3 +443,12 @@ def test_benchmark_evaluate_redoes_the_trials_evaluated_under_another_version_of
     stamp = (copy / "trials" / trials[MERGE] / "result.json").stat().st_mtime_ns
     assert main(["benchmark", "evaluate", "-f", str(copy)]) == 0
     assert (copy / "trials" / trials[MERGE] / "result.json").stat().st_mtime_ns == stamp
+
+
+def test_status_counts_the_seeds_the_folder_holds(capsys):
+    """The committed grid holds seeds 0-2: status without --seeds lists all 81 trials, not 54."""
+    grid = Path(__file__).resolve().parents[2] / "results" / "paper-grid"
+    assert main(["benchmark", "status", "-f", str(grid)]) == 0
+    assert "81 of 81 trials finished" in capsys.readouterr().out
+    assert main(["benchmark", "status", "-f", str(grid), "--seeds", "2"]) == 0
+    assert "54 of 54 trials finished" in capsys.readouterr().out
