@@ -12,25 +12,10 @@ import pytest
 
 from sb3_marl.envs import ENV_IDS, MERGE_ENV_IDS
 from wrappers import ParameterSharingVecEnv
-from wrappers.slot_infos import SlotInfo
+from wrappers.slot_infos import PER_AGENT_INFO, SlotInfo
 
 #: Slot-info entries compared (beside observations, rewards, dones and masks).
-ENTRIES = (
-    "speed",
-    "headway",
-    "acceleration",
-    "lane_change",
-    "crashed",
-    "exited",
-    "proposed_action",
-    "executed_action",
-    "intervened",
-    "rule_action",
-    "reward",
-    "global_reward",
-    "copy",
-    "agent",
-)
+ENTRIES = (*(key for key in PER_AGENT_INFO if key != "action_mask"), "reward", "global_reward", "copy", "agent")
 
 
 def _trace(env_id: str, batched: bool, steps: int, config: dict, reward_mode: str = "local", **kwargs) -> list:
