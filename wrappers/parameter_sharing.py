@@ -28,7 +28,7 @@ from sb3_marl.envs import (  # importing sb3_marl.envs registers the scenario id
 from sb3_marl.envs.batch import RoadBatch, batchable
 from sb3_marl.envs.reward import REWARD_MODES
 from wrappers.copies import CopyGroups, CopyRunner, per_agent_spaces
-from wrappers.slot_infos import Ending, join_arrays, slot_infos
+from wrappers.slot_infos import Ending, join_arrays, slice_arrays, slot_infos
 
 VEC_BACKENDS = ("dummy", "subproc")
 #: Copy methods whose result has one row per AV; ``env_method`` hands each slot its own row.
@@ -280,9 +280,7 @@ class ParameterSharingVecEnv(VecEnv):
             for k in ended.tolist():
                 sl = self.slices[k]
                 self._obs[sl] = start.obs[sl]
-                reset_arrays = {key: value[sl] for key, value in start_arrays.items() if key != "reward_terms"}
-                reset_arrays["reward_terms"] = {name: values[sl] for name, values in start_arrays["reward_terms"].items()}
-                endings[k] = Ending(step.obs[sl], bool(step.truncated[k]), reset_arrays)
+                endings[k] = Ending(step.obs[sl], bool(step.truncated[k]), slice_arrays(start_arrays, sl))
         return self._finish(rewards, arrays, endings)
 
     def _slot_arrays(self, parts: list[dict[str, Any]]) -> dict[str, Any]:

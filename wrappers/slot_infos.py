@@ -53,6 +53,13 @@ def join_arrays(parts: Sequence[dict[str, Any]]) -> dict[str, Any]:
     return joined
 
 
+def slice_arrays(arrays: dict[str, Any], slots: slice) -> dict[str, Any]:
+    """The per-slot arrays of the ``slots`` only (one copy's share of :func:`join_arrays`' result)."""
+    part = {key: values[slots] for key, values in arrays.items() if key != "reward_terms"}
+    part["reward_terms"] = {name: values[slots] for name, values in arrays["reward_terms"].items()}
+    return part
+
+
 class SlotInfo(dict):
     """One slot's info (see :class:`~wrappers.ParameterSharingVecEnv`), a dict: its row of the
     step's per-slot arrays, read when asked, and entries of its own (``terminal_observation``,

@@ -82,8 +82,8 @@ class RoadBatch:
         self.parameters = step_parameters(envs[0])
         self.n_avs = np.array([env.n_avs for env in envs], dtype=np.int64)
         self.slot_starts = np.concatenate([[0], np.cumsum(self.n_avs)]).astype(np.int64)
-        self.states = np.concatenate([env.state for env in envs])
-        self.offsets = np.concatenate([[0], np.cumsum([len(env.state) for env in envs])]).astype(np.int64)
+        self.states = np.zeros((0, kernel.COLUMNS))  # every copy's rows, added by load() below
+        self.offsets = np.zeros(len(envs) + 1, dtype=np.int64)
         self.steps = np.zeros(len(envs), dtype=np.int64)
         self.supervise, self.shadow = np.zeros(len(envs), dtype=np.bool_), np.zeros(len(envs), dtype=np.bool_)
         self._stale = False  # whether the envs' states are behind the batch's
