@@ -35,11 +35,10 @@ from sb3_marl.benchmark.statistics import clopper_pearson_upper, iqm_with_ci
 from sb3_marl.cli.common import StoreHyperparams
 from sb3_marl.common.files import write_text
 from sb3_marl.envs import ENV_IDS, MERGE_ENV_IDS
-from sb3_marl.envs.config import LANE_CHANGE, MERGE, scenario_default_config, validate_config
+from sb3_marl.envs.config import LANE_CHANGE, MERGE, scenario_default_config, supervisor_version, validate_config
 from sb3_marl.evaluation import evaluate_protocols
 from sb3_marl.evaluation.baselines import IDMMobilPolicy
 from sb3_marl.runs.folders import find_run
-from sb3_marl.safety.supervisor import VERSIONS
 
 
 def slim(result: dict) -> dict:
@@ -60,15 +59,15 @@ def evaluate_all(args: argparse.Namespace) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     path = out / "heldout.json"
     results = json.loads(path.read_text()) if path.is_file() else {}
-    earlier = results.get("protocol", {})
-    if earlier.get("supervisor_version") != VERSIONS[scenario] or earlier.get("config", {}) != args.config:
+    earlier, version = results.get("protocol", {}), supervisor_version(args.config, scenario)
+    if earlier.get("supervisor_version") != version or earlier.get("config", {}) != args.config:
         results = {}  # evaluated under another safety supervisor or env config: start afresh
     results["protocol"] = {
         "episodes": args.episodes,
         "seeds": [args.seed, args.seed + args.episodes - 1],
         "actions": "sampled (the authors' protocol)" + (" and greedy (argmax)" if args.greedy else "") + ", action masks",
         "supervisor": "on (top level) and off (supervisor_off)",
-        "supervisor_version": VERSIONS[scenario],
+        "supervisor_version": version,
         **({"config": args.config} if args.config else {}),
     }
     ids = MERGE_ENV_IDS if scenario == MERGE else ENV_IDS  # the scenario of IDM/MOBIL's reference rows

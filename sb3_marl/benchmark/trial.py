@@ -266,12 +266,12 @@ def paper_evaluation(model: Any, env_id: str, config: dict[str, Any] | None) -> 
     episodes (seeds 10000..), sampled actions, under both supervisor protocols."""
     from sb3_marl.algos.common.policies import model_policy, uses_action_masks
     from sb3_marl.envs import scenario_of
+    from sb3_marl.envs.config import supervisor_version
     from sb3_marl.evaluation import evaluate_protocols, protocol_label
     from sb3_marl.runs.experiment import EVAL_SEED_OFFSET
-    from sb3_marl.safety.supervisor import VERSIONS
 
     return {
-        "supervisor_version": VERSIONS[scenario_of(env_id)],
+        "supervisor_version": supervisor_version(config, scenario_of(env_id)),
         "episodes": FINAL_EVAL_EPISODES,
         "seeds": [EVAL_SEED_OFFSET, EVAL_SEED_OFFSET + FINAL_EVAL_EPISODES - 1],
         "protocol": protocol_label(False, uses_action_masks(model)),
@@ -286,8 +286,8 @@ def reevaluate_trial(folder: Path) -> bool:
     supervisor; the supervisor-on return of an earlier evaluation is kept in ``note`` if it
     differs. Returns whether the trial was re-evaluated."""
     from sb3_marl.envs import scenario_of
+    from sb3_marl.envs.config import supervisor_version
     from sb3_marl.runs.folders import find_run
-    from sb3_marl.safety.supervisor import VERSIONS
 
     result = read_json_object(folder / RESULT)
     if "trial" not in result:
@@ -297,10 +297,10 @@ def reevaluate_trial(folder: Path) -> bool:
     except (ValueError, TypeError) as error:
         raise ValueError(f"{folder / RESULT}: 'trial' {error}") from None
     earlier = result.get("paper_evaluation") or {}
-    version = VERSIONS[scenario_of(spec.env_id)]
+    run = find_run(folder, spec.algo, spec.env_id, RUN_ID)
+    version = supervisor_version(run.env_config, scenario_of(spec.env_id))
     if earlier.get("supervisor_version") == version and "yields_per_episode" in earlier.get("supervisor_off", {}):
         return False
-    run = find_run(folder, spec.algo, spec.env_id, RUN_ID)
     evaluation = paper_evaluation(run.load_model("cpu"), spec.env_id, run.env_config)
     if "note" in earlier:
         evaluation["note"] = earlier["note"]

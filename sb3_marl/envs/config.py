@@ -14,6 +14,7 @@ from collections.abc import Callable
 from typing import Any
 
 from sb3_marl.common.checks import is_integer, is_number
+from sb3_marl.safety.supervisor import MERGE_SUPERVISOR_VERSIONS, SUPERVISOR_VERSIONS
 from sb3_marl.sim import LANE_CHANGE, MERGE
 
 #: Traffic densities of the paper: inclusive (min, max) counts of AVs and of HDVs per episode.
@@ -107,14 +108,19 @@ def default_config() -> dict[str, Any]:
         # themselves and brake for it), so that it may brake behind a slower vehicle; True (v3):
         # every vehicle counts, and a platoon of AVs behind a slower HDV holds its speed
         "supervisor_rear_avs": True,
+        # the supervisor's decisions by version (sb3_marl.safety.supervisor.SUPERVISOR_VERSIONS):
+        # 3 (the lane change's default, every committed lane-change number) has the emergency brake
+        # and the joint search below off; 4 (the merge's default) has both on
+        "supervisor_version": 3,
         # when no meta-action leaves an AV supervisor_min_gap of room, brake it to a stop (a target
-        # speed of 0 m/s, below the speed ladder) if that leaves more; on for the merge, whose AVs
-        # meet stalled vehicles and a dead end they cannot stop for at the ladder's 10 m/s; a braked
-        # AV may then be released by the supervisor with SLOWER (to the ladder's lowest speed)
-        "supervisor_emergency_brake": False,
+        # speed of 0 m/s, below the speed ladder) if that leaves more; a braked AV may then be
+        # released by the supervisor with SLOWER (to the ladder's lowest speed); null: as
+        # supervisor_version says
+        "supervisor_emergency_brake": None,
         # when AVs are still short of supervisor_min_gap of room after the passes, search their
-        # actions in pairs with the other AVs' (the whole road predicted for each pair)
-        "supervisor_joint_search": False,
+        # actions in pairs with the other AVs' (the whole road predicted for each pair); null: as
+        # supervisor_version says
+        "supervisor_joint_search": None,
         # an AV's lane change counts as short of room when its new follower, an HDV on the target
         # lane or on the lane leading into it, would brake harder behind it (IDM) than its MOBIL
         # safe braking (hdv_b_safe): the check MOBIL makes for the HDVs' own lane changes (the
@@ -142,8 +148,7 @@ def merge_default_config() -> dict[str, Any]:
             # weight of the merging-lane cost -exp(-(x - merge end)² / (10 × merging lane length))
             "merging_lane_weight": 4.0,
             "supervisor_priority": "merging",  # see SUPERVISOR_PRIORITIES
-            "supervisor_emergency_brake": True,
-            "supervisor_joint_search": True,
+            "supervisor_version": 4,
         }
     )
     return config
@@ -255,8 +260,9 @@ _SCHEMA: dict[str, tuple[Check, str]] = {
     "supervisor_min_gap": _number(0, 100),
     "supervisor_repeat_actions": _boolean(),
     "supervisor_rear_avs": _boolean(),
-    "supervisor_emergency_brake": _boolean(),
-    "supervisor_joint_search": _boolean(),
+    "supervisor_version": ((lambda v: v in SUPERVISOR_VERSIONS), f"one of {list(SUPERVISOR_VERSIONS)}"),
+    "supervisor_emergency_brake": ((lambda v: v is None or isinstance(v, bool)), "null, true or false"),
+    "supervisor_joint_search": ((lambda v: v is None or isinstance(v, bool)), "null, true or false"),
     "supervisor_mobil_safety": _boolean(),
     "supervisor_shadow": _boolean(),
     "screen_width": _integer(1, 10_000),
@@ -318,6 +324,13 @@ def validate_config(config: dict[str, Any], scenario: str = LANE_CHANGE) -> None
     if lo == hi:
         raise _fail("reward_speed_range", config["reward_speed_range"], "a pair with min < max")
     if scenario == MERGE:
+        if config["supervisor_version"] not in MERGE_SUPERVISOR_VERSIONS:
+            raise _fail(
+                "supervisor_version",
+                config["supervisor_version"],
+                f"one of {list(MERGE_SUPERVISOR_VERSIONS)} on the merge (its version 3 released the emergency brake "
+                "differently; that code is not kept)",
+            )
         _check_merge_spawn(config)
     else:
         _check_highway(config)
@@ -386,6 +399,11 @@ def resolved_hdv_range(config: dict[str, Any], scenario: str = LANE_CHANGE) -> t
         lo, hi = config["hdv_count_range"]
         return int(lo), int(hi)
     return SCENARIO_DENSITIES[scenario][config["density"]]["hdvs"]
+
+
+def supervisor_version(overrides: dict[str, Any] | None, scenario: str = LANE_CHANGE) -> int:
+    """The supervisor version a config of ``overrides`` (over the scenario's defaults) runs."""
+    return int({**scenario_default_config(scenario), **(overrides or {})}["supervisor_version"])
 
 
 #: Every evaluation's two protocols -> ``safety_supervisor``: the authors' (on), the policy alone (off).

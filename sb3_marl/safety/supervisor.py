@@ -81,7 +81,6 @@ from sb3_marl.safety.rooms import (
     set_brake,
     unsafe_cut_ins,
 )
-from sb3_marl.sim import LANE_CHANGE, MERGE
 from sb3_marl.sim.drivers import lane_distance, lane_occupancy, leader
 from sb3_marl.sim.kernel import (
     COLLIDABLE,
@@ -91,11 +90,15 @@ from sb3_marl.sim.kernel import (
 )
 from sb3_marl.sim.meta_actions import meta_action_targets
 
-#: Version of the supervisor's decisions on each road (:data:`~sb3_marl.sim.LANE_CHANGE`,
-#: ``MERGE``); evaluations record it, and ``sb3-marl benchmark evaluate`` re-evaluates trials
-#: evaluated under another (history in CHANGELOG.md; 3: the road's own equations; 4, the merge:
-#: the emergency brake's release, :meth:`Supervisor.choices`, and ``supervisor_joint_search`` on).
-VERSIONS = {LANE_CHANGE: 3, MERGE: 4}
+#: The supervisor's versions -> (emergency brake, joint search) they turn on: what the config's
+#: ``supervisor_version`` selects where ``supervisor_emergency_brake`` / ``supervisor_joint_search``
+#: are null. Evaluations record the version, and ``sb3-marl benchmark evaluate`` re-evaluates
+#: trials evaluated under another (history in CHANGELOG.md; 3: the road's own equations in the
+#: prediction; 4: the emergency brake with its release, :meth:`Supervisor.choices`, and the joint
+#: search, the merge's since 2026-12-02, the lane change's since 2026-12-04).
+SUPERVISOR_VERSIONS: dict[int, tuple[bool, bool]] = {3: (False, False), 4: (True, True)}
+#: The versions the merge accepts (its version 3 released the emergency brake otherwise).
+MERGE_SUPERVISOR_VERSIONS = (4,)
 NO_LEADER_GAP = 1e6  # [m], headway of an AV without leader (priority only)
 #: Passes over the AVs in priority order (the second checks against the first pass's final actions).
 PASSES = 2
@@ -266,6 +269,14 @@ def headway_margins(state: np.ndarray, n_avs: int, lanes: np.ndarray, headway_ti
     return margin
 
 
+def supervisor_switches(config: dict[str, Any]) -> tuple[bool, bool]:
+    """(emergency brake, joint search) of a full scenario config: each switch as set, or as its
+    ``supervisor_version`` says where it is null."""
+    brake, joint = SUPERVISOR_VERSIONS[config["supervisor_version"]]
+    set_brake, set_joint = config["supervisor_emergency_brake"], config["supervisor_joint_search"]
+    return (brake if set_brake is None else bool(set_brake), joint if set_joint is None else bool(set_joint))
+
+
 @dataclass(frozen=True)
 class Supervisor:
     """The supervisor of one scenario config (see the module doc); the env builds it at each reset.
@@ -308,8 +319,7 @@ class Supervisor:
             float(config["supervisor_min_gap"]),
             bool(config["supervisor_repeat_actions"]),
             bool(config["supervisor_rear_avs"]),
-            bool(config["supervisor_emergency_brake"]),
-            bool(config["supervisor_joint_search"]),
+            *supervisor_switches(config),
             bool(config["supervisor_mobil_safety"]),
             priorities,
         )

@@ -419,8 +419,9 @@ def test_benchmark_evaluate_redoes_the_trials_evaluated_under_another_version_of
     supervisor version: ``benchmark evaluate`` redoes the merge trial's (its version 4 added the
     emergency brake's release and made ``supervisor_joint_search`` the default) and leaves the lane
     change's, whose version is unchanged; a second call redoes nothing."""
-    from sb3_marl.envs.config import LANE_CHANGE, MERGE
-    from sb3_marl.safety.supervisor import VERSIONS
+    from sb3_marl.envs.config import LANE_CHANGE, MERGE, supervisor_version
+
+    versions = {scenario: supervisor_version(None, scenario) for scenario in (LANE_CHANGE, MERGE)}
 
     grid = Path(__file__).resolve().parents[2] / "results" / "paper-grid"
     copy = tmp_path / "grid"
@@ -430,14 +431,14 @@ def test_benchmark_evaluate_redoes_the_trials_evaluated_under_another_version_of
     for scenario, name in trials.items():
         subprocess.run(["cp", "-r", str(grid / "trials" / name), str(copy / "trials" / name)], check=True)
         result = json.loads((copy / "trials" / name / "result.json").read_text())
-        assert result["paper_evaluation"]["supervisor_version"] == VERSIONS[scenario]
-        result["paper_evaluation"]["supervisor_version"] = VERSIONS[scenario] - (scenario == MERGE)
+        assert result["paper_evaluation"]["supervisor_version"] == versions[scenario]
+        result["paper_evaluation"]["supervisor_version"] = versions[scenario] - (scenario == MERGE)
         (copy / "trials" / name / "result.json").write_text(json.dumps(result))
     stamp = {name: (copy / "trials" / name / "result.json").stat().st_mtime_ns for name in trials.values()}
     assert main(["benchmark", "evaluate", "-f", str(copy)]) == 0
     redone = json.loads((copy / "trials" / trials[MERGE] / "result.json").read_text())["paper_evaluation"]
     committed = json.loads((grid / "trials" / trials[MERGE] / "result.json").read_text())["paper_evaluation"]
-    assert redone["supervisor_version"] == VERSIONS[MERGE] == 4
+    assert redone["supervisor_version"] == versions[MERGE] == 4
     assert redone["return_mean"] == pytest.approx(committed["return_mean"], abs=1e-9)
     assert (copy / "trials" / trials[LANE_CHANGE] / "result.json").stat().st_mtime_ns == stamp[trials[LANE_CHANGE]]
     stamp = (copy / "trials" / trials[MERGE] / "result.json").stat().st_mtime_ns

@@ -10,6 +10,7 @@ from parity import compare, run_episode, stock_rule_actions
 from pettingzoo.test import parallel_api_test
 
 from sb3_marl.envs import ENV_IDS, MERGE_ENV_IDS, av_counts, parallel_env
+from sb3_marl.safety.supervisor import supervisor_switches
 from sb3_marl.sim import kernel
 from sb3_marl.sim.lanes import lane_table
 from sb3_marl.sim.merge_road import (
@@ -141,6 +142,7 @@ def test_state_round_trips_through_highway_env_objects():
         (lambda: gym.make(MERGE_ENV_IDS[1], config={"merging_lane_weight": -1.0}), "merging_lane_weight"),
         (lambda: gym.make(MERGE_ENV_IDS[3], config={"hdv_count_range": [0, 9]}), "hdv_count_range"),
         (lambda: gym.make(MERGE_ENV_IDS[1], config={"n_avs": 5}), "n_avs"),
+        (lambda: gym.make(MERGE_ENV_IDS[1], config={"supervisor_version": 3}), "supervisor_version"),
     ],
 )
 def test_bad_config_names_the_key(make_env, key):
@@ -198,10 +200,7 @@ def test_the_emergency_brake_stops_an_av_for_a_stalled_vehicle(simulator):
         outcome[brake] = (crashed, braked[0], float(env.state[0, kernel.TARGET_SPEED]))
     assert outcome[False][:2] == (True, False)
     assert outcome[True][:2] == (False, True) and info["intervened"][0] == braked[-1]
-    assert (
-        make(1).config["supervisor_emergency_brake"]
-        and not gym.make(ENV_IDS[1]).unwrapped.config["supervisor_emergency_brake"]
-    )
+    assert supervisor_switches(make(1).config) == (True, True)
 
 
 def random_episode_crashes(seed: int, n_avs: int, **config) -> bool:
@@ -269,7 +268,7 @@ def test_the_supervisor_releases_an_av_it_braked_when_braking_on_would_be_run_in
         released.append(not masks[-1][executed == 4, 4].all())
 
     env = make(3, n_avs=5, safety_supervisor=True)
-    assert env.config["supervisor_emergency_brake"] and env.config["supervisor_joint_search"]
+    assert supervisor_switches(env.config) == (True, True)
     episode = run_episodes(env, policy, 1, seed, on_step)[0]
     assert not episode.crashed and episode.length == 100 and any(released)
 
