@@ -308,29 +308,19 @@ def validate_config(config: dict[str, Any], scenario: str = LANE_CHANGE) -> None
 
     avs_lo, avs_hi = SCENARIO_DENSITIES[scenario][config["density"]]["avs"]
     if config["n_avs"] is not None and not avs_lo <= config["n_avs"] <= avs_hi:
-        raise _fail(
-            "n_avs",
-            config["n_avs"],
-            f"an integer in [{avs_lo}, {avs_hi}], the AV range of density {config['density']}",
-        )
+        allowed = f"an integer in [{avs_lo}, {avs_hi}], the AV range of density {config['density']}"
+        raise _fail("n_avs", config["n_avs"], allowed)
     frames = config["simulation_frequency"] / config["policy_frequency"]
     if frames != int(frames):
-        raise _fail(
-            "simulation_frequency",
-            config["simulation_frequency"],
-            f"a multiple of policy_frequency = {config['policy_frequency']}",
-        )
+        allowed = f"a multiple of policy_frequency = {config['policy_frequency']}"
+        raise _fail("simulation_frequency", config["simulation_frequency"], allowed)
     lo, hi = config["reward_speed_range"]
     if lo == hi:
         raise _fail("reward_speed_range", config["reward_speed_range"], "a pair with min < max")
     if scenario == MERGE:
         if config["supervisor_version"] not in MERGE_SUPERVISOR_VERSIONS:
-            raise _fail(
-                "supervisor_version",
-                config["supervisor_version"],
-                f"one of {list(MERGE_SUPERVISOR_VERSIONS)} on the merge (its version 3 released the emergency brake "
-                "differently; that code is not kept)",
-            )
+            allowed = f"one of {list(MERGE_SUPERVISOR_VERSIONS)} on the merge (its version 3 released the emergency brake "
+            raise _fail("supervisor_version", config["supervisor_version"], allowed + "differently; that code is not kept)")
         _check_merge_spawn(config)
     else:
         _check_highway(config)
@@ -358,12 +348,8 @@ def _check_highway(config: dict[str, Any]) -> None:
             f"(at least {-(-(n_avs + most_hdvs) // config['lanes_count'])} per lane)",
         )
     if config["spawn_spacing"] < 5.0 + 2 * config["spawn_position_noise"] + 1e-9:
-        raise _fail(
-            "spawn_position_noise",
-            config["spawn_position_noise"],
-            f"at most (spawn_spacing - 5 m vehicle length) / 2 = {(config['spawn_spacing'] - 5.0) / 2} m "
-            "so that spawned vehicles never overlap",
-        )
+        limit = f"at most (spawn_spacing - 5 m vehicle length) / 2 = {(config['spawn_spacing'] - 5.0) / 2} m"
+        raise _fail("spawn_position_noise", config["spawn_position_noise"], limit + " so that spawned vehicles never overlap")
 
 
 def _check_merge_spawn(config: dict[str, Any]) -> None:
@@ -378,12 +364,8 @@ def _check_merge_spawn(config: dict[str, Any]) -> None:
             f"(at most {2 * (len(RAMP_SPAWN) - -(-n_avs // 2))} HDVs)",
         )
     if 5.0 + 2 * config["spawn_position_noise"] + 1e-9 > SPAWN_SPACING:
-        raise _fail(
-            "spawn_position_noise",
-            config["spawn_position_noise"],
-            f"at most (the {SPAWN_SPACING} m spawn spacing - 5 m vehicle length) / 2 = {(SPAWN_SPACING - 5.0) / 2} m "
-            "so that spawned vehicles never overlap",
-        )
+        limit = f"at most (the {SPAWN_SPACING} m spawn spacing - 5 m vehicle length) / 2 = {(SPAWN_SPACING - 5.0) / 2} m"
+        raise _fail("spawn_position_noise", config["spawn_position_noise"], limit + " so that spawned vehicles never overlap")
 
 
 def resolved_n_avs(config: dict[str, Any], scenario: str = LANE_CHANGE) -> int:
