@@ -14,6 +14,7 @@ from stable_baselines3.common.type_aliases import GymEnv
 
 from sb3_marl.algos.common.buffers import MaskedReplayBuffer
 from sb3_marl.algos.common.loading import safe_load
+from sb3_marl.algos.common.policies import clip_gradients
 from sb3_marl.algos.common.rule_prior import RulePrior
 from sb3_marl.algos.common.teacher import check_safety_loss_coef
 
@@ -157,7 +158,7 @@ class MaskableDQN(DQN):
                 loss = loss + prior_weight * prior_loss
             self.policy.optimizer.zero_grad()
             loss.backward()
-            th.nn.utils.clip_grad_norm_(self.policy.parameters(), self.max_grad_norm)
+            clip_gradients(self.policy.optimizer, self.max_grad_norm)
             self.policy.optimizer.step()
         self._n_updates += gradient_steps
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")

@@ -17,6 +17,7 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.utils import explained_variance
 
 from sb3_marl.algos.common.base import ACTOR_CRITIC_POLICIES, MaskableOnPolicy
+from sb3_marl.algos.common.policies import clip_gradients
 
 
 class MaskableActorCritic(MaskableOnPolicy, MaskablePPO):
@@ -87,7 +88,7 @@ class MaskableActorCritic(MaskableOnPolicy, MaskablePPO):
                     break
                 self.policy.optimizer.zero_grad()
                 loss.backward()
-                th.nn.utils.clip_grad_norm_(self.policy.parameters(), self.max_grad_norm)
+                clip_gradients(self.policy.optimizer, self.max_grad_norm)
                 self.policy.optimizer.step()
             self._n_updates += 1
             logs["approx_kl"] += approx_kl_divs

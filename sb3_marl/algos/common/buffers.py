@@ -12,6 +12,7 @@ from sb3_contrib.common.maskable.buffers import MaskableDictRolloutBuffer, Maska
 from stable_baselines3.common.buffers import ReplayBuffer
 
 from sb3_marl.algos.common.teacher import executed_labels
+from wrappers.slot_infos import slot_column
 
 
 class MaskedReplayBufferSamples(NamedTuple):
@@ -63,9 +64,10 @@ class MaskedReplayBuffer(ReplayBuffer):
         done: np.ndarray,
         infos: list[dict[str, Any]],
     ) -> None:
-        self.next_action_masks[self.pos] = [info.get("action_mask", True) for info in infos]
+        self.next_action_masks[self.pos] = slot_column(infos, "action_mask", True)
         self.executed_actions[self.pos] = executed_labels(infos)
-        self.next_rule_actions[self.pos] = [-1 if info.get("exited", False) else info.get("rule_action", -1) for info in infos]
+        exited = np.asarray(slot_column(infos, "exited", False), dtype=bool)
+        self.next_rule_actions[self.pos] = np.where(exited, -1, slot_column(infos, "rule_action", -1))
         super().add(obs, next_obs, action, reward, done, infos)
 
     def _get_samples(self, batch_inds: np.ndarray, env: Any = None) -> MaskedReplayBufferSamples:  # type: ignore[override]

@@ -37,7 +37,7 @@ import torch.nn.functional as F
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvStepReturn
 
-from sb3_marl.algos.common.policies import model_policy
+from sb3_marl.algos.common.policies import clip_gradients, model_policy
 from sb3_marl.algos.common.teacher import MAX_LOSS_WEIGHT, select_rows
 from sb3_marl.common.checks import check_integer, check_number, invalid
 from sb3_marl.envs.config import with_supervisor
@@ -287,7 +287,7 @@ def _fit(
             value = F.mse_loss(policy.predict_values(obs).flatten(), th.as_tensor(data["returns"][rows], device=policy.device))
             optimizer.zero_grad()
             (imitation + model.vf_coef * value).backward()
-            th.nn.utils.clip_grad_norm_(policy.parameters(), model.max_grad_norm)
+            clip_gradients(optimizer, model.max_grad_norm)
             optimizer.step()
             prior_losses.append(imitation.item())
             value_losses.append(value.item())

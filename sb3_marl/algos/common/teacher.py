@@ -9,16 +9,20 @@ import numpy as np
 import torch as th
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 
+from sb3_marl.algos.common.policies import clip_gradients
 from sb3_marl.common.checks import check_number
+from wrappers.slot_infos import slot_column
 
 
-def executed_labels(infos: list[dict[str, Any]]) -> list[int]:
+def executed_labels(infos: list[dict[str, Any]]) -> np.ndarray:
     """Per VecEnv slot of one step: the action the safety supervisor executed where it replaced the
     proposal of an AV still on the road, -1 elsewhere (the labels of the teachers' losses)."""
-    return [
-        int(info["executed_action"]) if info.get("intervened", False) and not info.get("exited", False) else -1
-        for info in infos
-    ]
+    intervened = np.asarray(slot_column(infos, "intervened", False), dtype=bool)
+    exited = np.asarray(slot_column(infos, "exited", False), dtype=bool)
+    if not intervened.any():
+        return np.full(len(infos), -1, dtype=np.int64)
+    executed = np.asarray(slot_column(infos, "executed_action", -1), dtype=np.int64)
+    return np.where(intervened & ~exited, executed, -1)
 
 
 class InterventionRecorder(BaseCallback):
@@ -95,7 +99,7 @@ def safety_step(model: Any, executed: np.ndarray) -> float:
     )
     policy.optimizer.zero_grad()
     (model.safety_loss_coef * loss).backward()
-    th.nn.utils.clip_grad_norm_(policy.parameters(), model.max_grad_norm)
+    clip_gradients(policy.optimizer, model.max_grad_norm)
     policy.optimizer.step()
     model.logger.record("train/safety_loss", float(loss.item()))
     return float(loss.item())
