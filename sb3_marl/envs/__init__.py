@@ -56,7 +56,7 @@ def __getattr__(name: str) -> Any:
         from sb3_marl.envs import lane_change_env
 
         return getattr(lane_change_env, name)
-    if name in ("parallel_env", "LaneChangeParallelEnv"):
+    if name in ("parallel_env", "ScenarioParallelEnv", "LaneChangeParallelEnv"):
         try:
             from sb3_marl.envs import parallel
         except ModuleNotFoundError as error:
@@ -108,6 +108,7 @@ __all__ = [
     "SCENARIO_IDS",
     "LaneChangeEnv",
     "LaneChangeParallelEnv",
+    "ScenarioParallelEnv",
     "av_counts",
     "av_steps_per_env_step",
     "copy_av_counts",

@@ -1,4 +1,4 @@
-"""The lane-change scenario as a PettingZoo ``ParallelEnv`` (the ``pettingzoo`` extra).
+"""The scenarios (the lane change, the on-ramp merge) as a PettingZoo ``ParallelEnv`` (the ``pettingzoo`` extra).
 
 RLlib, BenchMARL, TorchRL, EPyMARL and SuperSuit accept PettingZoo's parallel API; this module
 puts the same :class:`~sb3_marl.envs.lane_change_env.LaneChangeEnv` behind it:
@@ -62,8 +62,9 @@ AGENT_INFO = (
 SCENARIOS = {LANE_CHANGE: ENV_IDS, MERGE: MERGE_ENV_IDS}
 
 
-class LaneChangeParallelEnv(ParallelEnv):
-    """PettingZoo parallel API over one :class:`LaneChangeEnv` (see the module doc)."""
+class ScenarioParallelEnv(ParallelEnv):
+    """PettingZoo parallel API over one scenario env (see the module doc), named after its scenario
+    (``metadata["name"]``: ``sb3_marl_lane_change_v0``, ``sb3_marl_merge_v0``)."""
 
     metadata = {"name": "sb3_marl_lane_change_v0", "render_modes": ["human", "rgb_array"], "is_parallelizable": True}
 
@@ -108,6 +109,7 @@ class LaneChangeParallelEnv(ParallelEnv):
                 f"Invalid observation_key={observation_key!r}: expected a name other than 'action_mask', "
                 "e.g. 'observation' (PettingZoo's) or 'observations' (RLlib's)."
             )
+        self.metadata = {**self.metadata, "name": f"sb3_marl_{scenario.replace('-', '_')}_v0"}
         self.observation_key = observation_key
         self.flatten_observations = flatten_observations
         self.action_mask_in_observation = action_mask_in_observation
@@ -222,12 +224,16 @@ class LaneChangeParallelEnv(ParallelEnv):
 
 def parallel_env(
     density: int = 1, reward_mode: str = "local", render_mode: str | None = None, **kwargs: Any
-) -> LaneChangeParallelEnv:
+) -> ScenarioParallelEnv:
     """A scenario (the lane change by default; ``scenario="merge"``: the on-ramp merge) as a
     PettingZoo ``ParallelEnv`` (PettingZoo's constructor name); ``kwargs``: ``scenario``,
     ``flatten_observations``, ``action_mask_in_observation``, ``observation_key`` and scenario
     config keys."""
-    return LaneChangeParallelEnv(density=density, reward_mode=reward_mode, render_mode=render_mode, **kwargs)
+    return ScenarioParallelEnv(density=density, reward_mode=reward_mode, render_mode=render_mode, **kwargs)
 
 
-__all__ = ["LaneChangeParallelEnv", "parallel_env"]
+__all__ = ["ScenarioParallelEnv", "parallel_env"]
+
+
+#: The class's name before 2026-12-04 (it serves the merge too), kept for one release.
+LaneChangeParallelEnv = ScenarioParallelEnv

@@ -157,7 +157,10 @@ def test_parameter_sharing_and_pettingzoo_run_the_merge_ids():
     for _ in range(5):
         venv.step(np.ones(venv.num_envs, dtype=np.int64))
     venv.close()
-    parallel_api_test(parallel_env(density=1, scenario="merge", safety_supervisor=True), num_cycles=100)
+    merge = parallel_env(density=1, scenario="merge", safety_supervisor=True)
+    parallel_api_test(merge, num_cycles=100)
+    assert merge.metadata["name"] == "sb3_marl_merge_v0"
+    assert parallel_env(density=1).metadata["name"] == "sb3_marl_lane_change_v0"
 
 
 def test_a_seed_gives_the_same_episode():

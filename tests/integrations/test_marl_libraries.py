@@ -13,7 +13,7 @@ import pytest
 from documents import code as docs_code
 
 from sb3_marl.envs import parallel_env
-from sb3_marl.envs.parallel import LaneChangeParallelEnv
+from sb3_marl.envs.parallel import ScenarioParallelEnv
 
 
 def readme_example(library: str) -> str:
@@ -38,7 +38,7 @@ def test_the_torchrl_example_passes_check_env_specs_and_never_takes_a_masked_act
     assert f"global state: (50, {n_avs * 25})" in out
 
 
-class RecordingEnv(LaneChangeParallelEnv):
+class RecordingEnv(ScenarioParallelEnv):
     """The real env, counting the actions it receives that the scenario's current action masks exclude."""
 
     masked_taken: list = []
