@@ -27,7 +27,7 @@ def test_the_command_line_section_runs_verbatim(tmp_path):
             trains += 1
         completed = subprocess.run([str(executable), *argv[1:]], cwd=tmp_path, capture_output=True, text=True, timeout=600)
         assert completed.returncode == 0, f"{line}\n{completed.stdout[-2000:]}\n{completed.stderr[-2000:]}"
-    assert trains == 3
+    assert trains == 4
     run = tmp_path / "logs" / "ma2c" / "sb3_marl-LaneChange-density1-v0_1"
     assert (run / "best_model.zip").is_file() and (run / "evaluation.json").is_file()
     assert (tmp_path / "logs" / "summary.md").is_file()

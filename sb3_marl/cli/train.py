@@ -54,7 +54,13 @@ def add_parsers(commands: Any) -> None:
         "--eval-episodes", type=positive(maximum=MAX_EPISODES), default=5, help="episodes per evaluation (default: 5)"
     )
     train.add_argument("--save-freq", type=every, default=-1, help="checkpoint every N AV-steps; -1 disables")
-    train.add_argument("-c", "-conf", "--conf-file", default=None, help="YAML instead of zoo_configs/<algo>.yml")
+    train.add_argument(
+        "-c",
+        "-conf",
+        "--conf-file",
+        default=None,
+        help="YAML instead of zoo_configs/<algo>.yml, or a shipped zoo config's name (ma2c_safe: the safe recipe)",
+    )
     train.add_argument(
         "-params",
         "--hyperparams",
@@ -195,7 +201,7 @@ def _check_train_args(args: argparse.Namespace) -> None:
     from sb3_marl.algos import get_algo
     from sb3_marl.algos.common.loading import safe_custom_objects
     from sb3_marl.runs.folders import check_model_file
-    from sb3_marl.runs.hyperparams import is_q_learning
+    from sb3_marl.runs.hyperparams import conf_file_path, is_q_learning
 
     check_seed(args.seed)
     if args.env_kwargs:  # rl-zoo's --env-kwargs: the scenario's config, merged key by key
@@ -208,8 +214,11 @@ def _check_train_args(args: argparse.Namespace) -> None:
     check_folder("-f/--log-folder", args.log_folder)
     check_folder("-tb/--tensorboard-log", args.tensorboard_log)
     check_device(args.device)
-    if args.conf_file and not os.path.isfile(args.conf_file):
-        raise UsageError(f"-c/--conf-file: {args.conf_file!r} is not an existing YAML file.")
+    if args.conf_file:
+        try:
+            args.conf_file = str(conf_file_path(args.conf_file))
+        except ValueError as error:
+            raise UsageError(f"-c/--conf-file: {error}") from None
     if args.optimize_hyperparameters:
         if args.trained_agent:
             raise UsageError("-optimize searches from scratch: it cannot continue -i/--trained-agent.")

@@ -123,6 +123,17 @@ def config_file(algo: str) -> Path:
     return CONFIG_DIR / f"{CONFIG_FILES.get(algo, algo)}.yml"
 
 
+def conf_file_path(conf_file: str) -> Path:
+    """``-conf``'s value as a path: an existing YAML file, or the name of a zoo config shipped in
+    ``zoo_configs/`` (``ma2c_safe``: ``zoo_configs/ma2c_safe.yml``); a ValueError naming both otherwise."""
+    if Path(conf_file).is_file():
+        return Path(conf_file)
+    shipped = sorted(path.stem for path in CONFIG_DIR.glob("*.yml"))
+    if conf_file in shipped:
+        return CONFIG_DIR / f"{conf_file}.yml"
+    raise ValueError(f"{conf_file!r} is neither an existing YAML file nor a shipped zoo config: one of {shipped}.")
+
+
 def algorithm_arguments(algo: str) -> list[str]:
     """Constructor arguments of the algorithm that a config may set."""
     return sorted(name for name in hyperparameters(get_algo(algo)) if name not in RESERVED_KEYS)

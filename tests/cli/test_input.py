@@ -101,6 +101,7 @@ def test_bad_paths_and_devices_fail_before_any_folder(tmp_path, capsys):
         (["-f", logs, "--device", "banana"], "--device: invalid device 'banana': expected auto, cpu, cuda"),
         (["-f", logs, "-c", str(broken_yaml)], f"{broken_yaml} is not valid YAML"),
         (["-f", logs, "-c", str(tmp_path / "missing.yml")], "-c/--conf-file: "),
+        (["-f", logs, "-c", "ma2c_unsafe"], "nor a shipped zoo config: one of ['ma2c', 'ma2c_safe', "),
     ]
     for argv, message in cases:
         assert main(["train", *argv]) == 2, argv

@@ -7,8 +7,17 @@ from gymnasium import spaces
 
 from sb3_marl.algos import ALGOS, get_algo
 from sb3_marl.algos.common.policies import MA2CFeaturesExtractor, ma2c_policy_kwargs
+from sb3_marl.benchmark.grid import load_variants
+from sb3_marl.cli import main
 from sb3_marl.envs import ENV_IDS
-from sb3_marl.runs.hyperparams import config_file, load_hyperparams, validate_hyperparams
+from sb3_marl.runs.hyperparams import (
+    CONFIG_DIR,
+    conf_file_path,
+    config_file,
+    load_hyperparams,
+    merge_hyperparams,
+    validate_hyperparams,
+)
 from sb3_marl.runs.training import make_model, make_venv
 from wrappers import VecRewardScale
 
@@ -76,6 +85,21 @@ def test_every_zoo_config_builds_its_model(algo, density):
     assert isinstance(model, get_algo(algo))
     assert isinstance(extractor_of(model), MA2CFeaturesExtractor)
     venv.close()
+
+
+def test_the_safe_recipe_is_the_grid_variant_over_the_ma2c_config(tmp_path, capsys):
+    variant = load_variants(CONFIG_DIR / "grids" / "variants.yml")[0]["rule-prior-agreement-0.5"]
+    safe = conf_file_path("ma2c_safe")
+    assert safe == CONFIG_DIR / "ma2c_safe.yml"
+    for env_id in ENV_IDS.values():
+        assert load_hyperparams("ma2c", env_id, safe) == merge_hyperparams(load_hyperparams("ma2c", env_id), variant)
+    # one flag selects it; a budget below the warm start is all warm start (the rule driver imitated)
+    logs = tmp_path / "logs"
+    assert main(["train", "--algo", "ma2c", "--env", ENV_IDS[1], "-conf", "ma2c_safe", "-n", "1200", "-f", str(logs)]) == 0
+    run = logs / "ma2c" / "sb3_marl-LaneChange-density1-v0_1"
+    assert "- - prior_form\n    - agreement\n" in (run / "sb3_marl-LaneChange-density1-v0" / "config.yml").read_text()
+    model = get_algo("ma2c").load(run / "sb3_marl-LaneChange-density1-v0.zip")
+    assert 1_200 <= model.num_timesteps < 1_200 + 600 and model.prior_warm_start == 300_000
 
 
 def test_ma2c_config_has_the_paper_settings():

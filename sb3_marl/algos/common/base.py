@@ -123,11 +123,12 @@ class MaskableOnPolicy(_OnPolicyHost):
 
     def _setup_learn(self, *args: Any, **kwargs: Any) -> Any:
         """SB3's set-up, then the DAgger warm start where the budget's first ``prior_warm_start``
-        AV-steps are still ahead."""
+        AV-steps are still ahead (no further than the budget: a budget below the warm start is all
+        warm start)."""
         result = super()._setup_learn(*args, **kwargs)
-        prior = self.rule_prior
-        if prior.active and self.num_timesteps < prior.warm_start:
-            dagger(self, prior.warm_start - self.num_timesteps, prior)
+        prior, total_timesteps = self.rule_prior, result[0]
+        if prior.active and self.num_timesteps < min(prior.warm_start, total_timesteps):
+            dagger(self, min(prior.warm_start, total_timesteps) - self.num_timesteps, prior)
         return result
 
     def collect_rollouts(
