@@ -22,7 +22,10 @@ def test_there_are_committed_results():
 @pytest.mark.parametrize("logs", LOG_FOLDERS, ids=lambda p: p.parent.name)
 def test_the_summary_regenerates(logs, tmp_path):
     assert main(["summary", "-f", str(logs), "-o", str(tmp_path / "summary.md")]) == 0
-    assert (tmp_path / "summary.md").read_text() == (logs.parent / "summary.md").read_text()
+    text = (tmp_path / "summary.md").read_text()
+    assert text == (logs.parent / "summary.md").read_text()
+    episodes = {json.loads(path.read_text())["episodes"] for path in logs.glob("*/*/evaluation.json")}
+    assert "| supervisor | episodes |" in text and all(f"| {n} |" in text for n in episodes)  # each row's episode count
 
 
 @pytest.mark.parametrize("logs", LOG_FOLDERS, ids=lambda p: p.parent.name)

@@ -268,7 +268,7 @@ def run_overrides(run_folder: str | Path, env_id: str) -> str:
 def summary_table(folder: str | Path) -> str:
     """A markdown table of every evaluated run under ``folder`` (rl-zoo layout: each run folder's
     ``evaluation.json``, written by ``sb3-marl evaluate``): algorithm, env, run, seed, the
-    ``-params`` overrides it was trained with, and the evaluation (protocol, metrics, and the
+    ``-params`` overrides it was trained with, and the evaluation (protocol, episodes, metrics, and the
     reference policies' rows where it was evaluated ``--with-baselines``)."""
     from sb3_marl.evaluation import TABLE_COLUMNS
 
@@ -281,6 +281,7 @@ def summary_table(folder: str | Path) -> str:
         "timesteps",
         "protocol",
         "supervisor",
+        "episodes",
         *(title for title, _ in TABLE_COLUMNS),
     ]
     lines = ["| " + " | ".join(titles) + " |", "|" + "---|" * len(titles)]
@@ -316,7 +317,8 @@ def _summary_rows(evaluation_file: Path, result: dict[str, Any]) -> list[str]:
         for supervisor, metrics in (("on", summary), ("off", summary.get("supervisor_off"))):
             if metrics is None:  # an evaluation from before both protocols existed
                 continue
-            values = [*cells, str(timesteps), protocol, supervisor, *(fmt(metrics) for _, fmt in TABLE_COLUMNS)]
+            episodes = str(metrics.get("episodes", "-"))
+            values = [*cells, str(timesteps), protocol, supervisor, episodes, *(fmt(metrics) for _, fmt in TABLE_COLUMNS)]
             lines.append("| " + " | ".join(values) + " |")
     return lines
 
