@@ -188,10 +188,15 @@ TABLE_COLUMNS: tuple[tuple[str, Callable[[dict[str, float]], str]], ...] = (
 )
 #: The merge's columns, where every row has them (:func:`_merge_metrics`).
 MERGE_COLUMNS: tuple[tuple[str, Callable[[dict[str, float]], str]], ...] = (
-    ("ramp AVs merged", lambda s: f"{s['merge_rate']:.3f}"),
-    ("time to merge [s]", lambda s: f"{s['time_to_merge_mean']:.2f}"),
+    ("ramp AVs merged", lambda s: _defined(s["merge_rate"], ".3f")),
+    ("time to merge [s]", lambda s: _defined(s["time_to_merge_mean"], ".2f")),
     ("stranded/ep", lambda s: f"{s['stranded_per_episode']:.2f}"),
 )
+
+
+def _defined(value: float, spec: str) -> str:
+    """``value`` formatted, or ``-`` where it is undefined (NaN: no ramp AV, or none merged)."""
+    return "-" if np.isnan(value) else format(value, spec)
 
 
 def markdown_table(rows: list[tuple[dict[str, Any], dict[str, float]]]) -> str:

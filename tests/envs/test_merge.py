@@ -313,3 +313,12 @@ def test_merge_metrics_count_the_ramp_avs_that_merge():
     assert summary["merge_rate"] > 0.9 and 5.0 < summary["time_to_merge_mean"] < 20.0  # [s]
     assert summary["lane_changes_per_episode"] < 3  # following the road into the next section is not one
     assert "merge_rate" not in summarize(run_episodes(gym.make(ENV_IDS[1]).unwrapped, IDMMobilPolicy(), 1, seed=0))
+
+
+def test_the_merge_columns_say_dash_where_a_mean_is_undefined():
+    from sb3_marl.evaluation import MERGE_COLUMNS
+
+    undefined = {"merge_rate": float("nan"), "time_to_merge_mean": float("nan"), "stranded_per_episode": 0.0}
+    assert [fmt(undefined) for _, fmt in MERGE_COLUMNS] == ["-", "-", "0.00"]
+    defined = {"merge_rate": 0.5, "time_to_merge_mean": 7.25, "stranded_per_episode": 1.5}
+    assert [fmt(defined) for _, fmt in MERGE_COLUMNS] == ["0.500", "7.25", "1.50"]
