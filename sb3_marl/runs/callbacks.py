@@ -5,6 +5,7 @@ All three plug into any SB3 algorithm trained on a :class:`~wrappers.ParameterSh
 
 from __future__ import annotations
 
+import time
 from collections import defaultdict, deque
 from pathlib import Path
 from typing import Any
@@ -45,6 +46,33 @@ def atomic_save(model: BaseAlgorithm, path: str | Path) -> Path:
     with replaced_atomically(path) as temporary:
         model.save(temporary)
     return path
+
+
+class ProgressLinesCallback(BaseCallback):
+    """``-P/--progress`` where the output is no terminal (a log file, a pipe): a line at each tenth
+    of the budget (AV-steps done, elapsed and remaining wall time [s]) instead of a bar whose redraws
+    fill the file with blank and overlong lines."""
+
+    def __init__(self, lines: int = 10) -> None:
+        super().__init__()
+        self.lines = lines
+        self.start_steps, self.total, self.printed, self.started = 0, 1, 0, 0.0
+
+    def _on_training_start(self) -> None:
+        self.start_steps = self.model.num_timesteps
+        self.total = max(self.locals["total_timesteps"] - self.model.num_timesteps, 1)  # as SB3's progress bar
+        self.printed, self.started = 0, time.perf_counter()
+
+    def _on_step(self) -> bool:
+        done = self.model.num_timesteps - self.start_steps
+        due = min(done * self.lines // self.total, self.lines)
+        if due > self.printed:
+            self.printed = due
+            elapsed = time.perf_counter() - self.started
+            left = max(elapsed * (self.total - done) / max(done, 1), 0.0)
+            share = 100 * done / self.total
+            print(f"progress: {done}/{self.total} AV-steps ({share:.0f} %), {elapsed:.0f} s, ~{left:.0f} s left", flush=True)
+        return True
 
 
 class FiniteWeightsCallback(BaseCallback):

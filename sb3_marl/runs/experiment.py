@@ -36,6 +36,7 @@ from sb3_marl.runs.callbacks import (
     AtomicCheckpointCallback,
     DrivingMetricsCallback,
     FiniteWeightsCallback,
+    ProgressLinesCallback,
     ScenarioEvalCallback,
     StoreExecutedActions,
     atomic_save,
@@ -218,8 +219,8 @@ class MARLExperimentManager(ExperimentManager):
         )
 
     def create_callbacks(self) -> None:
-        if self.show_progress:
-            self.callbacks.append(ProgressBarCallback())
+        if self.show_progress:  # a bar on a terminal, lines in a file
+            self.callbacks.append(ProgressBarCallback() if sys.stdout.isatty() else ProgressLinesCallback())
         self.callbacks += [FiniteWeightsCallback(), DrivingMetricsCallback()]
         self.callbacks += self._stored_action_callbacks()
         if self.save_freq > 0:

@@ -1,5 +1,8 @@
 """ScenarioEvalCallback's hooks: a callback after each evaluation, a final evaluation, a resumed history."""
 
+import subprocess
+import sys
+
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
@@ -87,3 +90,16 @@ def test_episode_records_from_slot_infos_equal_those_from_the_copy():
     for field in ("length", "crashed", "lane_changes", "interventions", "av_steps"):
         assert getattr(from_slots, field) == getattr(from_copy, field), field
     assert from_slots.episode_return == from_copy.episode_return
+
+
+def test_progress_written_to_a_file_is_ten_short_lines(tmp_path):
+    """``train -P`` with its output in a file (as ``make run > log``): no bar redraws, a line per tenth."""
+    log = tmp_path / "train.log"
+    command = [sys.executable, "-m", "sb3_marl", "train", "--algo", "ma2c", "-n", "1200", "--eval-freq", "-1", "-P"]
+    with log.open("w") as out:
+        subprocess.run([*command, "-f", str(tmp_path / "logs")], stdout=out, stderr=subprocess.STDOUT, check=True, timeout=600)
+    lines = log.read_text().splitlines()
+    progress = [line for line in lines if line.startswith("progress: ")]
+    assert len(progress) == 10 and progress[-1].startswith("progress: 1200/1200 AV-steps (100 %)")
+    assert max(map(len, lines)) < 300 and not any(line and not line.strip() for line in lines)
+    assert "\r" not in log.read_text() and "\x1b" not in log.read_text()
