@@ -93,7 +93,9 @@ def add_parsers(commands: Any) -> None:
     train.add_argument(
         "--reward-mode", choices=["local", "global", "individual"], default=None, help="overrides the config's reward_mode"
     )
-    train.add_argument("-P", "--progress", action="store_true", help="progress bar (tqdm + rich)")
+    train.add_argument(
+        "-P", "--progress", action="store_true", help="progress bar (tqdm + rich); in a file or a pipe, a line per tenth"
+    )
     train.add_argument("--device", default="auto", help="torch device (default: auto)")
     add_trust_remote_code(train)
     add_num_threads(train)
