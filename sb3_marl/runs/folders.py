@@ -269,8 +269,9 @@ def summary_table(folder: str | Path) -> str:
     """A markdown table of every evaluated run under ``folder`` (rl-zoo layout: each run folder's
     ``evaluation.json``, written by ``sb3-marl evaluate``): algorithm, env, run, seed, the
     ``-params`` overrides it was trained with, and the evaluation (protocol, episodes, metrics, and the
-    reference policies' rows where it was evaluated ``--with-baselines``)."""
-    from sb3_marl.evaluation import TABLE_COLUMNS
+    reference policies' rows where it was evaluated ``--with-baselines``); the merge's columns
+    too where every row has them (as :func:`~sb3_marl.evaluation.markdown_table`)."""
+    from sb3_marl.evaluation import MERGE_COLUMNS, TABLE_COLUMNS
 
     titles = [
         "algo",
@@ -284,21 +285,26 @@ def summary_table(folder: str | Path) -> str:
         "episodes",
         *(title for title, _ in TABLE_COLUMNS),
     ]
-    lines = ["| " + " | ".join(titles) + " |", "|" + "---|" * len(titles)]
+    rows: list[tuple[list[str], list[str] | None]] = []
     for evaluation_file in sorted(
         Path(folder).glob("*/*/evaluation.json"),
         key=lambda p: (p.parent.parent.name, p.parent.name.rpartition("_")[0], run_id(p.parent)),
     ):
         try:
-            lines += _summary_rows(evaluation_file, read_json_object(evaluation_file))
+            rows += _summary_rows(evaluation_file, read_json_object(evaluation_file))
         except (KeyError, TypeError, AttributeError) as error:  # an edited evaluation.json
             raise ValueError(f"{evaluation_file} is not an evaluation written by `sb3-marl evaluate` ({error!r}).") from None
+    merge = bool(rows) and all(merge_cells is not None for _, merge_cells in rows)
+    titles += [title for title, _ in MERGE_COLUMNS] if merge else []
+    lines = ["| " + " | ".join(titles) + " |", "|" + "---|" * len(titles)]
+    lines += ["| " + " | ".join([*cells, *(merge_cells or [] if merge else [])]) + " |" for cells, merge_cells in rows]
     return "\n".join(lines)
 
 
-def _summary_rows(evaluation_file: Path, result: dict[str, Any]) -> list[str]:
-    """The summary table's rows of one run's ``evaluation.json`` (``result``)."""
-    from sb3_marl.evaluation import TABLE_COLUMNS
+def _summary_rows(evaluation_file: Path, result: dict[str, Any]) -> list[tuple[list[str], list[str] | None]]:
+    """The summary table's rows of one run's ``evaluation.json`` (``result``): each row's cells, and
+    its merge columns' cells (None off the merge)."""
+    from sb3_marl.evaluation import MERGE_COLUMNS, TABLE_COLUMNS
 
     run_folder = evaluation_file.parent
     args = run_args(run_folder, result["env_id"])
@@ -319,7 +325,7 @@ def _summary_rows(evaluation_file: Path, result: dict[str, Any]) -> list[str]:
                 continue
             episodes = str(metrics.get("episodes", "-"))
             values = [*cells, str(timesteps), protocol, supervisor, episodes, *(fmt(metrics) for _, fmt in TABLE_COLUMNS)]
-            lines.append("| " + " | ".join(values) + " |")
+            lines.append((values, [fmt(metrics) for _, fmt in MERGE_COLUMNS] if "merge_rate" in metrics else None))
     return lines
 
 

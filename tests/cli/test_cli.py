@@ -397,3 +397,13 @@ def test_two_trainings_started_together_get_their_own_run_folders(tmp_path):
     assert len(set(saved)) == 2 and all(Path(path).is_file() for path in saved)
     assert sorted(p.name for p in (tmp_path / "ma2c").iterdir()) == [f"{ENV_NAME}_1", f"{ENV_NAME}_2"]
     assert sorted(p.name for p in (tmp_path / "tensorboard" / ENV_NAME).iterdir()) == ["MA2C_1", "MA2C_2"]
+
+
+def test_the_summary_of_merge_runs_has_the_merge_columns(tmp_path):
+    logs, env = tmp_path / "logs", "sb3_marl/Merge-density1-v0"
+    assert main(["train", "--algo", "ma2c", "--env", env, "-n", "600", "--eval-freq", "-1", "-f", str(logs)]) == 0
+    assert main(["evaluate", "--algo", "ma2c", "--env", env, "--eval-episodes", "2", "-f", str(logs)]) == 0
+    assert main(["summary", "-f", str(logs)]) == 0
+    lines = (logs / "summary.md").read_text().splitlines()
+    assert lines[0].endswith("| ramp AVs merged | time to merge [s] | stranded/ep |")
+    assert len(lines) == 4 and all(line.count("|") == lines[0].count("|") for line in lines)  # on and off, every cell
