@@ -297,7 +297,7 @@ def summary_table(folder: str | Path) -> str:
     merge = bool(rows) and all(merge_cells is not None for _, merge_cells in rows)
     titles += [title for title, _ in MERGE_COLUMNS] if merge else []
     lines = ["| " + " | ".join(titles) + " |", "|" + "---|" * len(titles)]
-    lines += ["| " + " | ".join([*cells, *(merge_cells or [] if merge else [])]) + " |" for cells, merge_cells in rows]
+    lines += ["| " + " | ".join([*cells, *((merge and merge_cells) or [])]) + " |" for cells, merge_cells in rows]
     return "\n".join(lines)
 
 

@@ -407,3 +407,11 @@ def test_the_summary_of_merge_runs_has_the_merge_columns(tmp_path):
     lines = (logs / "summary.md").read_text().splitlines()
     assert lines[0].endswith("| ramp AVs merged | time to merge [s] | stranded/ep |")
     assert len(lines) == 4 and all(line.count("|") == lines[0].count("|") for line in lines)  # on and off, every cell
+    # beside a lane-change run, the columns every row has (the merge's are not)
+    lane_change = "sb3_marl/LaneChange-density1-v0"
+    assert main(["train", "--algo", "ma2c", "--env", lane_change, "-n", "600", "--eval-freq", "-1", "-f", str(logs)]) == 0
+    assert main(["evaluate", "--algo", "ma2c", "--env", lane_change, "--eval-episodes", "2", "-f", str(logs)]) == 0
+    assert main(["summary", "-f", str(logs)]) == 0
+    lines = (logs / "summary.md").read_text().splitlines()
+    assert "ramp AVs merged" not in lines[0] and len(lines) == 6
+    assert all(line.count("|") == lines[0].count("|") for line in lines)
