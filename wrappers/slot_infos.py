@@ -142,8 +142,9 @@ def slot_infos(arrays: dict[str, Any]) -> list[SlotInfo]:
 def slot_column(infos: Sequence[dict[str, Any]], key: str, default: Any) -> Any:
     """Every slot's ``info.get(key, default)``, in slot order: the step's per-slot array itself
     (not a copy) when ``infos`` are one step's :class:`SlotInfo` rows and none holds ``key`` as an
-    entry of its own, else a list read row by row."""
-    arrays: dict[str, Any] = getattr(infos[0], "arrays", None) if len(infos) else None  # type: ignore[assignment]
+    entry of its own (and ``key`` is none that a row converts to a Python number), else a list read
+    row by row."""
+    arrays: Any = getattr(infos[0], "arrays", None) if len(infos) else None
     shared = arrays is not None and key in arrays and len(arrays[key]) == len(infos) and key not in FLOAT_ENTRIES + INT_ENTRIES
     rows = enumerate(infos)
     if shared and all(type(i) is SlotInfo and i.arrays is arrays and i.slot == n and i._shared(key) for n, i in rows):

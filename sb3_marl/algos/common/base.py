@@ -126,9 +126,10 @@ class MaskableOnPolicy(_OnPolicyHost):
         AV-steps are still ahead (no further than the budget: a budget below the warm start is all
         warm start)."""
         result = super()._setup_learn(*args, **kwargs)
-        prior, total_timesteps = self.rule_prior, result[0]
-        if prior.active and self.num_timesteps < min(prior.warm_start, total_timesteps):
-            dagger(self, min(prior.warm_start, total_timesteps) - self.num_timesteps, prior)
+        prior = self.rule_prior
+        warm_start = min(prior.warm_start, result[0])  # result[0]: the budget's total AV-steps
+        if prior.active and self.num_timesteps < warm_start:
+            dagger(self, warm_start - self.num_timesteps, prior)
         return result
 
     def collect_rollouts(
