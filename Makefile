@@ -21,14 +21,19 @@ $(DEV): $(RUNTIME)
 install: $(DEV)
 
 ## run: the main job: train MA2C on density 1 (short budget), evaluate it beside the reference
-## policies, plot the learning curves; TensorBoard logs in logs/tensorboard
+## policies; then the same for the safe recipe (-conf ma2c_safe); plot the learning curves;
+## TensorBoard logs in logs/tensorboard
 ## (RUN_LOGS: the log folder, default logs; the tests point it at a temporary folder)
 RUN_ENV ?= sb3_marl/LaneChange-density1-v0
 RUN_TIMESTEPS ?= 100000
 RUN_LOGS ?= logs
+TRAIN := $(VENV)/bin/sb3-marl train --algo ma2c --env $(RUN_ENV) -n $(RUN_TIMESTEPS) --eval-freq 20000 --eval-episodes 6 --progress -f $(RUN_LOGS)
+EVALUATE := $(VENV)/bin/sb3-marl evaluate --algo ma2c --env $(RUN_ENV) --eval-episodes 30 -f $(RUN_LOGS)
 run: $(RUNTIME)
-	$(VENV)/bin/sb3-marl train --algo ma2c --env $(RUN_ENV) -n $(RUN_TIMESTEPS) --eval-freq 20000 --eval-episodes 6 --progress -f $(RUN_LOGS)
-	$(VENV)/bin/sb3-marl evaluate --algo ma2c --env $(RUN_ENV) --eval-episodes 30 --with-baselines -f $(RUN_LOGS)
+	$(TRAIN)
+	$(EVALUATE) --with-baselines
+	$(TRAIN) -conf ma2c_safe
+	$(EVALUATE)
 	$(VENV)/bin/sb3-marl plot --algo ma2c --env $(RUN_ENV) -f $(RUN_LOGS)
 
 ## test: lint (ruff), format check, types (mypy), then the whole test suite

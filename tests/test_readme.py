@@ -49,6 +49,7 @@ def test_the_quick_start_main_job_runs_verbatim(tmp_path):
     assert "| ma2c |" in out and "| idm-mobil |" in out and "sampled actions (the authors' protocol)" in out
     assert "| on |" in out and "| off |" in out  # both supervisor protocols
     assert "TensorBoard: " in out and "eval_return.png" in out
+    assert "| ma2c (ma2c_safe) |" in out and "DAgger warm start, round 8/8" in out  # the safe recipe's row
     # the README's reference rows (no learning) are this run's, to the digit
     references = [
         line
@@ -79,11 +80,37 @@ def test_the_hyperparameter_search_section_runs_verbatim(tmp_path):
 
 
 def test_the_quick_start_table_is_the_committed_run():
-    """Every row of the README's Quick start table is a row of results/quick-start/evaluation.md (the
-    main job as run on the development VM; the reference rows are also the test suite's run's)."""
+    """Every row of the README's Quick start table is a row of results/quick-start/evaluation.md or
+    evaluation_safe.md (the main job as run on the development VM; the reference rows are also the
+    test suite's run's)."""
     rows = [line for line in section("README.md", "Quick start").splitlines() if line.startswith("| ")]
-    committed = (REPO / "results" / "quick-start" / "evaluation.md").read_text().splitlines()
-    assert len(rows) == 9 and all(row in committed for row in rows), rows  # the header and 8 rows
+    committed = [
+        line
+        for name in ("evaluation.md", "evaluation_safe.md")
+        for line in (REPO / "results" / "quick-start" / name).read_text().splitlines()
+    ]
+    assert len(rows) == 11 and all(row in committed for row in rows), rows  # the header and 10 rows
+
+
+def test_the_trained_agents_section_runs_verbatim(tmp_path):
+    """The listing and the safe agent's video, as written, from an unrelated folder: the video lands
+    where the section says, with the frames it says."""
+    lines = commands("README.md", "Trained agents")
+    assert len(lines) == 2 and "--trained safe" in lines[1]
+    executable = Path(sys.executable).parent / "sb3-marl"
+    outputs = []
+    for line in lines:
+        completed = subprocess.run(
+            [str(executable), *shlex.split(line)[1:]], cwd=tmp_path, capture_output=True, text=True, timeout=600
+        )
+        assert completed.returncode == 0, f"{line}\n{completed.stdout[-2000:]}\n{completed.stderr[-2000:]}"
+        outputs.append(completed.stdout)
+    assert "| safe (rule-prior-agreement-0.5) | ma2c | sb3_marl/LaneChange-density3-v0 | 3 |" in outputs[0]
+    video = (
+        tmp_path
+        / "logs/trained-agents/ma2c_density3_rule-prior-agreement-0.5_seed0/videos/sb3_marl-LaneChange-density3-v0.mp4"
+    )
+    assert video.stat().st_size > 0 and ", 200 frames at 5 fps" in outputs[1]
 
 
 @pytest.mark.parametrize(

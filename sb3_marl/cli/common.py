@@ -44,6 +44,23 @@ class StoreHyperparams(argparse.Action):
         setattr(namespace, self.dest, parsed)
 
 
+class Refused(argparse.Action):
+    """An rl-zoo flag without a meaning here: a usage error that says why (``reason``)."""
+
+    def __init__(self, *args: Any, reason: str, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.reason = reason
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: Any, values: Any, option_string: Any = None) -> None:
+        parser.error(f"{option_string} (rl-zoo's) has no meaning here: {self.reason}.")
+
+
+def add_refused_flags(parser: argparse.ArgumentParser, refused: dict[tuple[str, ...], str]) -> None:
+    """rl-zoo's flags -> why they have no meaning here: each refused with its reason, hidden from ``--help``."""
+    for flags, reason in refused.items():
+        parser.add_argument(*flags, nargs="*", action=Refused, reason=reason, default=None, help=argparse.SUPPRESS)
+
+
 class Deprecated(argparse.Action):
     """An old spelling of a flag, kept (hidden) for one release: it sets the new flag's value and
     says, on stderr, which name to use instead.
@@ -185,6 +202,14 @@ def add_run_selection(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--env", default=DEFAULT_ENV, choices=SCENARIO_IDS, help="scenario id")
     parser.add_argument("-f", "--folder", "--log-folder", dest="folder", default="logs", help="log folder (default: logs)")
     parser.add_argument("--exp-id", type=int, default=0, help="run id; 0 = latest (default)")
+    parser.add_argument(
+        "--trained",
+        metavar="NAME",
+        default=None,
+        help="a trained agent by name (paper, safe, or a grid variant; `sb3-marl trained-agents` lists them) "
+        "from the grid folder -f or the repository's results/paper-grid (a grid folder as -f alone: paper); "
+        "what the command writes goes to <-f>/trained-agents/ (logs/ for a grid)",
+    )
     picked = parser.add_mutually_exclusive_group()
     picked.add_argument("--load-best", action="store_true", help="load best_model.zip")
     picked.add_argument("--load-checkpoint", type=int, metavar="STEPS", help="load rl_model_<STEPS>_steps.zip")
@@ -234,15 +259,33 @@ class DefaultsHelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
 
 
 def find_run_of(args: argparse.Namespace) -> Any:
+    """The run ``--algo``/``--env``/``--exp-id`` of ``-f``, or the trained agent ``--trained``."""
+    from sb3_marl.benchmark.trained_agents import grid_of, is_grid, trained_agent
     from sb3_marl.runs.folders import find_run
 
     check_seed(args.seed)
+    folder = args.folder
+    if args.trained is None and is_grid(folder):  # rl-zoo's `-f rl-trained-agents/`: the paper's agent of a grid
+        args.trained = "paper"
     try:
+        if args.trained:
+            folder = trained_agent(grid_of(args.folder), args.algo, args.env, args.trained)
         return find_run(
-            args.folder, args.algo, args.env, args.exp_id, args.load_best, args.load_checkpoint, args.load_last_checkpoint
+            folder, args.algo, args.env, args.exp_id, args.load_best, args.load_checkpoint, args.load_last_checkpoint
         )
     except (FileNotFoundError, ValueError) as error:
-        raise UsageError(str(error)) from None
+        raise UsageError(f"--trained: {error}" if args.trained else str(error)) from None
+
+
+def outputs_of(args: argparse.Namespace, run: Any) -> Path:
+    """Where a command writes what it makes of ``run``: the run's folder, or for a trained agent
+    (never written into) ``<-f>/trained-agents/<its trial>/`` (``logs/`` when ``-f`` is the grid)."""
+    from sb3_marl.benchmark.trained_agents import is_grid
+
+    if not args.trained:
+        return Path(run.log_path)
+    trial = Path(run.log_path).parent.parent.name
+    return Path("logs" if is_grid(args.folder) else args.folder) / "trained-agents" / trial
 
 
 def load_model_of(run: Any, args: argparse.Namespace) -> Any:

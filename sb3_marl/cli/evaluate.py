@@ -4,6 +4,7 @@ what a trained run does and how it compares."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import time
@@ -17,12 +18,15 @@ from sb3_marl.cli.common import (
     MAX_EPISODES,
     CommandFailed,
     Deprecated,
+    StoreHyperparams,
     UsageError,
+    add_refused_flags,
     add_run_selection,
     check_file,
     check_folder,
     find_run_of,
     load_model_of,
+    outputs_of,
     positive,
 )
 from sb3_marl.common.files import write_text
@@ -38,9 +42,7 @@ def add_parsers(commands: Any) -> None:
             help="evaluate a trained model on seeded episodes" if name == "evaluate" else "alias of evaluate (rl-zoo's name)",
         )
         add_run_selection(evaluate)
-        evaluate.add_argument(
-            "--eval-episodes", type=positive(maximum=MAX_EPISODES), default=30, help="episodes (default: 30)"
-        )
+        _add_play_flags(evaluate, default_episodes=30, maximum=MAX_EPISODES)
         evaluate.add_argument("-o", "--output", default=None, help="JSON file (default: <run>/evaluation.json)")
         evaluate.add_argument(
             "--with-baselines",
@@ -66,14 +68,27 @@ def add_parsers(commands: Any) -> None:
 
     video = commands.add_parser("record-video", help="mp4 of evaluation episodes, rendered headless")
     add_run_selection(video)
-    video.add_argument(
-        "--eval-episodes", type=positive(maximum=MAX_COUNT), default=1, help="episodes in the video (default: 1)"
-    )
+    _add_play_flags(video, default_episodes=1, maximum=MAX_COUNT)
     video.add_argument(
         "--n-episodes", dest="eval_episodes", type=positive(maximum=MAX_COUNT), action=Deprecated, new="--eval-episodes"
     )
-    video.add_argument("-o", "--output", default=None, help="mp4 file (default: <run>/videos/<model>.mp4)")
+    video.add_argument(
+        "-o",
+        "--output",
+        "--output-folder",
+        dest="output",
+        default=None,
+        help="mp4 file, or a folder to write <model>.mp4 into (rl-zoo's -o) (default: <run>/videos/<model>.mp4)",
+    )
     video.set_defaults(handler=record_video_command)
+
+    trained = commands.add_parser("trained-agents", help="the committed trained agents (the names --trained takes)")
+    trained.add_argument("--algo", default=None, choices=ALGO_NAMES, help="only this learner's")
+    trained.add_argument("--env", default=None, choices=SCENARIO_IDS, help="only this scenario's")
+    trained.add_argument(
+        "-f", "--folder", default=None, help="a benchmark grid folder (default: the repository's results/paper-grid)"
+    )
+    trained.set_defaults(handler=trained_agents_command)
 
     summary = commands.add_parser("summary", help="markdown table of the evaluated runs of a log folder")
     summary.add_argument("-f", "--folder", "--log-folder", dest="folder", default="logs", help="log folder of the runs")
@@ -106,17 +121,96 @@ def add_parsers(commands: Any) -> None:
     baselines.set_defaults(handler=baselines_command)
 
 
+#: rl-zoo's enjoy / record_video flags that have no meaning here -> why (refused with that message).
+REFUSED_PLAY_FLAGS: dict[tuple[str, ...], str] = {
+    ("--n-envs",): "the policy plays one scenario at a time, every AV of it (the AV count cycles over the episodes)",
+    ("--norm-reward",): "no model here is trained with VecNormalize: returns are the paper's reward",
+    ("--reward-log",): "each episode's return is written to the evaluation's JSON (-o)",
+    ("--custom-objects",): "models load as data; --trust-remote-code loads another tool's pickled zip",
+    ("--gym-packages",): "the scenarios register themselves when sb3_marl is imported",
+}
+
+
+def _add_play_flags(parser: argparse.ArgumentParser, default_episodes: int, maximum: int) -> None:
+    """How long a model plays (episodes, or rl-zoo's ``-n`` timesteps) and rl-zoo's ``enjoy`` /
+    ``record_video`` flags: kept with their meaning, accepted where they change nothing here, or
+    refused with the reason."""
+    length = parser.add_mutually_exclusive_group()
+    length.add_argument(
+        "--eval-episodes",
+        type=positive(maximum=maximum),
+        default=default_episodes,
+        help=f"episodes (default: {default_episodes})",
+    )
+    length.add_argument(
+        "-n",
+        "--n-timesteps",
+        type=positive(maximum=maximum * 1_000),
+        default=None,
+        help="env steps instead of episodes (rl-zoo's -n): whole episodes until this many steps"
+        + ("; the video is cut at this many frames" if default_episodes == 1 else ""),
+    )
+    parser.add_argument(
+        "--stochastic",
+        dest="deterministic",
+        action="store_false",
+        default=False,
+        help="sampled actions (rl-zoo's flag; the default)",
+    )
+    parser.add_argument(
+        "--env-kwargs",
+        nargs="+",
+        action=StoreHyperparams,
+        default={},
+        metavar="KEY:VALUE",
+        help="scenario config overrides (merged into the run's env_config), e.g. hdv_politeness:1.0",
+    )
+    parser.add_argument("--verbose", type=int, default=1, choices=[0, 1], help="0: no progress bars")
+    parser.add_argument(
+        "--no-render", action="store_true", help="accepted for rl-zoo's commands: nothing is drawn on screen here"
+    )
+    parser.add_argument("-P", "--progress", action="store_true", help="accepted for rl-zoo's commands: progress bars are on")
+    add_refused_flags(parser, REFUSED_PLAY_FLAGS)
+
+
+def _episodes(args: argparse.Namespace, run: Any) -> int:
+    """Episodes to play: ``--eval-episodes``, or ``-n`` env steps in whole episodes of the scenario's length."""
+    if args.n_timesteps is None:
+        return int(args.eval_episodes)
+    env = make_scenario(args.env, run.env_config)
+    steps = int(env.config["duration"] * env.config["policy_frequency"])
+    return max(1, -(-args.n_timesteps // steps))
+
+
+def _with_env_kwargs(run: Any, args: argparse.Namespace) -> Any:
+    """``run`` with ``--env-kwargs`` merged into its scenario config, checked as ``train`` checks it."""
+    if not args.env_kwargs:
+        return run
+    env_config = {**run.env_config, **args.env_kwargs}
+    try:
+        make_scenario(args.env, env_config).close()
+    except ValueError as error:
+        raise UsageError(f"--env-kwargs: {error}") from None
+    return dataclasses.replace(run, hyperparams={**run.hyperparams, "env_config": env_config})
+
+
 def evaluate_command(args: argparse.Namespace) -> int:
     from sb3_marl.evaluation import evaluate_protocols, markdown_table, protocol_rows
     from sb3_marl.runs.experiment import EVAL_SEED_OFFSET
+    from sb3_marl.runs.folders import run_conf_name
 
     check_file("-o/--output", args.output)
-    run = find_run_of(args)
+    run = _with_env_kwargs(find_run_of(args), args)
     model = load_model_of(run, args)
-    seed = args.seed + EVAL_SEED_OFFSET
+    seed, episodes, progress = args.seed + EVAL_SEED_OFFSET, _episodes(args, run), args.verbose > 0
     start = time.perf_counter()
-    result = {"model": str(run.model_path), **run.evaluate(model, args.eval_episodes, seed, args.deterministic, progress=True)}
-    rows = protocol_rows({"policy": args.algo, "timesteps": model.num_timesteps}, result)
+    result = {"model": str(run.model_path), **run.evaluate(model, episodes, seed, args.deterministic, progress)}
+    try:  # the row's label: "ma2c (ma2c_safe)" for a run of -conf ma2c_safe (args.yml, not needed otherwise)
+        recipe = args.trained or run_conf_name(run.log_path, args.env)
+    except ValueError:  # an args.yml that is not plain data: never read; `summary` names it
+        recipe = ""
+    policy = f"{args.algo} ({recipe})" if recipe else args.algo
+    rows = protocol_rows({"policy": policy, "timesteps": model.num_timesteps}, result)
     if args.with_baselines is not None:
         from sb3_marl.evaluation.baselines import BASELINES
 
@@ -124,17 +218,17 @@ def evaluate_command(args: argparse.Namespace) -> int:
         for name, policy_class in BASELINES.items():
             if args.with_baselines and name not in args.with_baselines:
                 continue
-            baseline = evaluate_protocols(policy_class(), args.env, args.eval_episodes, seed, run.env_config, progress=True)
+            baseline = evaluate_protocols(policy_class(), args.env, episodes, seed, run.env_config, progress)
             result["baselines"][name] = baseline
             rows += protocol_rows({"policy": name, "timesteps": "-"}, baseline)
     heading = (
-        f"{args.env}: {args.eval_episodes} episodes, seeds {seed}..{seed + args.eval_episodes - 1}, "
+        f"{args.env}: {episodes} episodes, seeds {seed}..{seed + episodes - 1}, "
         f"{result['protocol']} (on: the authors' protocol; off: the policy alone); model {run.model_path}"
     )
     table = markdown_table(rows)
     print(heading + "\n")
     print(table)
-    output = Path(args.output) if args.output else run.log_path / "evaluation.json"
+    output = Path(args.output) if args.output else outputs_of(args, run) / "evaluation.json"
     write_text(output, json.dumps(result, indent=2))
     write_text(output.with_suffix(".md"), heading + "\n\n" + table + "\n")
     print(f"\nwrote {output} and {output.with_suffix('.md')} ({time.perf_counter() - start:.1f} s)")
@@ -146,9 +240,12 @@ def record_video_command(args: argparse.Namespace) -> int:
     from sb3_marl.evaluation.video import record_video
     from sb3_marl.runs.experiment import EVAL_SEED_OFFSET
 
-    run = find_run_of(args)
+    run = _with_env_kwargs(find_run_of(args), args)
     model = load_model_of(run, args)
-    output = Path(args.output) if args.output else run.log_path / "videos" / f"{run.model_path.stem}.mp4"
+    name = f"{run.model_path.stem}.mp4"
+    output = Path(args.output) if args.output else outputs_of(args, run) / "videos" / name
+    if output.is_dir() or output.suffix.lower() != ".mp4":  # rl-zoo's -o: a folder for the video
+        output = output / name
     check_file("-o/--output", output)
     try:
         info = record_video(
@@ -158,6 +255,8 @@ def record_video_command(args: argparse.Namespace) -> int:
             args.eval_episodes,
             args.seed + EVAL_SEED_OFFSET,
             run.env_config,
+            n_frames=args.n_timesteps,
+            progress=args.verbose > 0,
         )
     except (OSError, RuntimeError) as error:  # ffmpeg missing, broken or refusing the file
         raise CommandFailed(
@@ -166,6 +265,27 @@ def record_video_command(args: argparse.Namespace) -> int:
             "ffmpeg that imageio-ffmpeg uses (IMAGEIO_FFMPEG_EXE)."
         ) from None
     print(f"wrote {info['path']}: {info['episodes']} episode(s), {info['frames']} frames at {info['fps']} fps")
+    return 0
+
+
+def trained_agents_command(args: argparse.Namespace) -> int:
+    from sb3_marl.benchmark.trained_agents import agents_table, grid_of, list_agents
+
+    try:
+        grid = grid_of(args.folder)
+    except FileNotFoundError as error:
+        raise UsageError(f"-f/--folder: {error}") from None
+    if args.folder is not None and grid != Path(args.folder):
+        raise UsageError(f"-f/--folder: {args.folder!r} is not a benchmark grid folder (it has no trials/).")
+    rows = list_agents(grid, args.algo, args.env)
+    if not rows:
+        raise UsageError(f"No finished trial of {args.algo or 'any learner'} on {args.env or 'any scenario'} in {grid}.")
+    print(
+        f"Trained agents in {grid} (final evaluation of each seed: 30 episodes, seeds 10000..10029, sampled "
+        "actions; mean ± std over seeds):\n"
+    )
+    print(agents_table(rows))
+    print("\nUse one: sb3-marl evaluate --algo ALGO --env ENV --trained NAME (also enjoy, record-video, push-to-hub)")
     return 0
 
 

@@ -15,6 +15,7 @@ from sb3_marl.cli.common import (
     add_run_selection,
     find_run_of,
     load_model_of,
+    outputs_of,
     positive,
 )
 
@@ -55,7 +56,7 @@ def push_to_hub(args: argparse.Namespace) -> int:
         raise UsageError(f"--dry-run: {args.dry_run!r} exists and is not an empty folder: give a new or empty folder.")
     run = find_run_of(args)
     model = load_model_of(run, args)  # a clear error for an unreadable model, before building anything
-    folder = Path(args.dry_run) if args.dry_run else fresh_folder(run.log_path / "hub")
+    folder = Path(args.dry_run) if args.dry_run else fresh_folder(outputs_of(args, run) / "hub")
     build_model_folder(run, folder, repo_id, args.eval_episodes, args.seed + EVAL_SEED_OFFSET, not args.no_video, model)
     print(f"built the model folder {folder} for {repo_id}")
     if args.dry_run:

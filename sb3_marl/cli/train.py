@@ -20,6 +20,7 @@ from sb3_marl.cli.common import (
     StoreHyperparams,
     UsageError,
     add_num_threads,
+    add_refused_flags,
     add_trust_remote_code,
     check_device,
     check_folder,
@@ -110,7 +111,7 @@ def add_parsers(commands: Any) -> None:
         help="0: quiet; 1 (default): set-up, progress and evaluation lines; 2: also SB3's logger tables",
     )
     _add_search_flags(train.add_argument_group("hyperparameter search (rl-zoo's -optimize, Optuna)"))
-    _add_refused_flags(train)
+    add_refused_flags(train, REFUSED_FLAGS)
     train.set_defaults(handler=train_command)
 
 
@@ -129,19 +130,6 @@ REFUSED_FLAGS = {
         "(wandb sync <that folder> uploads them)"
     ),
 }
-
-
-class _Refused(argparse.Action):
-    """An rl-zoo flag without a meaning here: a usage error that says why."""
-
-    def __call__(self, parser: argparse.ArgumentParser, namespace: Any, values: Any, option_string: Any = None) -> None:
-        reason = next(why for flags, why in REFUSED_FLAGS.items() if option_string in flags)
-        parser.error(f"{option_string} (rl-zoo's) has no meaning here: {reason}.")
-
-
-def _add_refused_flags(train: Any) -> None:
-    for flags in REFUSED_FLAGS:
-        train.add_argument(*flags, nargs="*", action=_Refused, default=None, help=argparse.SUPPRESS)
 
 
 def _add_search_flags(search: Any) -> None:

@@ -102,11 +102,12 @@ def evaluation_records(
 ) -> list[EpisodeRecord]:
     """``n_episodes`` episodes with seeds ``seed, seed + 1, ...``, cycling through the density's AV
     counts (``on_step`` as in :func:`run_episodes`); with ``progress``, a progress bar of that name
-    on stderr."""
+    on stderr when it is a terminal."""
     counts = av_counts(env_id, config)
     envs = {n: make_scenario(env_id, {**(config or {}), "n_avs": n}) for n in counts}
     records = []
-    for episode in tqdm(range(n_episodes), desc=progress, unit="episode", disable=progress is None, leave=False):
+    bar = tqdm(range(n_episodes), desc=progress, unit="episode", disable=True if progress is None else None, leave=False)
+    for episode in bar:
         env = envs[counts[episode % len(counts)]]
         records += run_episodes(env, policy, 1, seed=seed + episode, on_step=on_step)
     for env in envs.values():

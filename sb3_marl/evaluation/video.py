@@ -95,23 +95,35 @@ def record_video(
     n_episodes: int = 1,
     seed: int = 0,
     config: dict[str, Any] | None = None,
+    n_frames: int | None = None,
+    progress: bool = True,
 ) -> dict[str, Any]:
     """Play ``n_episodes`` seeded episodes (the density's AV counts from the largest down, cycling)
     and write them to the mp4 ``path``, one frame per policy step (5 Hz, played at 5 fps: real
     time), each drawn by :func:`frame`.
 
+    :param n_frames: instead of ``n_episodes``, episodes until this many frames, the video cut there
+        (rl-zoo's ``-n`` timesteps)
     :return: ``{"path", "frames", "episodes", "fps"}``
     """
     path = Path(path)
     counts = sorted(av_counts(env_id, config), reverse=True)
     frames: list[np.ndarray] = []
-    fps = None
-    for episode in tqdm(range(n_episodes), desc="recording", unit="episode", leave=False):
-        n_avs = counts[episode % len(counts)]
-        env = make_scenario(env_id, {**(config or {}), **VIEW, "n_avs": n_avs}, render_mode="rgb_array")
-        fps = env.config["policy_frequency"]
-        run_episodes(env, policy, 1, seed + episode, on_step=lambda env, info: frames.append(frame(env, info, counts[0])))
-        env.close()
+    fps, episode = None, 0
+    unit = "frame" if n_frames else "episode"
+    with tqdm(
+        total=n_frames or n_episodes, desc="recording", unit=unit, leave=False, disable=None if progress else True
+    ) as bar:
+        while (len(frames) < n_frames) if n_frames else (episode < n_episodes):
+            n_avs = counts[episode % len(counts)]
+            env = make_scenario(env_id, {**(config or {}), **VIEW, "n_avs": n_avs}, render_mode="rgb_array")
+            fps = env.config["policy_frequency"]
+            before = len(frames)
+            run_episodes(env, policy, 1, seed + episode, on_step=lambda env, info: frames.append(frame(env, info, counts[0])))
+            env.close()
+            bar.update(len(frames) - before if n_frames else 1)
+            episode += 1
+    frames = frames[:n_frames]
     # libx264 needs even frame sizes; macro_block_size=2 pads odd ones instead of rescaling
     with (
         replaced_atomically(path) as temporary,
@@ -119,7 +131,7 @@ def record_video(
     ):
         for picture in frames:
             writer.append_data(picture)  # type: ignore[attr-defined]
-    return {"path": str(path), "frames": len(frames), "episodes": n_episodes, "fps": fps}
+    return {"path": str(path), "frames": len(frames), "episodes": episode, "fps": fps}
 
 
 __all__ = ["frame", "record_video"]

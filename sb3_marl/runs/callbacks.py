@@ -50,28 +50,30 @@ def atomic_save(model: BaseAlgorithm, path: str | Path) -> Path:
 
 class ProgressLinesCallback(BaseCallback):
     """``-P/--progress`` where the output is no terminal (a log file, a pipe): a line at each tenth
-    of the budget (AV-steps done, elapsed and remaining wall time [s]) instead of a bar whose redraws
-    fill the file with blank and overlong lines."""
+    of the budget (AV-steps done of the budget, elapsed and remaining wall time [s]) instead of a bar
+    whose redraws fill the file with blank and overlong lines. Steps done before this call to
+    ``learn`` (a resumed run, the DAgger warm start) count as done."""
 
     def __init__(self, lines: int = 10) -> None:
         super().__init__()
         self.lines = lines
-        self.start_steps, self.total, self.printed, self.started = 0, 1, 0, 0.0
+        self.start_steps, self.target, self.printed, self.started = 0, 1, 0, 0.0
 
     def _on_training_start(self) -> None:
         self.start_steps = self.model.num_timesteps
-        self.total = max(self.locals["total_timesteps"] - self.model.num_timesteps, 1)  # as SB3's progress bar
-        self.printed, self.started = 0, time.perf_counter()
+        self.target = max(self.locals["total_timesteps"], 1)  # the budget's last AV-step (SB3's _setup_learn)
+        self.printed, self.started = self._due(), time.perf_counter()
+
+    def _due(self) -> int:
+        return min(self.model.num_timesteps * self.lines // self.target, self.lines)
 
     def _on_step(self) -> bool:
-        done = self.model.num_timesteps - self.start_steps
-        due = min(done * self.lines // self.total, self.lines)
-        if due > self.printed:
-            self.printed = due
-            elapsed = time.perf_counter() - self.started
-            left = max(elapsed * (self.total - done) / max(done, 1), 0.0)
-            share = 100 * done / self.total
-            print(f"progress: {done}/{self.total} AV-steps ({share:.0f} %), {elapsed:.0f} s, ~{left:.0f} s left", flush=True)
+        if self._due() > self.printed:
+            self.printed = self._due()
+            steps, elapsed = self.model.num_timesteps, time.perf_counter() - self.started
+            left = elapsed * max(self.target - steps, 0) / max(steps - self.start_steps, 1)
+            share = 100 * steps / self.target
+            print(f"progress: {steps}/{self.target} AV-steps ({share:.0f} %), {elapsed:.0f} s, ~{left:.0f} s left", flush=True)
         return True
 
 

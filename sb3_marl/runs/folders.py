@@ -16,7 +16,7 @@ from typing import Any
 from rl_zoo3.utils import EnvironmentName, get_model_path
 from stable_baselines3.common.base_class import BaseAlgorithm
 
-from sb3_marl.algos import get_algo
+from sb3_marl.algos import ALGO_NAMES, get_algo
 from sb3_marl.algos.common.loading import UnsafeModelError, read_model_data, saved_policy_class
 from sb3_marl.algos.common.policies import model_policy, uses_action_masks
 from sb3_marl.common.files import inside, read_json_object, read_run_yaml
@@ -259,15 +259,24 @@ def run_args(run_folder: str | Path, env_id: str) -> dict[str, Any]:
     return read_run_yaml(path) if path.is_file() else {}
 
 
+def run_conf_name(run_folder: str | Path, env_id: str) -> str:
+    """The name of the zoo config a run was trained with instead of its learner's (``-conf``), e.g.
+    ``ma2c_safe``; "" for the learner's own."""
+    conf_file = run_args(run_folder, env_id).get("conf_file")
+    return Path(str(conf_file)).stem if conf_file else ""
+
+
 def run_overrides(run_folder: str | Path, env_id: str) -> str:
-    """The ``-params`` overrides a run was trained with, as ``key=value, ...`` ("" if none)."""
+    """What a run was trained with beyond its learner's zoo config: the ``-conf`` file's name and
+    the ``-params`` overrides, as ``ma2c_safe, key=value, ...`` ("" if none)."""
     overrides = run_args(run_folder, env_id).get("hyperparams") or {}
-    return ", ".join(f"{key}={value}" for key, value in sorted(overrides.items()))
+    conf = [name] if (name := run_conf_name(run_folder, env_id)) else []
+    return ", ".join([*conf, *(f"{key}={value}" for key, value in sorted(overrides.items()))])
 
 
 def summary_table(folder: str | Path) -> str:
     """A markdown table of every evaluated run under ``folder`` (rl-zoo layout: each run folder's
-    ``evaluation.json``, written by ``sb3-marl evaluate``): algorithm, env, run, seed, the
+    ``evaluation.json``, written by ``sb3-marl evaluate``; ``trained-agents/`` left out): algorithm, env, run, seed, the
     ``-params`` overrides it was trained with, and the evaluation (protocol, episodes, metrics, and the
     reference policies' rows where it was evaluated ``--with-baselines``); the merge's columns
     too where every row has them (as :func:`~sb3_marl.evaluation.markdown_table`)."""
@@ -286,9 +295,9 @@ def summary_table(folder: str | Path) -> str:
         *(title for title, _ in TABLE_COLUMNS),
     ]
     rows: list[tuple[list[str], list[str] | None]] = []
+    evaluations = [path for path in Path(folder).glob("*/*/evaluation.json") if path.parent.parent.name in ALGO_NAMES]
     for evaluation_file in sorted(
-        Path(folder).glob("*/*/evaluation.json"),
-        key=lambda p: (p.parent.parent.name, p.parent.name.rpartition("_")[0], run_id(p.parent)),
+        evaluations, key=lambda p: (p.parent.parent.name, p.parent.name.rpartition("_")[0], run_id(p.parent))
     ):
         try:
             rows += _summary_rows(evaluation_file, read_json_object(evaluation_file))
@@ -354,6 +363,7 @@ __all__ = [
     "find_run",
     "latest_checkpoint",
     "run_args",
+    "run_conf_name",
     "run_folders",
     "run_id",
     "run_overrides",

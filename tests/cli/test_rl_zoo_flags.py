@@ -68,3 +68,50 @@ def test_env_kwargs_reach_the_scenario_and_the_replay_buffer_is_saved(tmp_path):
     assert (run / "replay_buffer.npz").is_file()
     saved = (run / "sb3_marl-LaneChange-density1-v0" / "config.yml").read_text()
     assert "comfort: false" in saved and "safety_supervisor: true" in saved  # merged into the config's env_config
+
+
+#: rl-zoo's documented enjoy / record_video commands (its docs/guide/enjoy.rst, with our learner,
+#: scenario and trained-agents folder in place of theirs), then what each must set
+PLAY = [
+    (
+        "enjoy",
+        f"--algo ma2c --env {ENV} --folder results/paper-grid/ -n 5000",
+        {"folder": "results/paper-grid/", "n_timesteps": 5000},
+    ),
+    ("enjoy", f"--algo ma2c --env {ENV} -f logs/ --exp-id 0", {"folder": "logs/", "exp_id": 0}),
+    ("enjoy", f"--algo ma2c --env {ENV} -f logs/ --exp-id 1 --load-best", {"exp_id": 1, "load_best": True}),
+    ("enjoy", f"--algo ma2c --env {ENV} -f logs/ --exp-id 1 --load-checkpoint 10000", {"load_checkpoint": 10000}),
+    ("enjoy", f"--algo ma2c --env {ENV} -f logs/ --exp-id 1 --load-last-checkpoint", {"load_last_checkpoint": True}),
+    ("enjoy", f"--algo ma2c --env {ENV} --no-render -n 1000 --deterministic --seed 3 -P", {"deterministic": True, "seed": 3}),
+    (
+        "enjoy",
+        f"--algo ma2c --env {ENV} --stochastic --env-kwargs hdv_politeness:1.0",
+        {"env_kwargs": {"hdv_politeness": 1.0}},
+    ),
+    ("record-video", f"--algo ma2c --env {ENV} -n 1000", {"n_timesteps": 1000, "deterministic": False}),
+    ("record-video", f"--algo ma2c --env {ENV} -n 1000 --load-best", {"load_best": True}),
+    ("record-video", f"--algo ma2c --env {ENV} -n 1000 --load-checkpoint 10000", {"load_checkpoint": 10000}),
+    ("record-video", f"--algo ma2c --env {ENV} -o videos/ --exp-id 1 --deterministic", {"output": "videos/", "exp_id": 1}),
+]
+REFUSED_PLAY = [
+    f"enjoy --algo ma2c --env {ENV} --n-envs 4",
+    f"enjoy --algo ma2c --env {ENV} --norm-reward",
+    f"enjoy --algo ma2c --env {ENV} --reward-log rewards/",
+    f"record-video --algo ma2c --env {ENV} --custom-objects",
+    f"record-video --algo ma2c --env {ENV} --gym-packages highway_env",
+]
+
+
+@pytest.mark.parametrize(("command", "line", "expected"), PLAY)
+def test_rl_zoo_enjoy_and_record_video_commands_parse_with_their_meaning(command, line, expected):
+    args = build_parser().parse_args([command, *shlex.split(line)])
+    for key, value in expected.items():
+        assert getattr(args, key) == value, key
+
+
+@pytest.mark.parametrize("line", REFUSED_PLAY)
+def test_rl_zoo_play_flags_without_a_meaning_here_say_why(line, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        build_parser().parse_args(shlex.split(line))
+    assert exit_.value.code == 2
+    assert "(rl-zoo's) has no meaning here: " in capsys.readouterr().err

@@ -235,6 +235,13 @@ def dagger(model: Any, timesteps: int, prior: RulePrior) -> None:
         ):
             model.logger.record(f"dagger/{key}", value)
         model.logger.dump(step=model.num_timesteps)
+        if model.verbose >= 1:
+            print(
+                f"DAgger warm start, round {iteration + 1}/{DAGGER_ITERATIONS}: {model.num_timesteps} AV-steps, "
+                f"agreement with the rule driver {agreement:.2f}; the policy alone: return {alone['return_mean']:.2f}, "
+                f"collision rate {alone['collision_rate']:.2f} ({DAGGER_EVAL_EPISODES} episodes)",
+                flush=True,
+            )
     model._last_obs = obs
     model._last_episode_starts = np.asarray(dones[-1], dtype=bool)
 
