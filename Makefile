@@ -7,15 +7,18 @@ DEV := $(VENV)/.installed-dev
 
 .PHONY: install run test benchmark clean
 
+# PYTHONWARNINGS: setuptools' notice about editable installs (a UserWarning) is not printed
+PIP := PYTHONWARNINGS=ignore::UserWarning $(PYTHON) -m pip install --quiet
+
 $(RUNTIME): setup.py pyproject.toml
 	python3 -m venv $(VENV)
-	$(PYTHON) -m pip install --quiet --upgrade pip
-	$(PYTHON) -m pip install --quiet torch==2.13.0
-	$(PYTHON) -m pip install --quiet -e .
+	$(PIP) --upgrade pip
+	$(PIP) torch==2.13.0
+	$(PIP) -e .
 	touch $(RUNTIME)
 
 $(DEV): $(RUNTIME)
-	$(PYTHON) -m pip install --quiet -e ".[dev]"
+	$(PIP) -e ".[dev]"
 	touch $(DEV)
 
 install: $(DEV)

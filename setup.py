@@ -11,6 +11,8 @@ TORCHRL = ["torchrl>=0.14,<0.15", *PETTINGZOO]
 RLLIB = ["ray[rllib]>=2.60,<2.61", *PETTINGZOO]  # RLlib pins gymnasium 1.2.x
 # BenchMARL 1.5 pins torchrl < 0.12 (and torchvision): its own environment, not [dev]
 BENCHMARL = ["benchmarl>=1.5,<1.6", *PETTINGZOO]
+# videos (`record-video`, the Hub's replay.mp4): imageio-ffmpeg's wheel carries ffmpeg (165 MB)
+VIDEO = ["imageio>=2.34", "imageio-ffmpeg>=0.5"]
 # the documentation site (mkdocs.yml): MkDocs Material, the API reference from the docstrings
 DOCS = ["mkdocs>=1.6,<2", "mkdocs-material>=9.5,<10", "mkdocstrings[python]>=1.0,<2"]
 
@@ -40,8 +42,6 @@ setup(
         "pyyaml>=6",
         "rl_zoo3>=2.9,<2.10",
         "matplotlib>=3.8",
-        "imageio>=2.34",
-        "imageio-ffmpeg>=0.5",
         "tqdm",
         "rich",
         "huggingface_hub>=1.0",  # push-to-hub / load-from-hub
@@ -56,6 +56,7 @@ setup(
         "torchrl": TORCHRL,
         "rllib": RLLIB,
         "benchmarl": BENCHMARL,
+        "video": VIDEO,
         "docs": DOCS,
         # seaborn and scipy: rl_zoo3's own plotting scripts, run by the tests on our logs;
         # ruff and mypy: lint and types, run by `make test`
@@ -68,6 +69,7 @@ setup(
             "ruff>=0.16,<0.17",
             "mypy>=2.3,<2.5",
             "build",
+            *VIDEO,
             *RAY,
             *TORCHRL,
             *RLLIB,

@@ -85,6 +85,19 @@ def test_the_docs_build_in_strict_mode(tmp_path):
     assert 'id="sb3_marl.envs.lane_change_env.LaneChangeEnv"' in api  # the reference is generated
     index = (tmp_path / "site" / "index.html").read_text()
     assert "RUN_LOGS=elsewhere" in index  # the README's quick start, included
+    # the figures where the pages discuss them: each page's <img> and the PNG it points to, in the site
+    shown = {
+        "index.html": "results/cooperative_lane_change.png",
+        "benchmark/index.html": "../results/learning_curves_baselines.png",
+        "command-line/index.html": "../results/video_frame.png",
+        "merge/index.html": "../results/learning_curves_merge.png",
+        "safety/index.html": "../results/learning_curves_rule-prior.png",
+        "speed/index.html": "../results/speed/traffic_scaling.png",
+    }
+    for page, figure in shown.items():
+        html = tmp_path / "site" / page
+        assert f'src="{figure}"' in html.read_text(), page
+        assert (html.parent / figure).resolve().stat().st_size > 10_000, figure
 
 
 def test_the_readme_example_runs_verbatim(tmp_path, monkeypatch):

@@ -2,11 +2,16 @@
 fresh virtual environment, runs from an unrelated folder (the test environment's packages stand in
 for the dependencies, so nothing is downloaded)."""
 
+import re
 import subprocess
 import sys
 import sysconfig
 import tarfile
+from importlib.metadata import distribution
 from pathlib import Path
+
+from packaging.requirements import Requirement
+from packaging.utils import canonicalize_name
 
 from sb3_marl import __version__
 
@@ -67,3 +72,34 @@ def test_the_wheel_installs_and_runs_from_an_unrelated_folder(tmp_path):
         subprocess.run([*cli, *argv, "-f", "logs"], cwd=elsewhere, check=True, capture_output=True)
     assert (elsewhere / "logs" / "ma2c" / "sb3_marl-LaneChange-density1-v0_1" / "evaluation.json").is_file()
     assert not list((site / "sb3_marl").rglob("*.nbi"))  # numba's cache is in the user's cache folder
+
+
+def requirement_closure(name: str, extras: frozenset[str] = frozenset()) -> set[str]:
+    """The distributions pip installs for ``name[extras]``: its requirements and theirs, each
+    with the extras asked of it, as the installed distributions' metadata declares them."""
+    seen: dict[str, frozenset[str]] = {}
+    todo = [(name, extras)]
+    while todo:
+        name, extras = todo.pop()
+        key = canonicalize_name(name)
+        if key in seen and extras <= seen[key]:
+            continue
+        seen[key] = seen.get(key, frozenset()) | extras
+        for line in distribution(name).requires or []:
+            requirement = Requirement(line)
+            marker = requirement.marker
+            if marker is None or any(marker.evaluate({"extra": extra}) for extra in ("", *seen[key])):
+                todo.append((requirement.name, frozenset(requirement.extras)))
+    return set(seen)
+
+
+def test_the_installs_hold_the_packages_the_readme_counts():
+    """`make run` installs the runtime only and `make test` adds the dev extra: each closure of
+    requirements, plus pip, has the README's package count, and the runtime holds no dev tool."""
+    counts = re.search(
+        r"runtime only \((\d+) packages.*?adds the `dev` extra \((\d+) packages", (ROOT / "README.md").read_text(), re.S
+    )
+    assert counts is not None
+    runtime, dev = requirement_closure("sb3-marl"), requirement_closure("sb3-marl", frozenset({"dev"}))
+    assert (len(runtime) + 1, len(dev) + 1) == (int(counts.group(1)), int(counts.group(2)))
+    assert runtime < dev and not runtime & {"pytest", "ray", "mypy", "ruff", "mkdocs", "torchrl", "hypothesis"}

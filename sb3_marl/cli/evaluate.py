@@ -237,9 +237,13 @@ def evaluate_command(args: argparse.Namespace) -> int:
 
 def record_video_command(args: argparse.Namespace) -> int:
     from sb3_marl.algos.common.policies import model_policy
-    from sb3_marl.evaluation.video import record_video
+    from sb3_marl.evaluation.video import VideoExtraMissing, imageio_module, record_video
     from sb3_marl.runs.experiment import EVAL_SEED_OFFSET
 
+    try:
+        imageio_module()
+    except VideoExtraMissing as error:
+        raise CommandFailed(str(error)) from None
     run = _with_env_kwargs(find_run_of(args), args)
     model = load_model_of(run, args)
     name = f"{run.model_path.stem}.mp4"

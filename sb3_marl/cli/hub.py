@@ -54,6 +54,13 @@ def push_to_hub(args: argparse.Namespace) -> int:
     occupied = os.path.exists(dry_run or "") and (not os.path.isdir(dry_run) or bool(os.listdir(dry_run)))
     if dry_run and (os.path.islink(dry_run) or occupied):
         raise UsageError(f"--dry-run: {args.dry_run!r} exists and is not an empty folder: give a new or empty folder.")
+    if not args.no_video:
+        from sb3_marl.evaluation.video import VideoExtraMissing, imageio_module
+
+        try:
+            imageio_module()
+        except VideoExtraMissing as error:
+            raise CommandFailed(f"{error}; or leave the video out with --no-video") from None
     run = find_run_of(args)
     model = load_model_of(run, args)  # a clear error for an unreadable model, before building anything
     folder = Path(args.dry_run) if args.dry_run else fresh_folder(outputs_of(args, run) / "hub")

@@ -2,8 +2,8 @@
 imageio-ffmpeg (its wheel ships the ffmpeg binary: nothing is downloaded at run time).
 
 Each frame shows the road around the AVs (the camera follows the centre of the AVs still on the
-road; each AV labelled with its index) at :data:`SCALING` px/m, so a 5 m vehicle is 40 px long,
-under a band with the time, a legend
+road and zooms out until all of them are in view, from :data:`SCALING` px/m, a 5 m vehicle 40 px
+long, down to the whole road; each AV labelled with its index), under a band with the time, a legend
 of the colours (highway-env's: AVs green, HDVs blue, crashed vehicles red) and, per AV, its speed
 and meta-action; an action the safety supervisor replaced shows both, highlighted, and a crash is
 marked. The video ends with the episode (at the latest when the last AV leaves the road).
@@ -14,7 +14,6 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-import imageio.v2 as imageio
 import numpy as np
 from PIL import Image, ImageDraw
 from tqdm import tqdm
@@ -25,9 +24,31 @@ from sb3_marl.envs.lane_change_env import ACTIONS, LaneChangeEnv
 from sb3_marl.evaluation.episodes import Policy, run_episodes
 from sb3_marl.sim import kernel
 
-#: The video's view of the road: width and height [px] and scale [px/m].
-VIEW = {"screen_width": 1200, "screen_height": 240, "scaling": 8.0, "centering_position": [0.5, 0.5]}
-SCALING = VIEW["scaling"]
+
+class VideoExtraMissing(ImportError):
+    """Videos need the ``video`` extra (imageio and imageio-ffmpeg), not installed."""
+
+
+def imageio_module() -> Any:
+    """imageio's v2 API with imageio-ffmpeg's ffmpeg, or :class:`VideoExtraMissing` saying how to get them."""
+    try:
+        import imageio.v2 as imageio
+        import imageio_ffmpeg  # noqa: F401  # imageio's FFMPEG format finds its binary
+    except ImportError as error:
+        raise VideoExtraMissing(
+            f"videos need the video extra ({error.name} is not installed): pip install 'sb3-marl[video]' "
+            "(imageio, and imageio-ffmpeg, whose wheel carries ffmpeg)"
+        ) from None
+    return imageio
+
+
+#: The video's view of the road: width and height [px], the largest scale [px/m] (a 5 m vehicle
+#: 40 px long) and the smallest (the whole 520 m road in view).
+WIDTH, HEIGHT, SCALING, MIN_SCALING = 1200, 240, 8.0, 2.0
+VIEW = {"screen_width": WIDTH, "screen_height": HEIGHT, "scaling": SCALING, "centering_position": [0.5, 0.5]}
+#: Margin [px] kept between the outermost AVs and the frame's edges; share of the way to the
+#: target zoom the camera moves per frame (smooth zooming).
+MARGIN, ZOOM_RATE = 80, 0.25
 #: Height [px] of the text band above the road; one line per AV after the header.
 LINE = 18
 COLOURS = {
@@ -41,17 +62,32 @@ COLOURS = {
 
 class _Camera:
     """highway-env's viewer follows ``observer_vehicle.position``: here the centre [m] of the AVs
-    still on the road (all AVs once none is)."""
+    still on the road (all AVs once none is), zoomed so that every one of them is in the frame
+    (between :data:`MIN_SCALING` and :data:`SCALING` px/m; zooming out at once, in smoothly)."""
 
     def __init__(self, env: LaneChangeEnv) -> None:
         self.env = env
+        self.scaling: float | None = None
+
+    def _rows(self) -> np.ndarray:
+        avs = self.env.state[: self.env.n_avs]
+        on_road = avs[avs[:, kernel.COLLIDABLE] > 0]
+        return on_road if len(on_road) else avs
 
     @property
     def position(self) -> np.ndarray:
-        avs = self.env.state[: self.env.n_avs]
-        on_road = avs[avs[:, kernel.COLLIDABLE] > 0]
-        rows = on_road if len(on_road) else avs
-        return np.array([rows[:, kernel.X].mean(), rows[:, kernel.Y].mean()])
+        rows = self._rows()
+        return np.array([(rows[:, kernel.X].min() + rows[:, kernel.X].max()) / 2, rows[:, kernel.Y].mean()])
+
+    def zoom(self) -> float:
+        """The scale [px/m] of the next frame: toward the one that frames every AV on the road."""
+        spread = np.ptp(self._rows()[:, kernel.X]) + 2 * kernel.LENGTH
+        target = float(np.clip((WIDTH - 2 * MARGIN) / spread, MIN_SCALING, SCALING))
+        if self.scaling is None or target < self.scaling:  # out at once (no AV leaves the frame), in smoothly
+            self.scaling = target
+        else:
+            self.scaling += ZOOM_RATE * (target - self.scaling)
+        return self.scaling
 
 
 def frame(env: LaneChangeEnv, info: dict[str, Any], rows: int | None = None) -> np.ndarray:
@@ -61,7 +97,9 @@ def frame(env: LaneChangeEnv, info: dict[str, Any], rows: int | None = None) -> 
     if env.viewer is None:
         env.render()  # highway-env creates its viewer on the first frame
     assert env.viewer is not None, "the env renders rgb_array frames"
-    env.viewer.observer_vehicle = _Camera(env)
+    if not isinstance(env.viewer.observer_vehicle, _Camera) or env.viewer.observer_vehicle.env is not env:
+        env.viewer.observer_vehicle = _Camera(env)
+    env.viewer.sim_surface.scaling = env.viewer.observer_vehicle.zoom()
     pixels = env.render()
     assert pixels is not None
     road = Image.fromarray(pixels)
@@ -106,7 +144,7 @@ def record_video(
         (rl-zoo's ``-n`` timesteps)
     :return: ``{"path", "frames", "episodes", "fps"}``
     """
-    path = Path(path)
+    path, imageio = Path(path), imageio_module()
     counts = sorted(av_counts(env_id, config), reverse=True)
     frames: list[np.ndarray] = []
     fps, episode = None, 0
@@ -130,8 +168,8 @@ def record_video(
         imageio.get_writer(temporary, fps=fps, codec="libx264", macro_block_size=2, format="FFMPEG") as writer,
     ):
         for picture in frames:
-            writer.append_data(picture)  # type: ignore[attr-defined]
+            writer.append_data(picture)
     return {"path": str(path), "frames": len(frames), "episodes": episode, "fps": fps}
 
 
-__all__ = ["frame", "record_video"]
+__all__ = ["VideoExtraMissing", "frame", "imageio_module", "record_video"]

@@ -182,6 +182,44 @@ def test_record_video_writes_a_playable_mp4(logs, tmp_path, capsys):
     assert (band.mean(axis=2) > 230).mean() > 0.8 and (band.mean(axis=2) < 100).sum() > 200
 
 
+@pytest.mark.parametrize("env_id", ["sb3_marl/LaneChange-density3-v0", "sb3_marl/Merge-density3-v0"])
+def test_the_video_camera_frames_every_av_on_the_road(env_id):
+    """Every frame of random-policy episodes at the densest traffic shows every AV still on the road
+    (its centre inside the frame's width), at a zoom within the camera's bounds."""
+    from sb3_marl.envs import make_scenario
+    from sb3_marl.evaluation.baselines import RandomPolicy
+    from sb3_marl.evaluation.episodes import run_episodes
+    from sb3_marl.evaluation.video import MIN_SCALING, SCALING, VIEW, frame
+    from sb3_marl.sim import kernel
+
+    env = make_scenario(env_id, VIEW, render_mode="rgb_array")
+    outside, zooms = [], []
+
+    def check(env, info):
+        frame(env, info)
+        zooms.append(env.viewer.sim_surface.scaling)
+        for i, row in enumerate(env.state[: env.n_avs]):
+            x, _ = env.viewer.sim_surface.pos2pix(row[kernel.X], row[kernel.Y])
+            if row[kernel.COLLIDABLE] > 0 and not 0 <= x < VIEW["screen_width"]:
+                outside.append((info["step"], i, x))
+
+    run_episodes(env, RandomPolicy(), 2, seed=3, on_step=check)
+    env.close()
+    assert not outside and MIN_SCALING <= min(zooms) <= max(zooms) <= SCALING and len(set(zooms)) > 1
+
+
+def test_videos_without_the_video_extra_say_how_to_get_it(logs, tmp_path, monkeypatch, capsys):
+    """imageio-ffmpeg absent (the runtime install, without the `video` extra): record-video and
+    push-to-hub stop before any work with the pip command; push-to-hub --no-video still builds."""
+    monkeypatch.setitem(sys.modules, "imageio_ffmpeg", None)  # `import imageio_ffmpeg` raises ImportError
+    assert main(["record-video", "-f", str(logs), "-o", str(tmp_path / "replay.mp4")]) == 1
+    assert "pip install 'sb3-marl[video]'" in capsys.readouterr().err and not (tmp_path / "replay.mp4").exists()
+    push = ["push-to-hub", "-f", str(logs), "-orga", "someone", "--eval-episodes", "1", "--dry-run"]
+    assert main([*push, str(tmp_path / "hub")]) == 1
+    assert "imageio_ffmpeg is not installed" in capsys.readouterr().err and not (tmp_path / "hub").exists()
+    assert main([*push, str(tmp_path / "hub"), "--no-video"]) == 0 and not (tmp_path / "hub" / "replay.mp4").exists()
+
+
 def test_resume_continues_the_timestep_count(logs):
     final = run_dir(logs, 1) / f"{ENV_NAME}.zip"
     assert main(["train", "-f", str(logs), "-i", str(final), *TINY[:1], "1800", *TINY[2:]]) == 0
