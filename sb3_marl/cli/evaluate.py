@@ -196,6 +196,7 @@ def _with_env_kwargs(run: Any, args: argparse.Namespace) -> Any:
 
 def evaluate_command(args: argparse.Namespace) -> int:
     from sb3_marl.evaluation import evaluate_protocols, markdown_table, protocol_rows
+    from sb3_marl.evaluation.traffic import traffic_table, trips_csv
     from sb3_marl.runs.experiment import EVAL_SEED_OFFSET
     from sb3_marl.runs.folders import run_conf_name
 
@@ -204,7 +205,7 @@ def evaluate_command(args: argparse.Namespace) -> int:
     model = load_model_of(run, args)
     seed, episodes, progress = args.seed + EVAL_SEED_OFFSET, _episodes(args, run), args.verbose > 0
     start = time.perf_counter()
-    result = {"model": str(run.model_path), **run.evaluate(model, episodes, seed, args.deterministic, progress)}
+    result = {"model": str(run.model_path), **run.evaluate(model, episodes, seed, args.deterministic, progress, traffic=True)}
     try:  # the row's label: "ma2c (ma2c_safe)" for a run of -conf ma2c_safe (args.yml, not needed otherwise)
         recipe = args.trained or run_conf_name(run.log_path, args.env)
     except ValueError:  # an args.yml that is not plain data: never read; `summary` names it
@@ -218,7 +219,7 @@ def evaluate_command(args: argparse.Namespace) -> int:
         for name, policy_class in BASELINES.items():
             if args.with_baselines and name not in args.with_baselines:
                 continue
-            baseline = evaluate_protocols(policy_class(), args.env, episodes, seed, run.env_config, progress)
+            baseline = evaluate_protocols(policy_class(), args.env, episodes, seed, run.env_config, progress, traffic=True)
             result["baselines"][name] = baseline
             rows += protocol_rows({"policy": name, "timesteps": "-"}, baseline)
     heading = (
@@ -226,12 +227,17 @@ def evaluate_command(args: argparse.Namespace) -> int:
         f"{result['protocol']} (on: the authors' protocol; off: the policy alone); model {run.model_path}"
     )
     table = markdown_table(rows)
+    traffic = "Traffic (docs/traffic.md: every vehicle, AVs and HDVs, over the same episodes):\n\n" + traffic_table(
+        [(label, summary["traffic"]) for label, summary in rows]
+    )
     print(heading + "\n")
-    print(table)
+    print(table + "\n\n" + traffic)
     output = Path(args.output) if args.output else outputs_of(args, run) / "evaluation.json"
+    trips = output.with_name(output.stem + "_trips.csv")
+    write_text(trips, trips_csv([{**label, **trip} for label, summary in rows for trip in summary.pop("trips")]))
     write_text(output, json.dumps(result, indent=2))
-    write_text(output.with_suffix(".md"), heading + "\n\n" + table + "\n")
-    print(f"\nwrote {output} and {output.with_suffix('.md')} ({time.perf_counter() - start:.1f} s)")
+    write_text(output.with_suffix(".md"), heading + "\n\n" + table + "\n\n" + traffic + "\n")
+    print(f"\nwrote {output}, {output.with_suffix('.md')} and the trip records {trips} ({time.perf_counter() - start:.1f} s)")
     return 0
 
 

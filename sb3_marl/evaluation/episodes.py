@@ -20,6 +20,7 @@ from sb3_marl.envs import av_counts, make_scenario
 from sb3_marl.envs.config import SUPERVISOR_PROTOCOLS, with_supervisor
 from sb3_marl.envs.lane_change_env import LaneChangeEnv
 from sb3_marl.evaluation.metrics import EpisodeRecord, EpisodeTrace, summarize
+from sb3_marl.evaluation.traffic import TripRecorder
 
 Policy = Callable[[LaneChangeEnv, np.ndarray], np.ndarray]
 
@@ -123,10 +124,16 @@ def evaluate_on_density(
 
 
 def protocol_records(
-    policy: Policy, env_id: str, n_episodes: int, seed: int = 0, config: dict | None = None, progress: bool = False
+    policy: Policy,
+    env_id: str,
+    n_episodes: int,
+    seed: int = 0,
+    config: dict | None = None,
+    progress: bool = False,
+    on_step: dict[str, StepHook] | None = None,
 ) -> dict[str, list[EpisodeRecord]]:
     """The same seeded episodes under each of :data:`SUPERVISOR_PROTOCOLS`: ``{"on": ..., "off": ...}``
-    (``progress``: a progress bar per protocol)."""
+    (``progress``: a progress bar per protocol; ``on_step``: a step hook per protocol)."""
     return {
         name: evaluation_records(
             policy,
@@ -134,6 +141,7 @@ def protocol_records(
             n_episodes,
             seed,
             with_supervisor(config, name),
+            on_step=(on_step or {}).get(name),
             progress=f"supervisor {name}" if progress else None,
         )
         for name in SUPERVISOR_PROTOCOLS
@@ -141,12 +149,24 @@ def protocol_records(
 
 
 def evaluate_protocols(
-    policy: Policy, env_id: str, n_episodes: int, seed: int = 0, config: dict | None = None, progress: bool = False
+    policy: Policy,
+    env_id: str,
+    n_episodes: int,
+    seed: int = 0,
+    config: dict | None = None,
+    progress: bool = False,
+    traffic: bool = False,
 ) -> dict[str, Any]:
     """The summary with the supervisor (the authors' protocol) at the top level, each episode's
-    return in ``returns``, and the same under ``supervisor_off`` for the policy alone."""
-    records = protocol_records(policy, env_id, n_episodes, seed, config, progress)
-    return {**protocol_result(records["on"]), "supervisor_off": protocol_result(records["off"])}
+    return in ``returns``, and the same under ``supervisor_off`` for the policy alone; with
+    ``traffic``, each also has the traffic metrics (``traffic``) and every vehicle's trip record
+    (``trips``; :mod:`~sb3_marl.evaluation.traffic`)."""
+    recorders = {name: TripRecorder() for name in SUPERVISOR_PROTOCOLS} if traffic else {}
+    records = protocol_records(policy, env_id, n_episodes, seed, config, progress, on_step=dict(recorders))
+    results = {name: protocol_result(records[name]) for name in SUPERVISOR_PROTOCOLS}
+    for name, recorder in recorders.items():
+        results[name].update(traffic=recorder.metrics(), trips=recorder.trips())
+    return {**results["on"], "supervisor_off": results["off"]}
 
 
 def protocol_result(records: list[EpisodeRecord]) -> dict[str, Any]:

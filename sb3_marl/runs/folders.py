@@ -141,12 +141,19 @@ class Run:
         return model
 
     def evaluate(
-        self, model: BaseAlgorithm, n_episodes: int, seed: int, deterministic: bool = False, progress: bool = False
+        self,
+        model: BaseAlgorithm,
+        n_episodes: int,
+        seed: int,
+        deterministic: bool = False,
+        progress: bool = False,
+        traffic: bool = False,
     ) -> dict[str, Any]:
         """The paper's metrics of ``model`` on ``n_episodes`` seeded episodes of the run's scenario,
         with the safety supervisor (top level, the authors' protocol) and without it
         (``supervisor_off``), with what identifies the evaluation (algo, env, timesteps, seeds, env
-        config, protocol: sampled actions by default, the authors') and each return."""
+        config, protocol: sampled actions by default, the authors') and each return; with ``traffic``, the
+        traffic metrics and trip records (:func:`~sb3_marl.evaluation.evaluate_protocols`)."""
         return {
             "algo": self.algo,
             "env_id": self.env_id,
@@ -155,7 +162,9 @@ class Run:
             "protocol": protocol_label(deterministic, uses_action_masks(model)),
             "seeds": [seed, seed + n_episodes - 1],
             "env_config": self.env_config,
-            **evaluate_protocols(model_policy(model, deterministic), self.env_id, n_episodes, seed, self.env_config, progress),
+            **evaluate_protocols(
+                model_policy(model, deterministic), self.env_id, n_episodes, seed, self.env_config, progress, traffic
+            ),
         }
 
 

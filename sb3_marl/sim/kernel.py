@@ -83,8 +83,9 @@ OBSTACLE_DIAGONAL = float(np.sqrt(OBSTACLE_LENGTH**2 + OBSTACLE_WIDTH**2))  # [m
     MAX_BRAKING_IMPOSED,
     MIN_ACC_GAIN,
     IS_OBSTACLE,
-) = range(21)
-COLUMNS = 21
+    VEHICLE_ID,  # the vehicle's number in its episode (its row at the spawn; -1: an obstacle); never read by the dynamics
+) = range(22)
+COLUMNS = 22
 
 
 @numba.njit(cache=True)

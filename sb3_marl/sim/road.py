@@ -128,6 +128,7 @@ def _vehicle_state(
         state[k, kernel.X], state[k, kernel.Y], state[k, kernel.SPEED] = x[k], y[k], speed[k]
         state[k, kernel.LANE] = state[k, kernel.TARGET_LANE] = lane[k]
         state[k, kernel.COLLIDABLE] = state[k, kernel.PRESENT] = 1.0
+        state[k, kernel.VEHICLE_ID] = k
         if k < n_avs:
             state[k, kernel.TARGET_SPEED] = ladder[meta_actions.speed_index(speed[k], ladder)]
         else:

@@ -62,7 +62,7 @@ def capture(vehicles: list[Vehicle], network: RoadNetwork, objects: Sequence[Roa
     """The state array (n, :data:`~sb3_marl.sim.kernel.COLUMNS`) of highway-env vehicles, in order,
     then of the ``objects`` (obstacles); lanes numbered as ``network.lanes_list()``."""
     numbers = {index: number for number, index in enumerate(lane_indices(network))}
-    rows = [_row(v, numbers) for v in vehicles] + [_obstacle_row(o) for o in objects]
+    rows = [_row(v, numbers, k) for k, v in enumerate(vehicles)] + [_obstacle_row(o) for o in objects]
     return np.array(rows, dtype=np.float64).reshape(-1, kernel.COLUMNS)
 
 
@@ -78,10 +78,12 @@ def _obstacle_row(o: RoadObject) -> tuple:
     row[kernel.HEADING], row[kernel.SPEED] = o.heading, o.speed
     row[kernel.LANE] = row[kernel.TARGET_LANE] = -1
     row[kernel.CRASHED], row[kernel.COLLIDABLE], row[kernel.PRESENT], row[kernel.IS_OBSTACLE] = o.crashed, o.collidable, 1, 1
+    row[kernel.VEHICLE_ID] = -1
     return tuple(row)
 
 
-def _row(v: Vehicle, numbers: dict) -> tuple:
+def _row(v: Vehicle, numbers: dict, k: int) -> tuple:
+    """Vehicle ``v``'s row; its ``vehicle_id`` where :func:`vehicle_objects` gave it one, else ``k``."""
     hdv = isinstance(v, IDMVehicle)
     impact = v.impact
     return (
@@ -102,6 +104,7 @@ def _row(v: Vehicle, numbers: dict) -> tuple:
         v.action["acceleration"],
         *((v.POLITENESS, v.LANE_CHANGE_MAX_BRAKING_IMPOSED, v.LANE_CHANGE_MIN_ACC_GAIN) if hdv else (0.0, 0.0, 0.0)),
         False,
+        getattr(v, "vehicle_id", k),
     )
 
 
@@ -132,5 +135,6 @@ def vehicle_objects(road: Road, state: np.ndarray, config: dict[str, Any]) -> li
         v.crashed, v.collidable = bool(row[kernel.CRASHED]), bool(row[kernel.COLLIDABLE])
         v.impact = np.array([row[kernel.IMPACT_X], row[kernel.IMPACT_Y]]) if row[kernel.HAS_IMPACT] else None
         v.action = {"steering": row[kernel.STEERING], "acceleration": row[kernel.ACCELERATION]}
+        v.vehicle_id = row[kernel.VEHICLE_ID]
         vehicles.append(v)
     return vehicles

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import imageio.v2 as imageio
 import numpy as np
+import pandas as pd
 import pytest
 import yaml
 from stable_baselines3 import A2C
@@ -138,6 +139,12 @@ def test_evaluate_prints_and_saves_the_paper_metrics(logs, capsys):
     assert result["baselines"]["cruise"]["lane_changes_per_episode"] == 0.0  # always IDLE: keeps its lane
     out = capsys.readouterr().out
     assert f"| ma2c | {result['num_timesteps']} |" in out and "| random | - |" in out and "| idm-mobil | - |" in out
+    # the traffic view beside it: a table of both protocols and every policy, and the trip records
+    assert "| policy | timesteps | supervisor | flow [veh/h] |" in out and "trips" not in result
+    assert np.isfinite(result["traffic"]["flow_veh_h"]) and "traffic" in result["supervisor_off"]
+    trips = pd.read_csv(run_dir(logs, 1) / "evaluation_trips.csv")
+    assert set(trips["policy"]) == {"ma2c", "random", "cruise", "idm-mobil"} and set(trips["supervisor"]) == {"on", "off"}
+    assert trips.groupby(["policy", "supervisor"])["seed"].nunique().eq(3).all()
 
 
 def test_plot_and_rl_zoo3_plots_read_our_logs(logs, tmp_path, monkeypatch, capsys):

@@ -1,0 +1,93 @@
+"""The traffic view (sb3_marl.evaluation.traffic): trip records and metrics on scenes whose answers
+are known by hand, and on real episodes of both roads."""
+
+import io
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from sb3_marl.envs import make_scenario
+from sb3_marl.evaluation import evaluate_protocols
+from sb3_marl.evaluation.baselines import IDMMobilPolicy
+from sb3_marl.evaluation.traffic import TRIP_COLUMNS, TripRecorder, trips_csv
+from sb3_marl.sim import kernel
+
+DT = 0.2  # [s] the policy step at 5 Hz
+
+
+def _scene():
+    """An AV at 100 m and 25 m/s closing on an HDV at 130 m and 15 m/s in the same lane."""
+    env = make_scenario("sb3_marl/LaneChange-density1-v0", {"n_avs": 1})
+    env.reset(seed=0)
+    env.place(avs=[(100.0, 0, 25.0)], hdvs=[(130.0, 0, 15.0)])
+    recorder = TripRecorder()
+    recorder(env, {"step": 0})
+    return env, recorder
+
+
+def _set(env, row, x, speed):
+    env.state[row, kernel.X], env.state[row, kernel.SPEED] = x, speed
+
+
+def test_ttc_headway_braking_and_times_of_a_hand_built_scene():
+    env, recorder = _scene()
+    # step 1: the HDV brakes from 15 to 12 m/s (15 m/s² over 0.2 s); gap 28 - 5 = 23 m, closing 13 m/s
+    _set(env, 0, 105.0, 25.0)
+    _set(env, 1, 133.0, 12.0)
+    recorder(env, {"step": 1})
+    # step 2: the HDV has left the road (its row removed, as the kernel does past 520 m); the AV stops
+    env.state = env.state[:1].copy()
+    _set(env, 0, 110.0, 0.05)
+    recorder(env, {"step": 2})
+    av, hdv = recorder.trips()
+    assert av["minTTC"] == pytest.approx(min(25 / 10, 23 / 13)) and av["minTimeHeadway"] == pytest.approx(23 / 25)
+    assert av["maxDecel"] == pytest.approx((25 - 0.05) / DT) and av["waitingTime"] == pytest.approx(DT)
+    assert av["timeLoss"] == pytest.approx(DT * (1 - 25 / 30) + DT * (1 - 0.05 / 30))  # ideal: the ladder's 30 m/s
+    assert np.isnan(av["arrival"]) and av["duration"] == pytest.approx(2 * DT) and av["routeLength"] == pytest.approx(10.0)
+    assert (hdv["vType"], hdv["arrival"], hdv["arrivalPos"], hdv["routeLength"]) == (
+        "HDV",
+        pytest.approx(2 * DT),
+        520.0,
+        390.0,
+    )
+    assert hdv["maxDecel"] == pytest.approx(15.0) and np.isnan(hdv["minTTC"]) and not hdv["crashed"]
+    metrics = recorder.metrics()
+    assert metrics["ttc_below_3.0_share"] == pytest.approx(2 / 5)  # the AV at steps 0 and 1, of 5 vehicle-steps
+    assert metrics["ttc_below_1.5_share"] == 0.0
+    assert metrics["hdv_hard_brakes_per_km"] == pytest.approx(1 / 0.003)  # one onset over the HDV's 3 m
+    assert metrics["throughput_veh_h"] == pytest.approx(1 / (2 * DT / 3600))
+    assert metrics["time_headway_mean"] == pytest.approx(np.mean([25 / 25, 23 / 25]))
+
+
+def test_a_vehicle_with_no_leader_and_one_beside_has_no_ttc():
+    """A vehicle ahead in the other lane is no leader: no TTC, no headway."""
+    env = make_scenario("sb3_marl/LaneChange-density1-v0", {"n_avs": 1})
+    env.reset(seed=0)
+    env.place(avs=[(100.0, 0, 25.0)], hdvs=[(110.0, 1, 15.0)])
+    recorder = TripRecorder()
+    recorder(env, {"step": 0})
+    av, _ = recorder.trips()
+    assert np.isnan(av["minTTC"]) and np.isnan(av["minTimeHeadway"])
+
+
+@pytest.mark.parametrize("env_id", ["sb3_marl/LaneChange-density3-v0", "sb3_marl/Merge-density3-v0"])
+def test_trip_records_of_real_episodes_are_consistent(env_id):
+    """Every vehicle of every episode has one record; AVs are the first ids; times and distances
+    are within the road and the episode; the CSV reads back with pandas; recording changes nothing
+    of the RL evaluation."""
+    plain = evaluate_protocols(IDMMobilPolicy(), env_id, 4, seed=7)
+    result = evaluate_protocols(IDMMobilPolicy(), env_id, 4, seed=7, traffic=True)
+    assert result["returns"] == plain["returns"] and result["supervisor_off"]["returns"] == plain["supervisor_off"]["returns"]
+    trips = pd.read_csv(io.StringIO(trips_csv(result["trips"])))
+    assert list(trips.columns) == list(TRIP_COLUMNS) and trips["seed"].nunique() == 4
+    for _, episode in trips.groupby("seed"):
+        assert list(episode["id"]) == list(range(len(episode)))
+        avs = episode["vType"] == "AV"
+        assert avs.any() and avs.iloc[: avs.sum()].all()  # AVs first
+    assert (trips["duration"] <= 20.0 + 1e-9).all() and (trips["routeLength"] >= 0).all()
+    assert (trips["arrivalPos"] <= 520.0 + 1e-9).all() and (
+        trips["arrival"].dropna() == trips["duration"][trips["arrival"].notna()]
+    ).all()
+    metrics = result["traffic"]
+    assert metrics["flow_veh_h"] > 0 and metrics["density_veh_km"] > 0 and 0 <= metrics["ttc_below_1.5_share"] <= 1
