@@ -9,6 +9,10 @@ same episodes.
     python benchmarks/heldout_evaluation.py -f results/paper-grid --algo ma2c mappo --variants rule-prior \
         --densities 1 2 3 --seeds 3 --greedy -o results/rule-prior
 
+``--traffic`` also records every vehicle's trip (``<output>/trips/<entry>.csv.gz``, both supervisor
+protocols, sampled actions), keeps the traffic metrics in each entry, adds the all-human reference
+(every AV an HDV, the same episodes) and writes ``<output>/traffic.md``.
+
 ``--config key:value ...`` sets env config keys for every policy (e.g. ``supervisor_joint_search:True``:
 a supervisor variant on the same episodes; give it another ``--output``). It writes
 ``<output>/heldout.json`` (every trial's and IDM/MOBIL's summaries with each episode's return;
@@ -21,7 +25,9 @@ rule driver, lane changes and yields per episode, under each supervisor protocol
 from __future__ import annotations
 
 import argparse
+import gzip
 import json
+import os
 import time
 from pathlib import Path
 
@@ -38,6 +44,7 @@ from sb3_marl.envs import ENV_IDS, MERGE_ENV_IDS
 from sb3_marl.envs.config import LANE_CHANGE, MERGE, scenario_default_config, supervisor_version, validate_config
 from sb3_marl.evaluation import evaluate_protocols
 from sb3_marl.evaluation.baselines import IDMMobilPolicy
+from sb3_marl.evaluation.traffic import human_reference, traffic_table, trips_csv
 from sb3_marl.runs.folders import find_run
 
 
@@ -72,6 +79,7 @@ def evaluate_all(args: argparse.Namespace) -> dict:
     }
     ids = MERGE_ENV_IDS if scenario == MERGE else ENV_IDS  # the scenario of IDM/MOBIL's reference rows
     jobs = [(f"idm-mobil_density{d}", None, d) for d in args.densities]
+    jobs += [(f"all-human_density{d}", "human", d) for d in args.densities] if args.traffic else []
     jobs += [
         (TrialSpec(algo, d, v, s).trial_id, TrialSpec(algo, d, v, s), d)
         for algo in args.algo
@@ -83,6 +91,15 @@ def evaluate_all(args: argparse.Namespace) -> dict:
         if name in results.get("entries", {}):
             continue
         start = time.perf_counter()
+        if spec == "human":
+            human = human_reference(ids[density], args.episodes, args.seed, args.config)
+            write_trips(out / "trips" / f"{name}.csv.gz", [{"supervisor": "-", **trip} for trip in human.trips()])
+            results.setdefault("entries", {})[name] = {
+                "traffic": human.metrics(),
+                "wall_time_s": round(time.perf_counter() - start, 1),
+            }
+            write_text(path, json.dumps(results, indent=2) + "\n")
+            continue
         if spec is None:
             policies, config = {"sampled": IDMMobilPolicy()}, {"safety_supervisor": True, **args.config}
         else:
@@ -98,13 +115,60 @@ def evaluate_all(args: argparse.Namespace) -> dict:
         entry: dict = {}
         for actions, policy in policies.items():
             env_id = ids[density] if spec is None else spec.env_id
-            result = evaluate_protocols(policy, env_id, args.episodes, args.seed, config)
+            traffic = args.traffic and actions == "sampled"
+            result = evaluate_protocols(policy, env_id, args.episodes, args.seed, config, traffic=traffic)
+            if traffic:
+                trips = [
+                    {"supervisor": p, **t}
+                    for p, r in (("on", result), ("off", result["supervisor_off"]))
+                    for t in r.pop("trips")
+                ]
+                write_trips(out / "trips" / f"{name}.csv.gz", trips)
             evaluated = {**slim(result), "supervisor_off": slim(result["supervisor_off"])}
             entry.update(evaluated if actions == "sampled" else {actions: evaluated})
         entry["wall_time_s"] = round(time.perf_counter() - start, 1)
         results.setdefault("entries", {})[name] = entry
         write_text(path, json.dumps(results, indent=2) + "\n")  # atomic: a kill keeps the finished entries
     return results
+
+
+def write_trips(path: Path, trips: list[dict]) -> None:
+    """Trip records as gzipped CSV (``pandas.read_csv`` reads it), the same bytes for the same trips."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    data = gzip.compress(trips_csv(trips).encode(), mtime=0)
+    temporary = path.with_name(f".{path.name}.{os.getpid()}")
+    temporary.write_bytes(data)
+    os.replace(temporary, path)
+
+
+def traffic_tables(results: dict, variants: list[str], densities: list[int], seeds: int, algos: list[str]) -> str:
+    """Per density: the all-human reference, IDM/MOBIL and each (algorithm, variant) with sampled
+    actions under each supervisor protocol: each traffic metric's mean over training seeds."""
+    entries, protocol = results["entries"], results["protocol"]
+    lines = [
+        f"Traffic on held-out episodes: {protocol['episodes']} episodes, seeds {protocol['seeds'][0]}.."
+        f"{protocol['seeds'][1]}, sampled actions, safety supervisor v{protocol['supervisor_version']} on and off; "
+        "every vehicle, AVs and HDVs (docs/traffic.md); learners: mean over training seeds; all human: "
+        "the same episodes with every AV an HDV.",
+        "",
+    ]
+    for density in densities:
+        rows = [({"policy": "all human (no AV)", "seeds": 1, "supervisor": "-"}, entries.get(f"all-human_density{density}"))]
+        found = {"IDM/MOBIL": [entries.get(f"idm-mobil_density{density}")]}
+        for algo in algos:
+            for variant in variants:
+                found[f"{algo} {variant}"] = [entries.get(TrialSpec(algo, density, variant, s).trial_id) for s in range(seeds)]
+        for label, entries_ in found.items():
+            entries_ = [e for e in entries_ if e and "traffic" in e]
+            for supervisor in ("on", "off"):
+                metrics = [(e if supervisor == "on" else e["supervisor_off"])["traffic"] for e in entries_]
+                if metrics:
+                    mean = {key: float(np.mean([m[key] for m in metrics])) for key in metrics[0]}
+                    rows.append(({"policy": label, "seeds": len(metrics), "supervisor": supervisor}, {"traffic": mean}))
+        rows = [(label, entry["traffic"]) for label, entry in rows if entry]
+        if rows:
+            lines += [f"Density {density}:", "", traffic_table(rows), ""]
+    return "\n".join(lines)
 
 
 def table(results: dict, variants: list[str], densities: list[int], seeds: int, algos: list[str]) -> str:
@@ -180,6 +244,7 @@ def main() -> None:
     parser.add_argument(
         "--config", nargs="+", default={}, action=StoreHyperparams, metavar="KEY:VALUE", help="env config keys to set"
     )
+    parser.add_argument("--traffic", action="store_true", help="trip records, traffic metrics and the all-human reference")
     parser.add_argument("-o", "--output", default="results/safety")
     args = parser.parse_args()
     torch.set_num_threads(1)
@@ -187,6 +252,10 @@ def main() -> None:
     text = table(results, args.variants, args.densities, args.seeds, args.algo)
     write_text(Path(args.output) / "heldout.md", text)
     print(text)
+    if args.traffic:
+        traffic = traffic_tables(results, args.variants, args.densities, args.seeds, args.algo)
+        write_text(Path(args.output) / "traffic.md", traffic)
+        print(traffic)
 
 
 if __name__ == "__main__":

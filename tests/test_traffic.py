@@ -10,7 +10,7 @@ import pytest
 from sb3_marl.envs import make_scenario
 from sb3_marl.evaluation import evaluate_protocols
 from sb3_marl.evaluation.baselines import IDMMobilPolicy
-from sb3_marl.evaluation.traffic import TRIP_COLUMNS, TripRecorder, trips_csv
+from sb3_marl.evaluation.traffic import TRIP_COLUMNS, TripRecorder, human_reference, trips_csv
 from sb3_marl.sim import kernel
 
 DT = 0.2  # [s] the policy step at 5 Hz
@@ -91,3 +91,14 @@ def test_trip_records_of_real_episodes_are_consistent(env_id):
     ).all()
     metrics = result["traffic"]
     assert metrics["flow_veh_h"] > 0 and metrics["density_veh_km"] > 0 and 0 <= metrics["ttc_below_1.5_share"] <= 1
+
+
+@pytest.mark.parametrize("env_id", ["sb3_marl/LaneChange-density2-v0", "sb3_marl/Merge-density2-v0"])
+def test_the_all_human_reference_has_no_av_and_the_same_vehicles(env_id):
+    """The reference plays the policies' episodes (same seeds, same AV counts cycling) with every AV
+    an HDV: per episode the same vehicle count and spawn positions, and no AV."""
+    policy = evaluate_protocols(IDMMobilPolicy(), env_id, 3, seed=11, traffic=True)["trips"]
+    human = human_reference(env_id, 3, seed=11).trips()
+    assert {trip["vType"] for trip in human} == {"HDV"}
+    for key in ("seed", "id", "departPos"):
+        assert [trip[key] for trip in human] == [trip[key] for trip in policy], key

@@ -196,7 +196,7 @@ def _with_env_kwargs(run: Any, args: argparse.Namespace) -> Any:
 
 def evaluate_command(args: argparse.Namespace) -> int:
     from sb3_marl.evaluation import evaluate_protocols, markdown_table, protocol_rows
-    from sb3_marl.evaluation.traffic import traffic_table, trips_csv
+    from sb3_marl.evaluation.traffic import human_reference, traffic_table, trips_csv
     from sb3_marl.runs.experiment import EVAL_SEED_OFFSET
     from sb3_marl.runs.folders import run_conf_name
 
@@ -227,6 +227,10 @@ def evaluate_command(args: argparse.Namespace) -> int:
         f"{result['protocol']} (on: the authors' protocol; off: the policy alone); model {run.model_path}"
     )
     table = markdown_table(rows)
+    human = human_reference(args.env, episodes, seed, run.env_config)  # the same episodes, every AV an HDV
+    result["all_human"] = {"traffic": human.metrics()}
+    reference = {"policy": "all human (no AV)", "timesteps": "-", "supervisor": "-"}
+    rows.append((reference, {"trips": human.trips(), **result["all_human"]}))
     traffic = "Traffic (docs/traffic.md: every vehicle, AVs and HDVs, over the same episodes):\n\n" + traffic_table(
         [(label, summary["traffic"]) for label, summary in rows]
     )

@@ -85,16 +85,17 @@ class TripRecorder:
 
     def __call__(self, env: Any, info: dict) -> None:
         if info["step"] == 0:
-            self._start(env)
+            self.start(env.state, env.n_avs, getattr(env.unwrapped, "np_random_seed", None), env.horizon, env.config)
         else:
-            self._step(env.state)
+            self.step(env.state)
 
-    def _start(self, env: Any) -> None:
-        h, config = env.horizon, env.config
-        lanes_end = float(np.max(h.lanes[:, START_X] + h.lanes[:, LENGTH] * h.lanes[:, DIRECTION_X]))
-        self.road_end, self.dt, self.lanes = min(h.road_end, lanes_end), 1.0 / config["policy_frequency"], h.lanes
-        self.ideal_av_speed = float(np.max(config["target_speeds"]))
-        rows = _vehicles(env.state)
+    def start(self, state: np.ndarray, n_avs: int, seed: int | None, horizon: Any, config: dict[str, Any]) -> None:
+        """A new episode from its first ``state`` (the first ``n_avs`` rows AVs), on the road of the
+        supervisor's ``horizon`` (its lanes, its end) with the scenario ``config``'s rates."""
+        lanes_end = float(np.max(horizon.lanes[:, START_X] + horizon.lanes[:, LENGTH] * horizon.lanes[:, DIRECTION_X]))
+        self.road_end, self.lanes = min(horizon.road_end, lanes_end), horizon.lanes
+        self.dt, self.ideal_av_speed = 1.0 / config["policy_frequency"], float(np.max(config["target_speeds"]))
+        rows = _vehicles(state)
         n = int(rows[:, kernel.VEHICLE_ID].max()) + 1
         ideal = np.full(n, self.ideal_av_speed)
         hdv = rows[:, kernel.IS_HDV] > 0
@@ -103,8 +104,8 @@ class TripRecorder:
         last[rows[:, kernel.VEHICLE_ID].astype(np.int64)] = rows
         self.episodes.append(
             _Episode(
-                seed=getattr(env.unwrapped, "np_random_seed", None),
-                n_avs=env.n_avs,
+                seed=seed,
+                n_avs=n_avs,
                 ideal=np.maximum(ideal, WAITING_SPEED),
                 depart_pos=last[:, kernel.X].copy(),
                 last=last,
@@ -121,9 +122,10 @@ class TripRecorder:
                 | dict.fromkeys(("speed_std_sum", "steps", "hdv_km", "hdv_hard_brakes", "arrivals"), 0.0),
             )
         )
-        self._sample(self.episodes[-1], env.state, first=True)
+        self._sample(self.episodes[-1], state, first=True)
 
-    def _step(self, state: np.ndarray) -> None:
+    def step(self, state: np.ndarray) -> None:
+        """The state after the episode's next policy step."""
         episode = self.episodes[-1]
         episode.time += self.dt
         rows = _vehicles(state)
@@ -269,6 +271,38 @@ def trips_csv(trips: list[dict[str, Any]]) -> str:
     return out.getvalue()
 
 
+def human_reference(env_id: str, n_episodes: int, seed: int = 0, config: dict[str, Any] | None = None) -> TripRecorder:
+    """The all-human reference: the episodes ``seed, seed + 1, ...`` (the AV counts cycling as in
+    :func:`~sb3_marl.evaluation.episodes.evaluation_records`) with every AV replaced at the spawn by
+    an HDV as the scenario spawns them (IDM + MOBIL, the config's HDV parameters, its speed its
+    target), driven by the compiled road for the episode's duration (or until every vehicle left),
+    recorded as the policies' episodes are."""
+    from sb3_marl.envs import av_counts, make_scenario
+    from sb3_marl.sim import dynamics
+    from sb3_marl.sim.road import vehicle_state
+
+    recorder, counts = TripRecorder(), av_counts(env_id, config)
+    for episode in range(n_episodes):
+        env = make_scenario(env_id, {**(config or {}), "n_avs": counts[episode % len(counts)]})
+        env.reset(seed=seed + episode)
+        rows, h = env.state, env.horizon
+        vehicles = rows[:, kernel.IS_OBSTACLE] == 0
+        x, y, lane, speed = (rows[vehicles, column] for column in (kernel.X, kernel.Y, kernel.LANE, kernel.SPEED))
+        state = np.concatenate([vehicle_state(env.config, x, lane, speed, 0, y=y), rows[~vehicles]])
+        recorder.start(state, 0, seed + episode, h, env.config)
+        frames = int(env.config["simulation_frequency"] // env.config["policy_frequency"])
+        no_action, dt = np.zeros(0, dtype=np.int64), 1.0 / env.config["simulation_frequency"]
+        for _ in range(env.max_steps):
+            state = dynamics.policy_step(
+                state, no_action, frames, dt, h.lanes, h.road_end, h.speed_limit, h.ladder, no_action > 0
+            )
+            recorder.step(state)
+            if not (_vehicles(state)[:, kernel.X] <= recorder.road_end).any():
+                break
+        env.close()
+    return recorder
+
+
 def _vehicles(state: np.ndarray) -> np.ndarray:
     return state[state[:, kernel.IS_OBSTACLE] == 0]
 
@@ -303,6 +337,7 @@ __all__ = [
     "TTC_THRESHOLDS",
     "WAITING_SPEED",
     "TripRecorder",
+    "human_reference",
     "leader_gaps",
     "traffic_table",
     "trips_csv",
