@@ -32,6 +32,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import torch
 from tqdm import tqdm
 
@@ -40,11 +41,13 @@ from sb3_marl.benchmark.grid import MERGE_VARIANTS, TrialSpec
 from sb3_marl.benchmark.statistics import clopper_pearson_upper, iqm_with_ci
 from sb3_marl.cli.common import StoreHyperparams
 from sb3_marl.common.files import write_text
-from sb3_marl.envs import ENV_IDS, MERGE_ENV_IDS
+from sb3_marl.envs import ENV_IDS, MERGE_ENV_IDS, av_counts, make_scenario
 from sb3_marl.envs.config import LANE_CHANGE, MERGE, scenario_default_config, supervisor_version, validate_config
 from sb3_marl.evaluation import evaluate_protocols
 from sb3_marl.evaluation.baselines import IDMMobilPolicy
+from sb3_marl.evaluation.episodes import run_episodes
 from sb3_marl.evaluation.traffic import human_reference, traffic_table, trips_csv
+from sb3_marl.evaluation.traffic_plots import PositionTrace, plot_encounters, plot_time_space
 from sb3_marl.runs.folders import find_run
 
 
@@ -171,6 +174,37 @@ def traffic_tables(results: dict, variants: list[str], densities: list[int], see
     return "\n".join(lines)
 
 
+def traffic_figures(args: argparse.Namespace, results: dict) -> list[Path]:
+    """Per density: ``encounters_density<d>.png`` (each vehicle's minimum TTC and time headway, supervisor
+    on: the all-human reference, IDM/MOBIL and each learner's first seed) and ``time_space_density<d>.png``
+    (the first held-out episode of the same policies)."""
+    out, written = Path(args.output), []
+    scenario_ids = MERGE_ENV_IDS if all(v in MERGE_VARIANTS for v in args.variants) else ENV_IDS
+    for density in args.densities:
+        specs = {f"{a} {v}": TrialSpec(a, density, v, 0) for a in args.algo for v in args.variants}
+        names = {"all human (no AV)": f"all-human_density{density}", "IDM/MOBIL": f"idm-mobil_density{density}"}
+        names |= {label: spec.trial_id for label, spec in specs.items()}
+        trips = {}
+        for label, name in names.items():
+            path = out / "trips" / f"{name}.csv.gz"
+            if path.is_file():
+                frame = pd.read_csv(path)
+                trips[label] = frame[frame["supervisor"].astype(str).isin(["on", "-"])].to_dict("records")
+        written.append(plot_encounters(trips, out / f"encounters_density{density}.png", f"density {density}, supervisor on"))
+        traces = {label: PositionTrace() for label in names}
+        human_reference(scenario_ids[density], 1, args.seed, args.config, also=(traces["all human (no AV)"],))
+        first = {"n_avs": av_counts(scenario_ids[density], args.config)[0]}  # the first held-out episode's AVs
+        env = make_scenario(scenario_ids[density], {"safety_supervisor": True, **args.config, **first})
+        run_episodes(env, IDMMobilPolicy(), 1, args.seed, on_step=traces["IDM/MOBIL"])
+        for label, spec in specs.items():
+            run = find_run(Path(args.log_folder) / "trials" / spec.trial_id, spec.algo, spec.env_id)
+            env = make_scenario(spec.env_id, {**run.env_config, "safety_supervisor": True, **args.config, **first})
+            run_episodes(env, model_policy(run.load_model("cpu")), 1, args.seed, on_step=traces[label])
+        title = f"{scenario_ids[density]}, episode seed {args.seed}, supervisor on"
+        written.append(plot_time_space(traces, out / f"time_space_density{density}.png", title))
+    return written
+
+
 def table(results: dict, variants: list[str], densities: list[int], seeds: int, algos: list[str]) -> str:
     """Per density: IDM/MOBIL and each (algorithm, variant) under each action protocol, with the
     supervisor and without: return over training seeds, its IQM, the pooled collision rate with
@@ -256,6 +290,8 @@ def main() -> None:
         traffic = traffic_tables(results, args.variants, args.densities, args.seeds, args.algo)
         write_text(Path(args.output) / "traffic.md", traffic)
         print(traffic)
+        for figure in traffic_figures(args, results):
+            print(f"wrote {figure}")
 
 
 if __name__ == "__main__":

@@ -2,12 +2,17 @@
 are known by hand, and on real episodes of both roads."""
 
 import io
+import shlex
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
+from documents import commands
 
-from sb3_marl.envs import make_scenario
+from sb3_marl.envs import av_counts, make_scenario
 from sb3_marl.evaluation import evaluate_protocols
 from sb3_marl.evaluation.baselines import IDMMobilPolicy
 from sb3_marl.evaluation.traffic import TRIP_COLUMNS, TripRecorder, human_reference, trips_csv
@@ -102,3 +107,40 @@ def test_the_all_human_reference_has_no_av_and_the_same_vehicles(env_id):
     assert {trip["vType"] for trip in human} == {"HDV"}
     for key in ("seed", "id", "departPos"):
         assert [trip[key] for trip in human] == [trip[key] for trip in policy], key
+
+
+def test_the_docs_command_runs_verbatim(tmp_path):
+    """docs/traffic.md's command, as written, from an empty folder: the traffic table with the
+    all-human row, and the trip records where the page says."""
+    (line,) = commands("traffic.md", "Traffic impact")
+    completed = subprocess.run(
+        [str(Path(sys.executable).parent / "sb3-marl"), *shlex.split(line)[1:]],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert completed.returncode == 0, completed.stderr[-2000:]
+    assert "| all human (no AV) | - | - |" in completed.stdout and "| ma2c (safe) |" in completed.stdout
+    trips = pd.read_csv(tmp_path / "logs/trained-agents/ma2c_density3_rule-prior-agreement-0.5_seed0/evaluation_trips.csv")
+    assert set(trips["policy"]) == {"ma2c (safe)", "idm-mobil", "all human (no AV)"}
+
+
+def test_time_space_diagram_and_encounters_figures(tmp_path):
+    """A row of lane panels per policy, every vehicle's trajectory drawn; the encounter histograms
+    of each policy's trips."""
+    import imageio.v2 as imageio
+
+    from sb3_marl.evaluation.episodes import run_episodes
+    from sb3_marl.evaluation.traffic_plots import PositionTrace, plot_encounters, plot_time_space
+
+    env_id = "sb3_marl/LaneChange-density2-v0"
+    policy, human = PositionTrace(), PositionTrace()
+    run_episodes(make_scenario(env_id, {"n_avs": av_counts(env_id)[0]}), IDMMobilPolicy(), 1, seed=3, on_step=policy)
+    reference = human_reference(env_id, 1, seed=3, also=(human,))
+    assert set(policy.rows[:, 1].astype(int)) == set(human.rows[:, 1].astype(int))  # the same vehicles
+    assert policy.rows[:, 5].any() and not human.rows[:, 5].any()  # AVs only in the policy's episode
+    figure = imageio.imread(plot_time_space({"idm-mobil": policy, "all human": human}, tmp_path / "ts.png"))
+    assert figure.shape[0] > figure.shape[1] / 2 and figure.std() > 0  # two rows of two lane panels
+    encounters = imageio.imread(plot_encounters({"all human": reference.trips()}, tmp_path / "enc.png"))
+    assert encounters.std() > 0

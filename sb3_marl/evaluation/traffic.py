@@ -92,8 +92,7 @@ class TripRecorder:
     def start(self, state: np.ndarray, n_avs: int, seed: int | None, horizon: Any, config: dict[str, Any]) -> None:
         """A new episode from its first ``state`` (the first ``n_avs`` rows AVs), on the road of the
         supervisor's ``horizon`` (its lanes, its end) with the scenario ``config``'s rates."""
-        lanes_end = float(np.max(horizon.lanes[:, START_X] + horizon.lanes[:, LENGTH] * horizon.lanes[:, DIRECTION_X]))
-        self.road_end, self.lanes = min(horizon.road_end, lanes_end), horizon.lanes
+        self.road_end, self.lanes = section_end(horizon), horizon.lanes
         self.dt, self.ideal_av_speed = 1.0 / config["policy_frequency"], float(np.max(config["target_speeds"]))
         rows = _vehicles(state)
         n = int(rows[:, kernel.VEHICLE_ID].max()) + 1
@@ -271,12 +270,21 @@ def trips_csv(trips: list[dict[str, Any]]) -> str:
     return out.getvalue()
 
 
-def human_reference(env_id: str, n_episodes: int, seed: int = 0, config: dict[str, Any] | None = None) -> TripRecorder:
+def section_end(horizon: Any) -> float:
+    """Where the road's trips end [m]: the supervisor ``horizon``'s road end, or where the road's
+    lanes end if sooner (the merge's main road past the merge, 520 m)."""
+    lanes = horizon.lanes
+    return min(horizon.road_end, float(np.max(lanes[:, START_X] + lanes[:, LENGTH] * lanes[:, DIRECTION_X])))
+
+
+def human_reference(
+    env_id: str, n_episodes: int, seed: int = 0, config: dict[str, Any] | None = None, also: tuple[Any, ...] = ()
+) -> TripRecorder:
     """The all-human reference: the episodes ``seed, seed + 1, ...`` (the AV counts cycling as in
     :func:`~sb3_marl.evaluation.episodes.evaluation_records`) with every AV replaced at the spawn by
     an HDV as the scenario spawns them (IDM + MOBIL, the config's HDV parameters, its speed its
     target), driven by the compiled road for the episode's duration (or until every vehicle left),
-    recorded as the policies' episodes are."""
+    recorded as the policies' episodes are (and by the recorders ``also``, fed ``start`` and ``step`` as it is)."""
     from sb3_marl.envs import av_counts, make_scenario
     from sb3_marl.sim import dynamics
     from sb3_marl.sim.road import vehicle_state
@@ -289,14 +297,17 @@ def human_reference(env_id: str, n_episodes: int, seed: int = 0, config: dict[st
         vehicles = rows[:, kernel.IS_OBSTACLE] == 0
         x, y, lane, speed = (rows[vehicles, column] for column in (kernel.X, kernel.Y, kernel.LANE, kernel.SPEED))
         state = np.concatenate([vehicle_state(env.config, x, lane, speed, 0, y=y), rows[~vehicles]])
-        recorder.start(state, 0, seed + episode, h, env.config)
+        recorders = (recorder, *also)
+        for each in recorders:
+            each.start(state, 0, seed + episode, h, env.config)
         frames = int(env.config["simulation_frequency"] // env.config["policy_frequency"])
         no_action, dt = np.zeros(0, dtype=np.int64), 1.0 / env.config["simulation_frequency"]
         for _ in range(env.max_steps):
             state = dynamics.policy_step(
                 state, no_action, frames, dt, h.lanes, h.road_end, h.speed_limit, h.ladder, no_action > 0
             )
-            recorder.step(state)
+            for each in recorders:
+                each.step(state)
             if not (_vehicles(state)[:, kernel.X] <= recorder.road_end).any():
                 break
         env.close()
@@ -339,6 +350,7 @@ __all__ = [
     "TripRecorder",
     "human_reference",
     "leader_gaps",
+    "section_end",
     "traffic_table",
     "trips_csv",
 ]

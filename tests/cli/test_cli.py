@@ -143,8 +143,11 @@ def test_evaluate_prints_and_saves_the_paper_metrics(logs, capsys):
     assert "| policy | timesteps | supervisor | flow [veh/h] |" in out and "trips" not in result
     assert np.isfinite(result["traffic"]["flow_veh_h"]) and "traffic" in result["supervisor_off"]
     trips = pd.read_csv(run_dir(logs, 1) / "evaluation_trips.csv")
-    assert set(trips["policy"]) == {"ma2c", "random", "cruise", "idm-mobil"} and set(trips["supervisor"]) == {"on", "off"}
+    assert set(trips["policy"]) == {"ma2c", "random", "cruise", "idm-mobil", "all human (no AV)"}
+    assert set(trips["supervisor"]) == {"on", "off", "-"}
     assert trips.groupby(["policy", "supervisor"])["seed"].nunique().eq(3).all()
+    assert "| all human (no AV) | - | - |" in out and set(trips[trips["policy"] == "all human (no AV)"]["vType"]) == {"HDV"}
+    assert imageio.imread(run_dir(logs, 1) / "evaluation_time_space.png").std() > 0
 
 
 def test_plot_and_rl_zoo3_plots_read_our_logs(logs, tmp_path, monkeypatch, capsys):
