@@ -62,7 +62,7 @@ def test_ttc_headway_braking_and_times_of_a_hand_built_scene():
     assert metrics["ttc_below_1.5_share"] == 0.0
     assert metrics["hdv_hard_brakes_per_km"] == pytest.approx(1 / 0.003)  # one onset over the HDV's 3 m
     assert metrics["throughput_veh_h"] == pytest.approx(1 / (2 * DT / 3600))
-    assert metrics["time_headway_mean"] == pytest.approx(np.mean([25 / 25, 23 / 25]))
+    assert metrics["time_headway_median"] == pytest.approx(np.median([25 / 25, 23 / 25]))
 
 
 def test_a_vehicle_with_no_leader_and_one_beside_has_no_ttc():

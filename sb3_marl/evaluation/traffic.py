@@ -67,6 +67,7 @@ class _Episode:
     min_headway: np.ndarray
     crashed: np.ndarray
     hard_braking: np.ndarray  # bool: braking hard at the last step
+    headways: list[np.ndarray] = field(default_factory=list)  # [s] every vehicle-step's time gap to its leader
     time: float = 0.0
     sums: dict[str, float] = field(default_factory=dict)
 
@@ -117,8 +118,8 @@ class TripRecorder:
                 min_headway=np.full(n, np.inf),
                 crashed=np.zeros(n, dtype=bool),
                 hard_braking=np.zeros(n, dtype=bool),
-                sums=dict.fromkeys(("vehicle_steps", "ttc_1.5", "ttc_3.0", "headway_sum", "headways"), 0.0)
-                | dict.fromkeys(("speed_std_sum", "steps", "hdv_km", "hdv_hard_brakes", "arrivals"), 0.0),
+                sums=dict.fromkeys(("vehicle_steps", "ttc_1.5", "ttc_3.0", "speed_std_sum", "steps"), 0.0)
+                | dict.fromkeys(("hdv_km", "hdv_hard_brakes", "arrivals"), 0.0),
             )
         )
         self._sample(self.episodes[-1], state, first=True)
@@ -164,9 +165,7 @@ class TripRecorder:
         sums["vehicle_steps"] += len(ids)
         for threshold in TTC_THRESHOLDS:
             sums[f"ttc_{threshold}"] += float((ttc < threshold).sum())
-        finite = np.isfinite(headway)
-        sums["headway_sum"] += float(headway[finite].sum())
-        sums["headways"] += float(finite.sum())
+        episode.headways.append(headway[np.isfinite(headway)])
         if len(ids) > 1:
             sums["speed_std_sum"] += float(speed.std())
             sums["steps"] += 1
@@ -214,6 +213,7 @@ class TripRecorder:
             return sum(t[column] for t in chosen) / km if km > 0 else float("nan")
 
         vehicle_steps = max(sums.get("vehicle_steps", 0.0), 1.0)
+        headways = np.concatenate([h for e in self.episodes for h in e.headways]) if self.episodes else np.zeros(0)
         area = self.road_end / 1000 * hours  # [km h] of the road over the episodes (Edie's region)
         return {
             "throughput_veh_h": sums.get("arrivals", 0.0) / hours if hours > 0 else float("nan"),
@@ -224,7 +224,7 @@ class TripRecorder:
             "speed_std": sums["speed_std_sum"] / sums["steps"] if sums.get("steps") else float("nan"),
             **{f"ttc_below_{t}_share": sums.get(f"ttc_{t}", 0.0) / vehicle_steps for t in TTC_THRESHOLDS},
             "hdv_hard_brakes_per_km": sums["hdv_hard_brakes"] / sums["hdv_km"] if sums.get("hdv_km") else float("nan"),
-            "time_headway_mean": sums["headway_sum"] / sums["headways"] if sums.get("headways") else float("nan"),
+            "time_headway_median": float(np.median(headways)) if headways.size else float("nan"),
         }
 
 
@@ -239,7 +239,7 @@ TRAFFIC_COLUMNS: tuple[tuple[str, Callable[[dict[str, float]], str]], ...] = (
     ("TTC < 1.5 s", lambda m: _format(m["ttc_below_1.5_share"], ".4f")),
     ("TTC < 3 s", lambda m: _format(m["ttc_below_3.0_share"], ".4f")),
     ("HDV hard brakes/km", lambda m: _format(m["hdv_hard_brakes_per_km"], ".2f")),
-    ("time headway [s]", lambda m: _format(m["time_headway_mean"], ".2f")),
+    ("median time headway [s]", lambda m: _format(m["time_headway_median"], ".2f")),
 )
 
 
