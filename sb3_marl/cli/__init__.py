@@ -24,7 +24,7 @@ import signal
 import sys
 
 from sb3_marl import __version__
-from sb3_marl.cli import benchmark, evaluate, hub, train
+from sb3_marl.cli import benchmark, evaluate, hub, sweep, train
 from sb3_marl.cli.common import EXIT_INTERRUPTED, CommandFailed, CommandParser, DefaultsHelpFormatter, UsageError
 
 
@@ -37,7 +37,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=CommandParser)
-    for group in (train, evaluate, hub, benchmark):
+    for group in (train, evaluate, hub, benchmark, sweep):
         group.add_parsers(commands)
     return parser
 

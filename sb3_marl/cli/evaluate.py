@@ -195,8 +195,10 @@ def _with_env_kwargs(run: Any, args: argparse.Namespace) -> Any:
 
 
 def evaluate_command(args: argparse.Namespace) -> int:
+    from sb3_marl.algos.common.policies import model_policy
     from sb3_marl.evaluation import evaluate_protocols, markdown_table, protocol_rows
     from sb3_marl.evaluation.traffic import human_reference, traffic_table, trips_csv
+    from sb3_marl.evaluation.traffic_plots import time_space_diagram
     from sb3_marl.runs.experiment import EVAL_SEED_OFFSET
     from sb3_marl.runs.folders import run_conf_name
 
@@ -241,29 +243,17 @@ def evaluate_command(args: argparse.Namespace) -> int:
     write_text(trips, trips_csv([{**label, **trip} for label, summary in rows for trip in summary.pop("trips")]))
     write_text(output, json.dumps(result, indent=2))
     write_text(output.with_suffix(".md"), heading + "\n\n" + table + "\n\n" + traffic + "\n")
-    diagram = _time_space(model, run, args, seed, output.with_name(output.stem + "_time_space.png"), policy)
+    diagram = time_space_diagram(
+        model_policy(model, args.deterministic),
+        args.env,
+        seed,
+        run.env_config,
+        output.with_name(output.stem + "_time_space.png"),
+        policy,
+    )
     print(f"\nwrote {output}, {output.with_suffix('.md')}, the trip records {trips} and {diagram}")
     print(f"({time.perf_counter() - start:.1f} s)")
     return 0
-
-
-def _time_space(model: Any, run: Any, args: argparse.Namespace, seed: int, path: Path, label: str) -> Path:
-    """The time–space diagram of the first evaluation episode: the model with the supervisor (the
-    authors' protocol) above the all-human reference of the same episode."""
-    from sb3_marl.algos.common.policies import model_policy
-    from sb3_marl.envs.config import with_supervisor
-    from sb3_marl.evaluation import run_episodes
-    from sb3_marl.evaluation.traffic import human_reference
-    from sb3_marl.evaluation.traffic_plots import PositionTrace, plot_time_space
-
-    policy_trace, human_trace = PositionTrace(), PositionTrace()
-    n_avs = av_counts(args.env, run.env_config)[0]  # the first evaluation episode's AV count
-    env = make_scenario(args.env, with_supervisor({**run.env_config, "n_avs": n_avs}, "on"))
-    run_episodes(env, model_policy(model, args.deterministic), 1, seed, on_step=policy_trace)
-    env.close()
-    human_reference(args.env, 1, seed, run.env_config, also=(human_trace,))
-    traces = {f"{label}, supervisor on": policy_trace, "all human (no AV)": human_trace}
-    return plot_time_space(traces, path, f"{args.env}, episode seed {seed}")
 
 
 def record_video_command(args: argparse.Namespace) -> int:

@@ -122,4 +122,22 @@ def plot_encounters(trips: dict[str, list[dict[str, Any]]], path: str | Path, ti
     return save_figure(figure, path)
 
 
-__all__ = ["PositionTrace", "plot_encounters", "plot_time_space"]
+def time_space_diagram(policy: Any, env_id: str, seed: int, config: dict[str, Any], path: str | Path, label: str) -> Path:
+    """:func:`plot_time_space` of the episode ``seed`` (the first of an evaluation from ``seed``: its
+    AV count the density's first): ``policy`` with the supervisor (the authors' protocol) above the
+    all-human reference of the same episode."""
+    from sb3_marl.envs import av_counts, make_scenario
+    from sb3_marl.envs.config import with_supervisor
+    from sb3_marl.evaluation.episodes import run_episodes
+    from sb3_marl.evaluation.traffic import human_reference
+
+    policy_trace, human_trace = PositionTrace(), PositionTrace()
+    env = make_scenario(env_id, with_supervisor({**config, "n_avs": av_counts(env_id, config)[0]}, "on"))
+    run_episodes(env, policy, 1, seed, on_step=policy_trace)
+    env.close()
+    human_reference(env_id, 1, seed, config, also=(human_trace,))
+    traces = {f"{label}, supervisor on": policy_trace, "all human (no AV)": human_trace}
+    return plot_time_space(traces, path, f"{env_id}, episode seed {seed}")
+
+
+__all__ = ["PositionTrace", "plot_encounters", "plot_time_space", "time_space_diagram"]

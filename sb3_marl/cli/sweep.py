@@ -1,0 +1,73 @@
+"""``sb3-marl sweep``: trained agents evaluated across conditions (``generalisation``: every
+scenario id and the HDVs' politeness), with a progress bar, tables and a figure."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+from sb3_marl.algos import ALGO_NAMES
+from sb3_marl.cli.common import MAX_COUNT, MAX_EPISODES, UsageError, check_folder, positive, set_num_threads
+
+
+def add_parsers(commands: Any) -> None:
+    """Add the sweep's subcommands to the ``sb3-marl`` parser's ``commands``."""
+    sweep = commands.add_parser("sweep", help="trained agents across conditions: `sweep generalisation`")
+    kinds = sweep.add_subparsers(dest="sweep", required=True, metavar="SWEEP")
+    matrix = kinds.add_parser(
+        "generalisation",
+        help="trained agents on every scenario id and HDV politeness: return and collision rate alone",
+        formatter_class=sweep.formatter_class,
+    )
+    matrix.add_argument("--algo", default="ma2c", choices=ALGO_NAMES, help="learner (default: ma2c)")
+    matrix.add_argument(
+        "--trained", nargs="+", default=["paper"], metavar="NAME", help="trained agents (default: paper; see trained-agents)"
+    )
+    matrix.add_argument("-f", "--folder", default=None, help="a grid folder (default: the repository's results/paper-grid)")
+    matrix.add_argument("--seeds", type=positive(maximum=MAX_COUNT), default=3, help="training seeds per agent (default: 3)")
+    matrix.add_argument(
+        "--eval-episodes",
+        type=positive(maximum=MAX_EPISODES),
+        default=10,
+        help="held-out episodes per seed and condition (default: 10)",
+    )
+    matrix.add_argument(
+        "--politeness", type=float, nargs="+", default=[0.0, 0.5, 1.0], help="HDV MOBIL politeness values in [0, 1]"
+    )
+    matrix.add_argument("-o", "--output", default="logs/generalisation", help="folder of the tables and figure")
+    matrix.set_defaults(handler=generalisation_command)
+
+
+def generalisation_command(args: argparse.Namespace) -> int:
+    from sb3_marl.benchmark.generalisation import generalisation_matrix, matrix_table, plot_matrix
+    from sb3_marl.benchmark.trained_agents import grid_of
+    from sb3_marl.common.files import write_text
+
+    if not all(0 <= p <= 1 for p in args.politeness):
+        raise UsageError(f"--politeness: {args.politeness}: expected values in [0, 1].")
+    check_folder("-o/--output", args.output)
+    set_num_threads(1)
+    try:
+        result = generalisation_matrix(
+            grid_of(args.folder), args.algo, args.trained, args.seeds, args.eval_episodes, args.politeness
+        )
+    except FileNotFoundError as error:
+        raise UsageError(f"--trained: {error}") from None
+    out = Path(args.output)
+    heading = (
+        f"{args.algo} {', '.join(args.trained)}: {args.seeds} training seed(s), {args.eval_episodes} held-out episodes "
+        f"each (seeds {result['episode_seeds'][0]}..{result['episode_seeds'][1]}), sampled actions; columns: the "
+        "evaluated scenario and HDV politeness p (training: p=0)"
+    )
+    tables = (
+        f"{heading}\n\nReturn with the supervisor (mean over seeds):\n\n{matrix_table(result, 'return_mean', '.2f')}\n\n"
+        f"Collision rate alone (supervisor off, pooled over seeds):\n\n{matrix_table(result, 'collision_rate_alone', '.3f')}\n"
+    )
+    print(tables)
+    write_text(out / "generalisation.json", json.dumps(result, indent=2))
+    write_text(out / "generalisation.md", tables)
+    figure = plot_matrix(result, out / "generalisation.png")
+    print(f"wrote {out / 'generalisation.json'}, {out / 'generalisation.md'} and {figure}")
+    return 0

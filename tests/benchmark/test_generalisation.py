@@ -1,0 +1,30 @@
+"""`sb3-marl sweep generalisation` on the committed grid: every trained agent of a name on every
+scenario id and politeness, with the cells each row and column must have."""
+
+import json
+
+import imageio.v2 as imageio
+
+from sb3_marl.cli import main
+
+
+def test_the_matrix_has_every_agent_and_condition(tmp_path, capsys):
+    argv = ["sweep", "generalisation", "--trained", "safe", "--seeds", "1", "--eval-episodes", "1", "--politeness", "0", "1"]
+    assert main([*argv, "-o", str(tmp_path)]) == 0
+    result = json.loads((tmp_path / "generalisation.json").read_text())
+    # `safe` exists on the lane change's three densities only; six scenario ids x two politeness values
+    assert [row["trained_env"] for row in result["rows"]] == [f"sb3_marl/LaneChange-density{d}-v0" for d in (1, 2, 3)]
+    assert len(result["conditions"]) == 12 and "Merge-density3, p=1" in result["conditions"]
+    for row in result["rows"]:
+        assert set(row["cells"]) == set(result["conditions"])
+        assert all(cell["episodes"] == 1 and 0 <= cell["collision_rate_alone"] <= 1 for cell in row["cells"].values())
+    out = capsys.readouterr().out
+    assert "| safe: LaneChange-density3 |" in out and "Collision rate alone" in out
+    assert imageio.imread(tmp_path / "generalisation.png").std() > 0
+
+
+def test_bad_politeness_and_unknown_agents_are_usage_errors(tmp_path, capsys):
+    assert main(["sweep", "generalisation", "--politeness", "2", "-o", str(tmp_path)]) == 2
+    assert "--politeness" in capsys.readouterr().err
+    assert main(["sweep", "generalisation", "--trained", "fastest", "--seeds", "1", "-o", str(tmp_path)]) == 2
+    assert "no trained agent ['fastest']" in capsys.readouterr().err
