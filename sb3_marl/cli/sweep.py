@@ -1,5 +1,6 @@
 """``sb3-marl sweep``: trained agents evaluated across conditions (``generalisation``: every
-scenario id and the HDVs' politeness), with a progress bar, tables and a figure."""
+scenario id and the HDVs' politeness; ``penetration``: the share of AVs in a fixed number of
+vehicles), with a progress bar, tables and a figure."""
 
 from __future__ import annotations
 
@@ -9,7 +10,11 @@ from pathlib import Path
 from typing import Any
 
 from sb3_marl.algos import ALGO_NAMES
-from sb3_marl.cli.common import MAX_COUNT, MAX_EPISODES, UsageError, check_folder, positive, set_num_threads
+from sb3_marl.cli.common import DEFAULT_ENV, MAX_COUNT, MAX_EPISODES, UsageError, check_folder, positive, set_num_threads
+from sb3_marl.envs import SCENARIO_IDS
+
+#: The most vehicles a sweep puts on the road.
+MAX_VEHICLES = 40
 
 
 def add_parsers(commands: Any) -> None:
@@ -38,6 +43,28 @@ def add_parsers(commands: Any) -> None:
     )
     matrix.add_argument("-o", "--output", default="logs/generalisation", help="folder of the tables and figure")
     matrix.set_defaults(handler=generalisation_command)
+
+    sweep_ = kinds.add_parser(
+        "penetration",
+        help="a fixed number of vehicles with a growing share of AVs: a trained agent and the rule driver",
+        formatter_class=sweep.formatter_class,
+    )
+    sweep_.add_argument("--algo", default="ma2c", choices=ALGO_NAMES, help="learner (default: ma2c)")
+    sweep_.add_argument("--env", default=DEFAULT_ENV, choices=SCENARIO_IDS, help="scenario id")
+    sweep_.add_argument("--trained", default="paper", metavar="NAME", help="the trained agent (seed 0; default: paper)")
+    sweep_.add_argument("-f", "--folder", default=None, help="a grid folder (default: the repository's results/paper-grid)")
+    sweep_.add_argument(
+        "--vehicles",
+        type=positive(maximum=MAX_VEHICLES),
+        default=None,
+        help="vehicles on the road (default: the density's most)",
+    )
+    sweep_.add_argument("--shares", type=int, nargs="+", default=[0, 25, 50, 75, 100], help="AV shares [%%] in [0, 100]")
+    sweep_.add_argument(
+        "--eval-episodes", type=positive(maximum=MAX_EPISODES), default=30, help="held-out episodes per share (default: 30)"
+    )
+    sweep_.add_argument("-o", "--output", default="logs/penetration", help="folder of the table and figure")
+    sweep_.set_defaults(handler=penetration_command)
 
 
 def generalisation_command(args: argparse.Namespace) -> int:
@@ -70,4 +97,43 @@ def generalisation_command(args: argparse.Namespace) -> int:
     write_text(out / "generalisation.md", tables)
     figure = plot_matrix(result, out / "generalisation.png")
     print(f"wrote {out / 'generalisation.json'}, {out / 'generalisation.md'} and {figure}")
+    return 0
+
+
+def penetration_command(args: argparse.Namespace) -> int:
+    from sb3_marl.algos.common.policies import model_policy
+    from sb3_marl.benchmark.generalisation import HELD_OUT_SEED
+    from sb3_marl.benchmark.penetration import densest_mix, penetration_sweep, plot_sweep, sweep_table
+    from sb3_marl.benchmark.trained_agents import grid_of, trained_agent
+    from sb3_marl.common.files import write_text
+    from sb3_marl.evaluation.baselines import IDMMobilPolicy
+    from sb3_marl.runs.folders import find_run
+
+    if not all(0 <= share <= 100 for share in args.shares):
+        raise UsageError(f"--shares: {args.shares}: expected percentages in [0, 100].")
+    check_folder("-o/--output", args.output)
+    set_num_threads(1)
+    try:
+        run = find_run(trained_agent(grid_of(args.folder), args.algo, args.env, args.trained), args.algo, args.env)
+    except (FileNotFoundError, ValueError) as error:
+        raise UsageError(f"--trained: {error}") from None
+    vehicles = args.vehicles or densest_mix(args.env)
+    policies: dict[str, tuple[Any, dict[str, Any]]] = {
+        f"{args.algo} ({args.trained})": (model_policy(run.load_model("cpu")), run.env_config),
+        "idm-mobil": (IDMMobilPolicy(), {}),
+    }
+    try:
+        result = penetration_sweep(policies, args.env, vehicles, args.eval_episodes, HELD_OUT_SEED, args.shares)
+    except ValueError as error:  # a mix that does not fit the road: the config's message
+        raise UsageError(f"--vehicles / --shares: {error}") from None
+    out = Path(args.output)
+    first, last = result["episode_seeds"]
+    table = (
+        f"{args.env}: {vehicles} vehicles, {args.eval_episodes} held-out episodes per share (seeds {first}..{last}), "
+        f"sampled actions; docs/traffic.md\n\n{sweep_table(result)}\n"
+    )
+    print(table)
+    write_text(out / "penetration.json", json.dumps(result, indent=2))
+    write_text(out / "penetration.md", table)
+    print(f"wrote {out / 'penetration.json'}, {out / 'penetration.md'} and {plot_sweep(result, out / 'penetration.png')}")
     return 0

@@ -306,9 +306,9 @@ def validate_config(config: dict[str, Any], scenario: str = LANE_CHANGE) -> None
         if not check(value):
             raise _fail(key, value, allowed)
 
-    avs_lo, avs_hi = SCENARIO_DENSITIES[scenario][config["density"]]["avs"]
-    if config["n_avs"] is not None and not avs_lo <= config["n_avs"] <= avs_hi:
-        allowed = f"an integer in [{avs_lo}, {avs_hi}], the AV range of density {config['density']}"
+    avs_lo, avs_hi = SCENARIO_DENSITIES[scenario][config["density"]]["avs"]  # a mix of one's own: with hdv_count_range
+    if config["n_avs"] is not None and config["hdv_count_range"] is None and not avs_lo <= config["n_avs"] <= avs_hi:
+        allowed = f"an integer in [{avs_lo}, {avs_hi}], the AV range of density {config['density']} (any with hdv_count_range)"
         raise _fail("n_avs", config["n_avs"], allowed)
     frames = config["simulation_frequency"] / config["policy_frequency"]
     if frames != int(frames):

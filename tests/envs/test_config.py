@@ -113,3 +113,14 @@ def test_more_lanes_than_the_observation_distinguishes_are_rejected():
     with pytest.raises(ValueError, match=r"config\['lanes_count'\] = 5: expected at most 4 lanes"):
         validate_config({**default_config(), "lanes_count": 5})
     validate_config({**default_config(), "lanes_count": 5, "obs_y_range": 16.0})  # with a wider range: fine
+
+
+def test_a_mix_of_ones_own_sets_any_av_count_that_fits():
+    """With hdv_count_range set, n_avs leaves the density's range (twelve vehicles at density 3 with
+    one to twelve AVs); the road's slots still bound it."""
+    for n_avs in (1, 9, 12):
+        env = make(3, n_avs=n_avs, hdv_count_range=[12 - n_avs, 12 - n_avs])
+        obs, _ = env.reset(seed=0)
+        assert obs.shape[0] == n_avs and env.n_hdvs == 12 - n_avs
+    with pytest.raises(ValueError, match="slots"):
+        make(3, n_avs=40, hdv_count_range=[40, 40])
