@@ -35,6 +35,7 @@ RUN_BY = {
     ): "tests/integrations/test_marl_libraries.py::test_the_benchmarl_example_runs_two_iterations_of_mappo",
     ("learners.md", "ACKTR"): "tests/learners/test_acktr.py::test_the_docs_example_solves_cartpole",
     ("traffic.md", "Traffic impact"): "tests/test_traffic.py::test_the_docs_command_runs_verbatim",
+    ("traffic.md", "Sweeps"): "not run: minutes of evaluation; tests/benchmark/test_sweeps.py runs both sweeps small",
     ("README.md", "Trained agents"): "tests/test_readme.py::test_the_trained_agents_section_runs_verbatim",
     ("command-line.md", "Command line"): "tests/test_readme.py::test_the_command_line_section_runs_verbatim",
     ("command-line.md", "Hyperparameter search (`-optimize`)"): (
