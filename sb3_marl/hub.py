@@ -33,6 +33,7 @@ from sb3_marl.algos.common.policies import model_policy
 from sb3_marl.common.files import write_text
 from sb3_marl.envs import scenario_of
 from sb3_marl.envs.config import LANE_CHANGE, MERGE
+from sb3_marl.evaluation.traffic import traffic_table, trips_csv
 from sb3_marl.evaluation.video import record_video
 from sb3_marl.runs.folders import Run
 
@@ -118,7 +119,13 @@ def build_model_folder(
     write_text(folder / "config.yml", yaml.safe_dump(_plain(run.hyperparams), sort_keys=True))
     write_text(folder / "config.json", json.dumps(_plain(run.hyperparams), indent=2, sort_keys=True))
 
-    results = run.evaluate(model, n_eval_episodes, seed)
+    results = run.evaluate(model, n_eval_episodes, seed, traffic=True)
+    trips = [
+        {"supervisor": name, **trip}
+        for name, r in (("on", results), ("off", results["supervisor_off"]))
+        for trip in r.pop("trips")
+    ]
+    write_text(folder / "trips.csv", trips_csv(trips))
     write_text(folder / "results.json", json.dumps(results, indent=2))
     if video:
         record_video(model_policy(model), run.env_id, folder / "replay.mp4", 1, seed, run.env_config)
@@ -143,7 +150,7 @@ on the same episodes.
 | metric | supervisor on | supervisor off (policy alone) |
 |---|---|---|
 {rows}
-
+{traffic}
 ## Usage
 
 Install sb3-marl from its source (it is not on PyPI): `pip install torch==2.13.0` (or any torch 2
@@ -176,7 +183,7 @@ records = run_episodes(env, model_policy(model), n_episodes=3, seed=10_000)
 print("episode returns:", [round(record.episode_return, 2) for record in records])
 ```
 
-Hyperparameters: `config.yml`. Evaluation: `results.json`. Replay: `replay.mp4`.
+Hyperparameters: `config.yml`. Evaluation: `results.json`; every vehicle's trip: `trips.csv`. Replay: `replay.mp4`.
 
 ## Citation
 
@@ -228,7 +235,17 @@ def model_card(results: dict[str, Any], repo_id: str) -> ModelCard:
         eval_results=_eval_results(results),
         tags=[env_id, *CARD_TAGS],
     )
+    by_protocol = [("on", results), ("off", alone or {})]
+    traffic_rows = [({"supervisor": name}, r["traffic"]) for name, r in by_protocol if "traffic" in r]
+    traffic = (
+        "\n## Traffic\n\nEvery vehicle, AVs and HDVs, on the same episodes (sb3-marl's docs: Traffic impact):\n\n"
+        + traffic_table(traffic_rows)
+        + "\n"
+        if traffic_rows
+        else ""
+    )
     body = CARD_BODY.format(
+        traffic=traffic,
         ALGO=algo.upper(),
         algo=algo,
         env_id=env_id,

@@ -23,7 +23,7 @@ from fake_hub import FakeHub
 
 ENV_NAME = "sb3_marl-LaneChange-density1-v0"
 MODEL = f"ma2c-{ENV_NAME}.zip"
-FILES = {"README.md", "config.yml", "config.json", "results.json", "replay.mp4", MODEL}
+FILES = {"README.md", "config.yml", "config.json", "results.json", "trips.csv", "replay.mp4", MODEL}
 
 
 @pytest.fixture(scope="module")
@@ -65,6 +65,10 @@ def test_dry_run_builds_the_folder_with_a_model_card_matching_the_evaluation(log
     assert metadata_load(folder / "README.md")["model-index"][0]["name"] == "MA2C-sb3_marl/LaneChange-density1-v0"
     assert "@article{zhou2022multi" in card.text and "sb3-marl load-from-hub --repo-id me/ma2c-" in card.text
     assert MaskableA2C.load(folder / MODEL).num_timesteps == 240
+    # the traffic view: a table of both protocols on the card, every vehicle's trip beside it
+    assert "## Traffic" in card.text and f"| on | {results['traffic']['flow_veh_h']:.0f} |" in card.text
+    trips = (folder / "trips.csv").read_text().splitlines()
+    assert trips[0].startswith("supervisor,seed,id,vType") and {line.split(",")[0] for line in trips[1:]} == {"on", "off"}
 
 
 def test_push_then_load_round_trip(logs, tmp_path, hub, capsys):
