@@ -70,12 +70,8 @@ def add_parsers(commands: Any) -> None:
 def generalisation_command(args: argparse.Namespace) -> int:
     from sb3_marl.benchmark.generalisation import generalisation_matrix, matrix_table, plot_matrix
     from sb3_marl.benchmark.trained_agents import grid_of
-    from sb3_marl.common.files import write_text
 
-    if not all(0 <= p <= 1 for p in args.politeness):
-        raise UsageError(f"--politeness: {args.politeness}: expected values in [0, 1].")
-    check_folder("-o/--output", args.output)
-    set_num_threads(1)
+    _check(args, all(0 <= p <= 1 for p in args.politeness), f"--politeness: {args.politeness}: expected values in [0, 1].")
     try:
         result = generalisation_matrix(
             grid_of(args.folder), args.algo, args.trained, args.seeds, args.eval_episodes, args.politeness
@@ -92,12 +88,7 @@ def generalisation_command(args: argparse.Namespace) -> int:
         f"{heading}\n\nReturn with the supervisor (mean over seeds):\n\n{matrix_table(result, 'return_mean', '.2f')}\n\n"
         f"Collision rate alone (supervisor off, pooled over seeds):\n\n{matrix_table(result, 'collision_rate_alone', '.3f')}\n"
     )
-    print(tables)
-    write_text(out / "generalisation.json", json.dumps(result, indent=2))
-    write_text(out / "generalisation.md", tables)
-    figure = plot_matrix(result, out / "generalisation.png")
-    print(f"wrote {out / 'generalisation.json'}, {out / 'generalisation.md'} and {figure}")
-    return 0
+    return _write(out / "generalisation", result, tables, plot_matrix)
 
 
 def penetration_command(args: argparse.Namespace) -> int:
@@ -105,14 +96,12 @@ def penetration_command(args: argparse.Namespace) -> int:
     from sb3_marl.benchmark.generalisation import HELD_OUT_SEED
     from sb3_marl.benchmark.penetration import densest_mix, penetration_sweep, plot_sweep, sweep_table
     from sb3_marl.benchmark.trained_agents import grid_of, trained_agent
-    from sb3_marl.common.files import write_text
     from sb3_marl.evaluation.baselines import IDMMobilPolicy
     from sb3_marl.runs.folders import find_run
 
-    if not all(0 <= share <= 100 for share in args.shares):
-        raise UsageError(f"--shares: {args.shares}: expected percentages in [0, 100].")
-    check_folder("-o/--output", args.output)
-    set_num_threads(1)
+    _check(
+        args, all(0 <= share <= 100 for share in args.shares), f"--shares: {args.shares}: expected percentages in [0, 100]."
+    )
     try:
         run = find_run(trained_agent(grid_of(args.folder), args.algo, args.env, args.trained), args.algo, args.env)
     except (FileNotFoundError, ValueError) as error:
@@ -132,8 +121,23 @@ def penetration_command(args: argparse.Namespace) -> int:
         f"{args.env}: {vehicles} vehicles, {args.eval_episodes} held-out episodes per share (seeds {first}..{last}), "
         f"sampled actions; docs/traffic.md\n\n{sweep_table(result)}\n"
     )
-    print(table)
-    write_text(out / "penetration.json", json.dumps(result, indent=2))
-    write_text(out / "penetration.md", table)
-    print(f"wrote {out / 'penetration.json'}, {out / 'penetration.md'} and {plot_sweep(result, out / 'penetration.png')}")
+    return _write(out / "penetration", result, table, plot_sweep)
+
+
+def _check(args: argparse.Namespace, valid: bool, message: str) -> None:
+    """A sweep's checks before any work: its values (``message`` unless ``valid``), the output folder."""
+    if not valid:
+        raise UsageError(message)
+    check_folder("-o/--output", args.output)
+    set_num_threads(1)
+
+
+def _write(stem: Path, result: dict[str, Any], text: str, plot: Any) -> int:
+    """Print the sweep's ``text``; write it (``<stem>.md``), its ``result`` (``.json``) and ``plot``'s figure (``.png``)."""
+    from sb3_marl.common.files import write_text
+
+    print(text)
+    write_text(stem.with_suffix(".json"), json.dumps(result, indent=2))
+    write_text(stem.with_suffix(".md"), text)
+    print(f"wrote {stem.with_suffix('.json')}, {stem.with_suffix('.md')} and {plot(result, stem.with_suffix('.png'))}")
     return 0
