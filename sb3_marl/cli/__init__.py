@@ -11,6 +11,8 @@
     sb3-marl benchmark --grid paper --budget 0.05   (the paper's experiments as Ray Tune trials)
     sb3-marl benchmark status -f logs/benchmark     (where each trial stands)
     sb3-marl benchmark report -f logs/benchmark -o results
+    sb3-marl trained-agents               (the committed models; evaluate/enjoy/record-video --trained NAME)
+    sb3-marl sweep penetration --trained safe --env sb3_marl/LaneChange-density3-v0   (also: sweep generalisation)
 
 Timesteps (``-n``, ``--eval-freq``, ``--save-freq``) count AV-steps, SB3's timesteps on the
 parameter-sharing VecEnv: one step of a scenario copy with N AVs is N timesteps.
