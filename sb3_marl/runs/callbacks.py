@@ -19,6 +19,7 @@ from sb3_marl.algos.common.policies import model_policy, non_finite_weights
 from sb3_marl.common.files import read_evaluations, replaced_atomically
 from sb3_marl.envs.lane_change_env import ACTIONS
 from sb3_marl.evaluation import EpisodeRecord, protocol_records, summarize
+from sb3_marl.evaluation.traffic import TripRecorder
 
 #: Per-AV-step driving samples of the slot infos, averaged (speed, headway) or spread (acceleration).
 DRIVING_SAMPLES = ("speed", "headway", "acceleration")
@@ -304,9 +305,9 @@ class ScenarioEvalCallback(BaseCallback):
 
     def evaluate(self) -> dict[str, Any]:
         """Run one evaluation now; returns its summary."""
-        protocols = protocol_records(
-            model_policy(self.model, self.deterministic), self.env_id, self.n_eval_episodes, self.seed, self.config
-        )
+        traffic = {name: TripRecorder() for name in ("on", "off")}  # TensorBoard's eval/traffic/ scalars
+        policy = model_policy(self.model, self.deterministic)
+        protocols = protocol_records(policy, self.env_id, self.n_eval_episodes, self.seed, self.config, on_step=dict(traffic))
         row: dict[str, Any] = {"timesteps": self.num_timesteps}
         summaries = {name: summarize(records) for name, records in protocols.items()}
         for name, prefix, folder in (("on", "", "eval/"), ("off", self.OFF, "eval/supervisor_off/")):
@@ -319,6 +320,9 @@ class ScenarioEvalCallback(BaseCallback):
                     metric, metric
                 )
                 self.logger.record(folder + key, protocol_summary[metric])
+            for metric, value in traffic[name].metrics().items():
+                if np.isfinite(value):  # e.g. no HDV time loss where every vehicle is an AV
+                    self.logger.record(f"{folder}traffic/{metric}", value)
         off = summaries["off"]
         summary: dict[str, Any] = {**summaries["on"], "supervisor_off": off}
         for key, value in row.items():

@@ -111,6 +111,8 @@ def test_tensorboard_has_driving_metrics_and_reward_terms(logs):
     for term in ("safety", "headway", "speed", "comfort", "harsh_acceleration", "lane_change"):
         assert f"rollout/reward_{term}" in tags, term
     assert {"rollout/episode_return", "eval/mean_reward", "train/value_loss", "rollout/ep_rew_mean"} <= tags
+    traffic = {"eval/traffic/flow_veh_h", "eval/traffic/ttc_below_3.0_share", "eval/supervisor_off/traffic/flow_veh_h"}
+    assert traffic <= tags  # the traffic view of each periodic evaluation
     speeds = [event.value for event in events.Scalars("rollout/speed_mean")]
     assert all(15 < v < 40 for v in speeds)  # m/s: the scenario's speed range
     collisions = [event.value for event in events.Scalars("eval/collision_rate")]
