@@ -1,14 +1,29 @@
 """sb3-marl: multi-agent RL for cooperative lane changing of AVs, on Stable-Baselines3."""
 
+import hashlib
 import os
+from pathlib import Path
+
+
+def _compiled_sources_digest() -> str:
+    """A digest of every module with compiled (numba) code: numba re-checks only a function's own
+    file before reusing its cache, not those of the functions it calls, so a cache folder per
+    version of the sources keeps an edit of one module from running stale code of another."""
+    root, digest = Path(__file__).parent, hashlib.sha256()
+    for path in sorted([*root.glob("sim/*.py"), *root.glob("safety/*.py"), *root.glob("envs/*.py")]):
+        digest.update(path.name.encode() + path.read_bytes())
+    return digest.hexdigest()[:16]
+
 
 # numba caches the compiled road kernel in the user's cache folder, not beside the installed
 # modules (where `pip uninstall` would leave it behind); NUMBA_CACHE_DIR, if set, wins
 os.environ.setdefault(
     "NUMBA_CACHE_DIR",
-    os.path.join(os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "sb3-marl", "numba"),
+    os.path.join(
+        os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "sb3-marl", "numba", _compiled_sources_digest()
+    ),
 )
 
-from sb3_marl import envs  # noqa: F401  (registers the gymnasium ids)
+from sb3_marl import envs  # noqa: E402, F401  (registers the gymnasium ids)
 
 __version__ = "0.1.0"

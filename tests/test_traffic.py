@@ -144,3 +144,14 @@ def test_time_space_diagram_and_encounters_figures(tmp_path):
     assert figure.shape[0] > figure.shape[1] / 2 and figure.std() > 0  # two rows of two lane panels
     encounters = imageio.imread(plot_encounters({"all human": reference.trips()}, tmp_path / "enc.png"))
     assert encounters.std() > 0
+
+
+def test_timid_hdvs_keep_longer_time_gaps_than_aggressive_ones():
+    """The all-human road of the same episodes under each HDV style (IDM's T: 2.0, 1.5, 1.0 s)."""
+    headway = {
+        style: human_reference("sb3_marl/LaneChange-density3-v0", 6, seed=5, config={"hdv_style": style}).metrics()[
+            "time_headway_median"
+        ]
+        for style in ("timid", "normal", "aggressive")
+    }
+    assert headway["timid"] > headway["normal"] > headway["aggressive"], headway

@@ -1,6 +1,7 @@
 """The generalisation matrix: trained agents of a grid (:mod:`~sb3_marl.benchmark.trained_agents`)
 evaluated off the conditions they were trained on — every scenario id (the other densities, the
-other road) and the HDVs' MOBIL politeness 0, 0.5 and 1 (0 in training) — on the same held-out
+other road), the HDVs' MOBIL politeness 0, 0.5 and 1 (0 in training) and their IDM style, timid
+and aggressive (normal in training; ``sim.HDV_STYLES``) — on the same held-out
 episodes, under both supervisor protocols; one row per (agent, training scenario), one column per
 (evaluated scenario, politeness)."""
 
@@ -31,20 +32,34 @@ POLITENESS = (0.0, 0.5, 1.0)
 HELD_OUT_SEED = 100_000
 
 
+#: The HDVs' IDM styles of the evaluated conditions besides training's ``normal`` (sim.HDV_STYLES).
+STYLES = ("timid", "aggressive")
+
+
 @dataclass(frozen=True)
 class Condition:
-    """An evaluated condition: a scenario id and the HDVs' politeness."""
+    """An evaluated condition: a scenario id, the HDVs' politeness and their IDM style."""
 
     env_id: str
     politeness: float
+    style: str = "normal"
 
     @property
     def label(self) -> str:
-        return f"{self.env_id.split('/')[-1].removesuffix('-v0')}, p={self.politeness:g}"
+        road = self.env_id.split("/")[-1].removesuffix("-v0")
+        return f"{road}, p={self.politeness:g}" if self.style == "normal" else f"{road}, {self.style}"
 
 
-def conditions(politeness: Iterable[float] = POLITENESS) -> list[Condition]:
-    return [Condition(env_id, p) for env_id in SCENARIO_IDS for p in politeness]
+def conditions(politeness: Iterable[float] = POLITENESS, styles: Iterable[str] = STYLES) -> list[Condition]:
+    """Per scenario id: each politeness with normal HDVs, then each other style at politeness 0."""
+    return [
+        condition
+        for env_id in SCENARIO_IDS
+        for condition in [
+            *(Condition(env_id, p) for p in politeness),
+            *(Condition(env_id, 0.0, style) for style in styles if style != "normal"),
+        ]
+    ]
 
 
 def generalisation_matrix(
@@ -56,6 +71,7 @@ def generalisation_matrix(
     politeness: Iterable[float] = POLITENESS,
     seed: int = HELD_OUT_SEED,
     progress: bool = True,
+    styles: Iterable[str] = STYLES,
 ) -> dict[str, Any]:
     """Every agent ``names`` of ``algo`` in ``grid`` trained on any scenario id (training seeds
     ``0 .. seeds-1``), evaluated on :func:`conditions` for ``episodes`` episodes from ``seed`` per
@@ -64,7 +80,7 @@ def generalisation_matrix(
 
     :raises FileNotFoundError: when no agent of ``names`` exists
     """
-    evaluated = conditions(politeness)
+    evaluated = conditions(politeness, styles)
     agents = []
     for name in names:
         for env_id in SCENARIO_IDS:
@@ -84,7 +100,8 @@ def generalisation_matrix(
             results = []
             for policy, env_config in policies:
                 common = scenario_default_config(scenario_of(condition.env_id))
-                config = {**{k: v for k, v in env_config.items() if k in common}, "hdv_politeness": condition.politeness}
+                hdvs = {"hdv_politeness": condition.politeness, "hdv_style": condition.style}
+                config = {**{k: v for k, v in env_config.items() if k in common}, **hdvs}
                 results.append(evaluate_protocols(policy, condition.env_id, episodes, seed, config))
                 jobs.update()
             alone = [r["supervisor_off"] for r in results]
@@ -155,4 +172,4 @@ def plot_matrix(result: dict[str, Any], path: str | Path) -> Path:
     return save_figure(figure, path)
 
 
-__all__ = ["POLITENESS", "Condition", "conditions", "generalisation_matrix", "matrix_table", "plot_matrix"]
+__all__ = ["POLITENESS", "STYLES", "Condition", "conditions", "generalisation_matrix", "matrix_table", "plot_matrix"]

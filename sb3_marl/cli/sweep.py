@@ -41,6 +41,13 @@ def add_parsers(commands: Any) -> None:
     matrix.add_argument(
         "--politeness", type=float, nargs="+", default=[0.0, 0.5, 1.0], help="HDV MOBIL politeness values in [0, 1]"
     )
+    matrix.add_argument(
+        "--styles",
+        nargs="*",
+        default=["timid", "aggressive"],
+        choices=["timid", "aggressive"],
+        help="HDV IDM styles besides normal",
+    )
     matrix.add_argument("-o", "--output", default="logs/generalisation", help="folder of the tables and figure")
     matrix.set_defaults(handler=generalisation_command)
 
@@ -74,7 +81,7 @@ def generalisation_command(args: argparse.Namespace) -> int:
     _check(args, all(0 <= p <= 1 for p in args.politeness), f"--politeness: {args.politeness}: expected values in [0, 1].")
     try:
         result = generalisation_matrix(
-            grid_of(args.folder), args.algo, args.trained, args.seeds, args.eval_episodes, args.politeness
+            grid_of(args.folder), args.algo, args.trained, args.seeds, args.eval_episodes, args.politeness, styles=args.styles
         )
     except FileNotFoundError as error:
         raise UsageError(f"--trained: {error}") from None
@@ -82,7 +89,7 @@ def generalisation_command(args: argparse.Namespace) -> int:
     heading = (
         f"{args.algo} {', '.join(args.trained)}: {args.seeds} training seed(s), {args.eval_episodes} held-out episodes "
         f"each (seeds {result['episode_seeds'][0]}..{result['episode_seeds'][1]}), sampled actions; columns: the "
-        "evaluated scenario and HDV politeness p (training: p=0)"
+        "evaluated scenario and HDV politeness p or IDM style (training: p=0, normal)"
     )
     tables = (
         f"{heading}\n\nReturn with the supervisor (mean over seeds):\n\n{matrix_table(result, 'return_mean', '.2f')}\n\n"

@@ -15,7 +15,7 @@ from typing import Any
 
 from sb3_marl.common.checks import is_integer, is_number
 from sb3_marl.safety.supervisor import MERGE_SUPERVISOR_VERSIONS, SUPERVISOR_VERSIONS
-from sb3_marl.sim import LANE_CHANGE, MERGE
+from sb3_marl.sim import HDV_STYLES, LANE_CHANGE, MERGE
 
 #: Traffic densities of the paper: inclusive (min, max) counts of AVs and of HDVs per episode.
 DENSITIES: dict[int, dict[str, tuple[int, int]]] = {
@@ -79,6 +79,7 @@ def default_config() -> dict[str, Any]:
         "target_speeds": [10.0, 15.0, 20.0, 25.0, 30.0],  # [m/s] set-points of FASTER/SLOWER
         # HDVs: highway-env IDMVehicle (IDM) with MOBIL lane changes
         "hdv_politeness": 0.0,  # MOBIL politeness p in [0, 1]
+        "hdv_style": "normal",  # IDM car following: normal (highway-env's), timid or aggressive (sim.HDV_STYLES)
         "hdv_b_safe": 9.0,  # [m/s²] MOBIL maximum braking imposed on the new follower
         "hdv_lane_change_threshold": 0.1,  # [m/s²] MOBIL acceleration gain threshold
         # Observation: ego row + the nearest (vehicles_count - 1) vehicles
@@ -86,9 +87,7 @@ def default_config() -> dict[str, Any]:
         "obs_x_range": 150.0,  # [m] normalisation and perception range of relative x
         "obs_y_range": 12.0,  # [m] normalisation of y
         "obs_speed_range": 45.0,  # [m/s] normalisation of vx, vy
-        # True adds a 6th feature: the ego's target speed (the set-point its meta-actions move) on
-        # the ego row, 0 on the others. The paper observes (presence, x, y, vx, vy) only.
-        "obs_target_speed": False,
+        "obs_target_speed": False,  # True: a 6th feature, the ego's target speed, on its row (not the paper's)
         # Reward: w_s*r_s + w_d*r_d + w_v*r_v - w_c*r_c
         "safety_weight": 200.0,
         "headway_weight": 4.0,
@@ -126,9 +125,8 @@ def default_config() -> dict[str, Any]:
         # safe braking (hdv_b_safe): the check MOBIL makes for the HDVs' own lane changes (the
         # merge's HDVs see no vehicle past the start of the lane they are about to enter)
         "supervisor_mobil_safety": False,
-        # with the safety supervisor off, compute its decision all the same and report in
-        # info["intervened"] where it would have replaced or braked an action (nothing applied):
-        # training's intervention penalty then reaches the episodes run without it
+        # supervisor off: report in info["intervened"] where it would have replaced or braked an
+        # action (nothing applied), so training's intervention penalty reaches those episodes
         "supervisor_shadow": False,
         # Rule driver (IDM/MOBIL as meta-actions, info["rule_action"]): FASTER / SLOWER when IDM's
         # acceleration is above / below +- this threshold
@@ -236,6 +234,7 @@ _SCHEMA: dict[str, tuple[Check, str]] = {
     "duration": _number(0, 86_400, strict_lo=True),  # [s]
     "target_speeds": _speeds(),
     "hdv_politeness": _number(0, 1),
+    "hdv_style": ((lambda v: v in HDV_STYLES), f"one of {sorted(HDV_STYLES)}"),
     "hdv_b_safe": _POSITIVE,
     "hdv_lane_change_threshold": _NON_NEGATIVE,
     "obs_vehicles_count": _integer(1, 100),

@@ -11,3 +11,11 @@ highway-env's own classes, the stock reference and renderer (:mod:`~sb3_marl.sim
 #: The two roads by name (each scenario is named after its road): the lane change's highway and
 #: the on-ramp merge.
 LANE_CHANGE, MERGE = "lane-change", "merge"
+#: The HDVs' IDM car following by style (config ``hdv_style``): comfortable acceleration a and
+#: deceleration b [m/s²], jam distance s0 [m] (front to front, a 5 m vehicle included) and time
+#: headway T [s]. ``normal`` is highway-env's ``IDMVehicle``; ``timid`` and ``aggressive`` are ours.
+HDV_STYLES = {
+    "normal": (3.0, 5.0, 10.0, 1.5),
+    "timid": (2.0, 4.0, 12.0, 2.0),
+    "aggressive": (4.0, 6.0, 8.0, 1.0),
+}

@@ -12,12 +12,13 @@ import numpy as np
 from sb3_marl.sim.kernel import (
     ACC_MAX,
     ACCELERATION,
-    COMFORT_ACC_MAX,
-    COMFORT_ACC_MIN,
     CRASHED,
     DELTA,
-    DISTANCE_WANTED,
     HEADING,
+    IDM_ACC,
+    IDM_DECEL,
+    IDM_DISTANCE,
+    IDM_TIME,
     IS_HDV,
     IS_OBSTACLE,
     KP_A,
@@ -37,7 +38,6 @@ from sb3_marl.sim.kernel import (
     TARGET_LANE,
     TARGET_SPEED,
     TAU_PURSUIT,
-    TIME_WANTED,
     TIMER,
     X,
     Y,
@@ -90,8 +90,8 @@ def _desired_gap(state: np.ndarray, ego: int, front: int) -> float:
     cos_f, sin_f = cos(state[front, HEADING]), sin(state[front, HEADING])
     v_e, v_f = state[ego, SPEED], state[front, SPEED]
     dv = (v_e * cos_e - v_f * cos_f) * cos_e + (v_e * sin_e - v_f * sin_f) * sin_e
-    ab = -COMFORT_ACC_MAX * COMFORT_ACC_MIN
-    return DISTANCE_WANTED + v_e * TIME_WANTED + v_e * dv / (2 * np.sqrt(ab))
+    ab = state[ego, IDM_ACC] * state[ego, IDM_DECEL]
+    return state[ego, IDM_DISTANCE] + v_e * state[ego, IDM_TIME] + v_e * dv / (2 * np.sqrt(ab))
 
 
 @numba.njit(cache=True)
@@ -112,10 +112,10 @@ def idm(state: np.ndarray, lanes: np.ndarray, ego: int, front: int, speed_limit:
         return 0.0
     target = clip(state[ego, TARGET_SPEED], 0.0, speed_limit)
     ratio = max(state[ego, SPEED], 0.0) / abs(not_zero(target))
-    acceleration = COMFORT_ACC_MAX * (1 - ratio**DELTA)
+    acceleration = state[ego, IDM_ACC] * (1 - ratio**DELTA)
     if front >= 0:
         d = lane_distance(state, lanes, ego, front)
-        acceleration -= COMFORT_ACC_MAX * (_desired_gap(state, ego, front) / not_zero(d)) ** 2.0
+        acceleration -= state[ego, IDM_ACC] * (_desired_gap(state, ego, front) / not_zero(d)) ** 2.0
     return acceleration
 
 

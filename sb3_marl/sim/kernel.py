@@ -84,8 +84,12 @@ OBSTACLE_DIAGONAL = float(np.sqrt(OBSTACLE_LENGTH**2 + OBSTACLE_WIDTH**2))  # [m
     MIN_ACC_GAIN,
     IS_OBSTACLE,
     VEHICLE_ID,  # the vehicle's number in its episode (its row at the spawn; -1: an obstacle); never read by the dynamics
-) = range(22)
-COLUMNS = 22
+    IDM_ACC,  # [m/s²] its IDM comfortable acceleration a (highway-env's COMFORT_ACC_MAX)
+    IDM_DECEL,  # [m/s²] its IDM comfortable deceleration b, positive (-COMFORT_ACC_MIN)
+    IDM_DISTANCE,  # [m] its IDM jam distance, front to front (DISTANCE_WANTED)
+    IDM_TIME,  # [s] its IDM time headway (TIME_WANTED)
+) = range(26)
+COLUMNS = 26
 
 
 @numba.njit(cache=True)

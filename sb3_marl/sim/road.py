@@ -15,7 +15,7 @@ from highway_env.road.lane import LineType, StraightLane
 from highway_env.road.road import Road, RoadNetwork
 from highway_env.vehicle.behavior import IDMVehicle
 
-from sb3_marl.sim import kernel, meta_actions
+from sb3_marl.sim import HDV_STYLES, kernel, meta_actions
 from sb3_marl.sim.lanes import lane_table
 from sb3_marl.sim.simulator import SEGMENT
 
@@ -96,7 +96,8 @@ def vehicle_state(
     heading along +x at ``speed`` [m/s], the first ``n_avs`` AVs, the others HDVs: the state
     highway-env's ``MDPVehicle`` and ``IDMVehicle`` constructors give them (an AV's target speed is
     the ladder step nearest its speed, an HDV's its speed; the HDV's lane-change timer starts at
-    ``(x + y) π mod LANE_CHANGE_DELAY``; the config's MOBIL parameters)."""
+    ``(x + y) π mod LANE_CHANGE_DELAY``; the config's MOBIL parameters and IDM style,
+    ``hdv_style``; an AV's IDM columns, used where an HDV's MOBIL rates it, are highway-env's)."""
     lane = np.asarray(lane, dtype=np.float64).reshape(-1)
     return _vehicle_state(
         np.asarray(x, dtype=np.float64).reshape(-1),
@@ -108,6 +109,7 @@ def vehicle_state(
         float(config["hdv_politeness"]),
         float(config["hdv_b_safe"]),
         float(config["hdv_lane_change_threshold"]),
+        np.array(HDV_STYLES[config.get("hdv_style", "normal")]),
     )
 
 
@@ -122,13 +124,16 @@ def _vehicle_state(
     politeness: float,
     max_braking_imposed: float,
     min_acc_gain: float,
+    hdv_idm: np.ndarray,
 ) -> np.ndarray:
     state = np.zeros((x.size, kernel.COLUMNS))
+    av_idm = np.array([kernel.COMFORT_ACC_MAX, -kernel.COMFORT_ACC_MIN, kernel.DISTANCE_WANTED, kernel.TIME_WANTED])
     for k in range(x.size):
         state[k, kernel.X], state[k, kernel.Y], state[k, kernel.SPEED] = x[k], y[k], speed[k]
         state[k, kernel.LANE] = state[k, kernel.TARGET_LANE] = lane[k]
         state[k, kernel.COLLIDABLE] = state[k, kernel.PRESENT] = 1.0
         state[k, kernel.VEHICLE_ID] = k
+        state[k, kernel.IDM_ACC : kernel.IDM_TIME + 1] = av_idm if k < n_avs else hdv_idm
         if k < n_avs:
             state[k, kernel.TARGET_SPEED] = ladder[meta_actions.speed_index(speed[k], ladder)]
         else:

@@ -105,6 +105,11 @@ def _row(v: Vehicle, numbers: dict, k: int) -> tuple:
         *((v.POLITENESS, v.LANE_CHANGE_MAX_BRAKING_IMPOSED, v.LANE_CHANGE_MIN_ACC_GAIN) if hdv else (0.0, 0.0, 0.0)),
         False,
         getattr(v, "vehicle_id", k),
+        # IDM's parameters: an HDV's own (instance or class), an AV's highway-env's IDMVehicle's
+        getattr(v, "COMFORT_ACC_MAX", kernel.COMFORT_ACC_MAX),
+        -getattr(v, "COMFORT_ACC_MIN", kernel.COMFORT_ACC_MIN),
+        getattr(v, "DISTANCE_WANTED", kernel.DISTANCE_WANTED),
+        getattr(v, "TIME_WANTED", kernel.TIME_WANTED),
     )
 
 
@@ -127,6 +132,8 @@ def vehicle_objects(road: Road, state: np.ndarray, config: dict[str, Any]) -> li
             v.POLITENESS = row[kernel.POLITENESS]
             v.LANE_CHANGE_MAX_BRAKING_IMPOSED = row[kernel.MAX_BRAKING_IMPOSED]
             v.LANE_CHANGE_MIN_ACC_GAIN = row[kernel.MIN_ACC_GAIN]
+            v.COMFORT_ACC_MAX, v.COMFORT_ACC_MIN = row[kernel.IDM_ACC], -row[kernel.IDM_DECEL]
+            v.DISTANCE_WANTED, v.TIME_WANTED = row[kernel.IDM_DISTANCE], row[kernel.IDM_TIME]
         else:
             v = MDPVehicle(road, position, heading, speed, target_lane_index=target, target_speeds=config["target_speeds"])
             v.speed_index = v.speed_to_index(row[kernel.TARGET_SPEED])

@@ -11,12 +11,28 @@ from sb3_marl.cli import main
 
 
 def test_the_matrix_has_every_agent_and_condition(tmp_path, capsys):
-    argv = ["sweep", "generalisation", "--trained", "safe", "--seeds", "1", "--eval-episodes", "1", "--politeness", "0", "1"]
+    argv = [
+        "sweep",
+        "generalisation",
+        "--trained",
+        "safe",
+        "--seeds",
+        "1",
+        "--eval-episodes",
+        "1",
+        "--politeness",
+        "0",
+        "1",
+        "--styles",
+        "timid",
+    ]
     assert main([*argv, "-o", str(tmp_path)]) == 0
     result = json.loads((tmp_path / "generalisation.json").read_text())
-    # `safe` exists on the lane change's three densities only; six scenario ids x two politeness values
+    # `safe` exists on the lane change's three densities only; six scenario ids x (two politeness values, timid HDVs)
     assert [row["trained_env"] for row in result["rows"]] == [f"sb3_marl/LaneChange-density{d}-v0" for d in (1, 2, 3)]
-    assert len(result["conditions"]) == 12 and "Merge-density3, p=1" in result["conditions"]
+    assert len(result["conditions"]) == 18 and {"Merge-density3, p=1", "LaneChange-density2, timid"} <= set(
+        result["conditions"]
+    )
     for row in result["rows"]:
         assert set(row["cells"]) == set(result["conditions"])
         assert all(cell["episodes"] == 1 and 0 <= cell["collision_rate_alone"] <= 1 for cell in row["cells"].values())

@@ -51,3 +51,25 @@ def test_rendered_episodes_match_unrendered_ones():
         np.testing.assert_allclose(
             np.array([[*v.position, v.heading, v.speed] for v in env.road.vehicles]), states[:, :4], atol=TOLERANCE
         )
+
+
+@pytest.mark.parametrize("style", ["timid", "aggressive"])
+def test_the_hdv_styles_match_highway_env_given_their_parameters(style):
+    """An HDV style's IDM parameters reach highway-env's vehicles as instance attributes: the
+    compiled road and highway-env's classes still step the same episodes."""
+    result = compare(STOCK, COMPILED, ENV_IDS[3], range(8), "cruise", hdv_style=style)
+    assert result.different_outcomes == [] and result.max_state_difference < TOLERANCE
+
+
+def test_the_normal_style_is_highway_envs_idm():
+    from highway_env.vehicle.behavior import IDMVehicle
+
+    from sb3_marl.sim import HDV_STYLES
+
+    a, b, s0, t = HDV_STYLES["normal"]
+    assert (a, -b, s0, t) == (
+        IDMVehicle.COMFORT_ACC_MAX,
+        IDMVehicle.COMFORT_ACC_MIN,
+        IDMVehicle.DISTANCE_WANTED,
+        IDMVehicle.TIME_WANTED,
+    )
