@@ -263,19 +263,23 @@ def _record_attempt(folder: Path, spec: TrialSpec, config: dict[str, Any], resum
 
 def paper_evaluation(model: Any, env_id: str, config: dict[str, Any] | None) -> dict[str, Any]:
     """The paper's final evaluation of a trained model: :data:`FINAL_EVAL_EPISODES` seeded
-    episodes (seeds 10000..), sampled actions, under both supervisor protocols."""
+    episodes (seeds 10000..), sampled actions, under both supervisor protocols, with the traffic
+    metrics of each (``traffic``)."""
     from sb3_marl.algos.common.policies import model_policy, uses_action_masks
     from sb3_marl.envs import scenario_of
     from sb3_marl.envs.config import supervisor_version
     from sb3_marl.evaluation import evaluate_protocols, protocol_label
     from sb3_marl.runs.experiment import EVAL_SEED_OFFSET
 
+    result = evaluate_protocols(model_policy(model), env_id, FINAL_EVAL_EPISODES, EVAL_SEED_OFFSET, config, traffic=True)
+    for summary in (result, result["supervisor_off"]):
+        summary.pop("trips")  # the traffic metrics stay; trip records: benchmarks/heldout_evaluation.py --traffic
     return {
         "supervisor_version": supervisor_version(config, scenario_of(env_id)),
         "episodes": FINAL_EVAL_EPISODES,
         "seeds": [EVAL_SEED_OFFSET, EVAL_SEED_OFFSET + FINAL_EVAL_EPISODES - 1],
         "protocol": protocol_label(False, uses_action_masks(model)),
-        **evaluate_protocols(model_policy(model), env_id, FINAL_EVAL_EPISODES, EVAL_SEED_OFFSET, config),
+        **result,
     }
 
 

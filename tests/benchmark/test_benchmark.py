@@ -122,6 +122,7 @@ def test_trials_write_the_rl_zoo_layout_and_tensorboard(tiny_benchmark):
         paper = result["paper_evaluation"]  # the paper's: 30 seeded episodes of the trained model, sampled
         assert paper["episodes"] == len(paper["returns"]) == 30 and paper["seeds"] == [10_000, 10_029]
         assert paper["return_mean"] == pytest.approx(np.mean(paper["returns"])) and "sampled" in paper["protocol"]
+        assert paper["traffic"]["flow_veh_h"] > 0 and "traffic" in paper["supervisor_off"] and "trips" not in paper
         events = list((trial / "tensorboard").rglob("events.out.tfevents.*"))
         accumulator = EventAccumulator(str(events[0].parent)).Reload()
         assert "eval/mean_reward" in accumulator.Tags()["scalars"]
