@@ -322,7 +322,8 @@ class ScenarioEvalCallback(BaseCallback):
                 self.logger.record(folder + key, protocol_summary[metric])
             for metric, value in traffic[name].metrics().items():
                 if np.isfinite(value):  # e.g. no HDV time loss where every vehicle is an AV
-                    self.logger.record(f"{folder}traffic/{metric}", value)
+                    # TensorBoard's only: the console table (--verbose 2) cuts keys to 36 characters
+                    self.logger.record(f"{folder}traffic/{metric}", value, exclude="stdout")
         off = summaries["off"]
         summary: dict[str, Any] = {**summaries["on"], "supervisor_off": off}
         for key, value in row.items():
