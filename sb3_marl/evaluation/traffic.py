@@ -118,8 +118,18 @@ class TripRecorder:
                 min_headway=np.full(n, np.inf),
                 crashed=np.zeros(n, dtype=bool),
                 hard_braking=np.zeros(n, dtype=bool),
-                sums=dict.fromkeys(("vehicle_steps", "ttc_1.5", "ttc_3.0", "speed_std_sum", "steps"), 0.0)
-                | dict.fromkeys(("hdv_km", "hdv_hard_brakes", "arrivals"), 0.0),
+                sums=dict.fromkeys(
+                    (
+                        "vehicle_steps",
+                        *(f"ttc_{t}" for t in TTC_THRESHOLDS),
+                        "speed_std_sum",
+                        "steps",
+                        "hdv_km",
+                        "hdv_hard_brakes",
+                        "arrivals",
+                    ),
+                    0.0,
+                ),
             )
         )
         self._sample(self.episodes[-1], state, first=True)
@@ -290,8 +300,9 @@ def human_reference(
     from sb3_marl.sim.road import vehicle_state
 
     recorder, counts = TripRecorder(), av_counts(env_id, config)
+    envs = {n: make_scenario(env_id, {**(config or {}), "n_avs": n}) for n in counts}  # one per AV count, reset per episode
     for episode in range(n_episodes):
-        env = make_scenario(env_id, {**(config or {}), "n_avs": counts[episode % len(counts)]})
+        env = envs[counts[episode % len(counts)]]
         env.reset(seed=seed + episode)
         rows, h = env.state, env.horizon
         vehicles = rows[:, kernel.IS_OBSTACLE] == 0
@@ -310,6 +321,7 @@ def human_reference(
                 each.step(state)
             if not (_vehicles(state)[:, kernel.X] <= recorder.road_end).any():
                 break
+    for env in envs.values():
         env.close()
     return recorder
 

@@ -60,15 +60,18 @@ def _highway_lanes(lanes: int, width: float, length: float, speed_limit: float) 
 
 
 def configure_hdv(vehicle: IDMVehicle, config: dict[str, Any]) -> None:
-    """Apply the config's MOBIL parameters to one HDV instance (IDM keeps highway-env's defaults).
+    """Apply the config's MOBIL parameters and IDM style to one HDV instance, as :func:`vehicle_state`
+    gives them to an HDV row.
 
     :param vehicle: a human-driven vehicle
     :param config: the scenario config (``hdv_politeness``, ``hdv_b_safe`` in m/s²,
-        ``hdv_lane_change_threshold`` in m/s²)
+        ``hdv_lane_change_threshold`` in m/s², ``hdv_style``)
     """
     vehicle.POLITENESS = float(config["hdv_politeness"])
     vehicle.LANE_CHANGE_MAX_BRAKING_IMPOSED = float(config["hdv_b_safe"])
     vehicle.LANE_CHANGE_MIN_ACC_GAIN = float(config["hdv_lane_change_threshold"])
+    a, b, s0, t = HDV_STYLES[config.get("hdv_style", "normal")]
+    vehicle.COMFORT_ACC_MAX, vehicle.COMFORT_ACC_MIN, vehicle.DISTANCE_WANTED, vehicle.TIME_WANTED = a, -b, s0, t
 
 
 def spawn(config: dict[str, Any], n_avs: int, n_hdvs: int, np_random: np.random.Generator) -> np.ndarray:
