@@ -38,6 +38,7 @@ from sb3_marl.benchmark.figures import plot_comfort, plot_final_returns, plot_in
 from sb3_marl.benchmark.runner import SETTINGS_FILE
 from sb3_marl.benchmark.statistics import curve_summaries, load_trials, reference_summaries
 from sb3_marl.benchmark.tables import headline_table, paper_table
+from sb3_marl.benchmark.traffic import write_traffic
 from sb3_marl.common.files import inside, read_json_object, write_text
 
 #: The report's manifest in its output folder: the names of the files it wrote there last time,
@@ -76,6 +77,7 @@ def write_report(log_folder: str | Path, out_dir: str | Path = "results", seed: 
         if figure is not None:
             written.append(figure)
     written += plot_interpretation(trials, log_folder, out_dir, seed)
+    written += write_traffic(trials, log_folder, out_dir, seed, references)
     for name in sorted(earlier - {path.name for path in written}):
         inside(out_dir / name, out_dir).unlink(missing_ok=True)  # an earlier report's, not written now
     write_text(out_dir / MANIFEST, json.dumps(sorted(path.name for path in written), indent=1) + "\n")

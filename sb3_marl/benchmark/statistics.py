@@ -164,14 +164,16 @@ def curve_summaries(trials: list[TrialLog]) -> dict[tuple[str, str, int], dict[s
 def reference_summaries(trials: list[TrialLog], log_folder: str | Path, seed: int) -> dict[tuple[str, int], dict[str, Any]]:
     """Each hand-written policy of :data:`sb3_marl.evaluation.baselines.BASELINES`, keyed by (name, density), on
     the final evaluation's episodes (seeds ``seed ..``, the same AV counts) at each density with a
-    finished default MA2C trial, in that trial's scenario config (the zoo's: safety supervisor on);
-    on the merge (keyed by ``"<name>, merge"``) where a ``merge`` MA2C trial has finished.
+    finished default MA2C trial, in that trial's scenario config (the zoo's: safety supervisor on),
+    with the traffic metrics of each protocol (``traffic``); on the merge (keyed by ``"<name>, merge"``)
+    where a ``merge`` MA2C trial has finished.
 
     The IQM's confidence interval resamples the 30 episodes (a fixed policy: its only randomness
     is the episodes'), where the learners' resamples seeds."""
     from sb3_marl.benchmark.trial import FINAL_EVAL_EPISODES
-    from sb3_marl.evaluation import protocol_records, summarize
+    from sb3_marl.evaluation import SUPERVISOR_PROTOCOLS, protocol_records, summarize
     from sb3_marl.evaluation.baselines import BASELINES
+    from sb3_marl.evaluation.traffic import TripRecorder
     from sb3_marl.runs.folders import find_run
 
     summaries = {}
@@ -182,10 +184,13 @@ def reference_summaries(trials: list[TrialLog], log_folder: str | Path, seed: in
         spec = finished[0].spec
         config = find_run(Path(log_folder) / "trials" / spec.trial_id, spec.algo, spec.env_id).env_config
         for name, policy_class in BASELINES.items():
-            protocols = protocol_records(policy_class(), spec.env_id, FINAL_EVAL_EPISODES, seed, config)
+            recorders = {protocol: TripRecorder() for protocol in SUPERVISOR_PROTOCOLS}
+            protocols = protocol_records(
+                policy_class(), spec.env_id, FINAL_EVAL_EPISODES, seed, config, on_step=dict(recorders)
+            )
             records = protocols["on"]
-            summary = summarize(records)
-            alone = summarize(protocols["off"])
+            summary = {**summarize(records), "traffic": recorders["on"].metrics()}
+            alone = {**summarize(protocols["off"]), "traffic": recorders["off"].metrics()}
             alone["return_std"] = 0.0  # a std over seeds: one fixed policy, like the learners' cells
             iqm, low, high = iqm_with_ci(np.array([[r.episode_return] for r in records]))
             bounds = {"iqm": iqm, "iqm_low": low, "iqm_high": high}

@@ -151,6 +151,15 @@ def test_report_writes_the_table_and_the_figures(tiny_benchmark, tmp_path, capsy
     for name in ("learning_curves_reward", "learning_curves_baselines", "final_returns"):
         png = tmp_path / f"{name}.png"
         assert png.stat().st_size > 10_000 and png.read_bytes()[:4] == b"\x89PNG"
+    # the traffic view: the all-human reference, the hand-written policies and each curve, both protocols
+    traffic = (tmp_path / "traffic.md").read_text()
+    flow = trials["default"].result["paper_evaluation"]["traffic"]["flow_veh_h"]
+    assert f"| lane-change | 1 | ma2c (default) | 1 | on | {flow:.0f} |" in traffic
+    for policy in ("all human (no AV) | - | -", "idm-mobil | - | on", "idm-mobil | - | off", "ma2c (global-reward) | 1 | off"):
+        assert f"| lane-change | 1 | {policy} | " in traffic
+    for name in ("traffic", "time_space_lane-change"):
+        assert (tmp_path / f"{name}.png").stat().st_size > 10_000
+    assert not (tmp_path / "time_space_merge.png").exists()  # no merge trial
     assert not (tmp_path / "comfort.png").exists()  # no comfort-off trial in this grid
     assert not (tmp_path / "cooperative_lane_change.json").exists()  # experiment 6 needs density 2 or 3
     assert not (tmp_path / "learning_curves_withdrawn.png").exists()  # no such experiment any more
