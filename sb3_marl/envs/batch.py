@@ -41,6 +41,7 @@ def step_parameters(env: LaneChangeEnv) -> StepParameters:
         bool(c["supervisor_rear_avs"]),
         env.supervisor.emergency_brake,
         env.supervisor.joint_search,
+        env.supervisor.brake_keeps_lane,
         bool(c["supervisor_mobil_safety"]),
         float(c["hdv_politeness"]),
         float(c["hdv_b_safe"]),

@@ -41,6 +41,7 @@ class StepParameters(NamedTuple):
     rear_avs: bool
     emergency_brake: bool
     joint_search: bool
+    brake_keeps_lane: bool
     mobil_safety: bool
     politeness: float  # the rule driver's MOBIL parameters
     b_safe: float  # [m/s²]
@@ -253,6 +254,7 @@ def _supervise(state: np.ndarray, n: int, proposed: np.ndarray, p: StepParameter
         p.emergency_brake,
         p.joint_search,
         p.mobil_safety,
+        p.brake_keeps_lane,
     )
     return executed, brake
 

@@ -70,6 +70,8 @@ import numpy as np
 from sb3_marl.safety.joint_search import keep_lanes_together, search_pairs
 from sb3_marl.safety.rooms import (
     IDLE,
+    LANE_LEFT,
+    LANE_RIGHT,
     PREFERENCE,
     SLOWER,
     Horizon,
@@ -86,19 +88,25 @@ from sb3_marl.sim.kernel import (
     COLLIDABLE,
     IS_OBSTACLE,
     SPEED,
+    TARGET_LANE,
     TARGET_SPEED,
 )
 from sb3_marl.sim.meta_actions import meta_action_targets
 
-#: The supervisor's versions -> (emergency brake, joint search) they turn on: what the config's
-#: ``supervisor_version`` selects where ``supervisor_emergency_brake`` / ``supervisor_joint_search``
-#: are null. Evaluations record the version, and ``sb3-marl benchmark evaluate`` re-evaluates
-#: trials evaluated under another (history in CHANGELOG.md; 3: the road's own equations in the
-#: prediction; 4: the emergency brake with its release, :meth:`Supervisor.choices`, and the joint
-#: search, the merge's since 2026-12-02, the lane change's since 2026-12-04).
-SUPERVISOR_VERSIONS: dict[int, tuple[bool, bool]] = {3: (False, False), 4: (True, True)}
+#: The supervisor's versions -> (emergency brake, joint search, a braked AV keeps its lane) they
+#: turn on: what the config's ``supervisor_version`` selects where ``supervisor_emergency_brake`` /
+#: ``supervisor_joint_search`` are null. Evaluations record the version, and ``sb3-marl benchmark
+#: evaluate`` re-evaluates trials evaluated under another (history in CHANGELOG.md; 3: the road's own
+#: equations in the prediction; 4: the emergency brake with its release, :meth:`Supervisor.choices`,
+#: and the joint search, the merge's since 2026-12-02; 5: an AV braked below the speed ladder starts
+#: no lane change, which at a few m/s would leave it standing across two lanes).
+SUPERVISOR_VERSIONS: dict[int, tuple[bool, bool, bool]] = {
+    3: (False, False, False),
+    4: (True, True, False),
+    5: (True, True, True),
+}
 #: The versions the merge accepts (its version 3 released the emergency brake otherwise).
-MERGE_SUPERVISOR_VERSIONS = (4,)
+MERGE_SUPERVISOR_VERSIONS = (4, 5)
 NO_LEADER_GAP = 1e6  # [m], headway of an AV without leader (priority only)
 #: Passes over the AVs in priority order (the second checks against the first pass's final actions).
 PASSES = 2
@@ -119,6 +127,7 @@ def supervise_arrays(
     emergency_brake: bool = False,
     joint_search: bool = False,
     mobil_safety: bool = False,
+    brake_keeps_lane: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The supervisor on the road's state array (the kernel's layout, AVs first). Returns the
     executed actions, each AV's room [m] under them (NaN for AVs not served: past the road end) and
@@ -138,6 +147,8 @@ def supervise_arrays(
         pairs with the other AVs' (:func:`~sb3_marl.safety.joint_search.search_pairs`)
     :param mobil_safety: an action of :func:`unsafe_cut_ins` counts as short of room (below
         ``min_gap``), and the joint search leaves such actions out
+    :param brake_keeps_lane: an AV braked below the speed ladder (target speed 0 m/s) starts no
+        lane change: its lane changes count as short of room, as unsafe cut-ins do
     """
     n_avs = proposed.size
     executed = proposed.copy()
@@ -153,7 +164,12 @@ def supervise_arrays(
     unsafe = np.zeros(candidate_lane.shape, dtype=np.bool_)
     if mobil_safety:
         unsafe = unsafe_cut_ins(state0, n_avs, horizon.lanes, candidate_lane, horizon.speed_limit)
-    short = min_gap - 1e-6  # [m] the room an unsafe cut-in counts at most
+    if brake_keeps_lane:
+        for i in range(n_avs):
+            if state0[i, TARGET_SPEED] < horizon.ladder[0]:
+                for a in (LANE_LEFT, LANE_RIGHT):
+                    unsafe[i, a] |= candidate_lane[i, a] != state0[i, TARGET_LANE]
+    short = min_gap - 1e-6  # [m] the room an unsafe cut-in (or a braked AV's lane change) counts at most
     # the road predicted under the AVs' current actions, shared by every AV's room until one changes
     path = predict(state, horizon, speed_step, -1, collidable, -np.inf)[0]
     obstacles = np.flatnonzero(state0[:, IS_OBSTACLE] > 0)
@@ -269,12 +285,13 @@ def headway_margins(state: np.ndarray, n_avs: int, lanes: np.ndarray, headway_ti
     return margin
 
 
-def supervisor_switches(config: dict[str, Any]) -> tuple[bool, bool]:
-    """(emergency brake, joint search) of a full scenario config: each switch as set, or as its
-    ``supervisor_version`` says where it is null."""
-    brake, joint = SUPERVISOR_VERSIONS[config["supervisor_version"]]
+def supervisor_switches(config: dict[str, Any]) -> tuple[bool, bool, bool]:
+    """(emergency brake, joint search, a braked AV keeps its lane) of a full scenario config: the
+    first two as set, or as its ``supervisor_version`` says where they are null; the third as the
+    version says."""
+    brake, joint, keep_lane = SUPERVISOR_VERSIONS[config["supervisor_version"]]
     set_brake, set_joint = config["supervisor_emergency_brake"], config["supervisor_joint_search"]
-    return (brake if set_brake is None else bool(set_brake), joint if set_joint is None else bool(set_joint))
+    return (brake if set_brake is None else bool(set_brake), joint if set_joint is None else bool(set_joint), keep_lane)
 
 
 @dataclass(frozen=True)
@@ -289,6 +306,7 @@ class Supervisor:
     :param rear_avs: protect each AV from the AVs behind it too (``supervisor_rear_avs``)
     :param emergency_brake: brake to a stop when no meta-action leaves room (``supervisor_emergency_brake``)
     :param joint_search: search the actions of AVs left short of room in pairs (``supervisor_joint_search``)
+    :param brake_keeps_lane: an AV braked to a stop starts no lane change (``supervisor_version`` 5)
     :param mobil_safety: hold the AVs' lane changes to MOBIL's safety check (``supervisor_mobil_safety``)
     :param priorities: (state, n_avs, supervisor) -> (n_avs,) the order of service, the smallest
         first; by default the headway margin (:func:`headway_margins`)
@@ -301,6 +319,7 @@ class Supervisor:
     rear_avs: bool
     emergency_brake: bool = False
     joint_search: bool = False
+    brake_keeps_lane: bool = False
     mobil_safety: bool = False
     priorities: Callable[[np.ndarray, int, Supervisor], np.ndarray] | None = None
 
@@ -365,4 +384,5 @@ class Supervisor:
             self.emergency_brake,
             self.joint_search,
             self.mobil_safety,
+            self.brake_keeps_lane,
         )

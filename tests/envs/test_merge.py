@@ -203,7 +203,7 @@ def test_the_emergency_brake_stops_an_av_for_a_stalled_vehicle(simulator):
         outcome[brake] = (crashed, braked[0], float(env.state[0, kernel.TARGET_SPEED]))
     assert outcome[False][:2] == (True, False)
     assert outcome[True][:2] == (False, True) and info["intervened"][0] == braked[-1]
-    assert supervisor_switches(make(1).config) == (True, True)
+    assert supervisor_switches(make(1).config) == (True, True, False)
 
 
 def random_episode_crashes(seed: int, n_avs: int, **config) -> bool:
@@ -271,7 +271,7 @@ def test_the_supervisor_releases_an_av_it_braked_when_braking_on_would_be_run_in
         released.append(not masks[-1][executed == 4, 4].all())
 
     env = make(3, n_avs=5, safety_supervisor=True)
-    assert supervisor_switches(env.config) == (True, True)
+    assert supervisor_switches(env.config) == (True, True, False)
     episode = run_episodes(env, policy, 1, seed, on_step)[0]
     assert not episode.crashed and episode.length == 100 and any(released)
 

@@ -231,3 +231,34 @@ def test_version_4_holds_a_six_av_platoon_that_version_3_lets_crash():
         env = make(3, n_avs=6, safety_supervisor=True, supervisor_version=version)
         crashed[version] = run_episodes(env, CruisePolicy(), 1, 300376)[0].crashed
     assert crashed == {3: True, 4: False}
+
+
+def test_version_5_keeps_a_braked_av_in_its_lane():
+    """Density 3, six AVs, each AV's action drawn among its available ones (seeded by the episode,
+    as ``benchmarks/supervisor_safety.py`` does), episode seed 300209 (results/supervisor-v4/):
+    under v4 the emergency brake slows AV 2 to 2 m/s, the policy then turns it towards lane 1, it
+    stops across both lanes and an HDV passing on lane 1 strikes it at step 67; v5 refuses a braked
+    AV's lane change, and the episode ends without a crash."""
+    from sb3_marl.evaluation import run_episodes
+
+    class MaskedRandom:
+        def __init__(self, seed: int) -> None:
+            self.rng = np.random.default_rng(seed)
+
+        def __call__(self, env, obs):
+            return np.array([self.rng.choice(np.flatnonzero(mask)) for mask in env.action_masks()])
+
+    crashed, lane_changes_when_braked = {}, {4: 0, 5: 0}
+    for version in (4, 5):
+        env = make(3, n_avs=6, safety_supervisor=True, supervisor_version=version)
+        braked = {}
+
+        def watch(env, info, version=version, braked=braked):
+            executed = info["executed_action"]
+            if info["step"] > 0:
+                lane_changes_when_braked[version] += sum(braked.get(i, False) and executed[i] in (0, 2) for i in range(6))
+            braked.update(enumerate(env.state[:6, TARGET_SPEED] < env.config["target_speeds"][0]))
+
+        crashed[version] = run_episodes(env, MaskedRandom(300209), 1, 300209, on_step=watch)[0].crashed
+    assert crashed == {4: True, 5: False}
+    assert lane_changes_when_braked[4] > 0 and lane_changes_when_braked[5] == 0
