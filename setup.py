@@ -61,8 +61,12 @@ setup(
         # seaborn and scipy: rl_zoo3's own plotting scripts, run by the tests on our logs;
         # ruff and mypy: lint and types, run by `make test`
         # build: the packaging test builds the sdist; docs: the strict docs build
+        # moto (S3), flask, flask-cors: the S3 server of the two-node grid test (tests/benchmark/test_cluster.py)
         "dev": [
             "pytest>=8",
+            "moto[s3]>=5,<6",
+            "flask",
+            "flask-cors",
             "hypothesis>=6.100",
             "seaborn",
             "scipy",

@@ -7,7 +7,9 @@ Layout of the log folder (default ``logs/benchmark``)::
     ray/<grid>-<time>/        Ray Tune's experiment state and checkpoints
 
 Finished trials (with ``result.json``) are skipped; unfinished ones continue from their checkpoint.
-On a multi-node cluster the log folder must be on a file system every node sees.
+On a multi-node cluster either the log folder is on a file system every node sees, or the grid
+lives in a storage URI (``storage``: :mod:`~sb3_marl.benchmark.storage`) and the log folder is the
+launcher's local copy.
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ from sb3_marl.benchmark.grid import (
     check_budget,
     make_grid,
 )
+from sb3_marl.benchmark.storage import GridStorage
 from sb3_marl.benchmark.trial import CHECKPOINT, RESULT, checked_result, checkpoint_timesteps, run_trial, trial_folder
 from sb3_marl.common.checks import check_integer, check_number
 from sb3_marl.common.files import read_json_object, write_text
@@ -57,12 +60,13 @@ class BenchmarkRun:
     wall_time_s: float = 0.0
 
 
-def check_settings(log_folder: Path, settings: dict[str, Any]) -> None:
-    """A log folder holds one budget and evaluation schedule: a ValueError if ``settings`` differ
-    from those it was started with (results at different budgets do not aggregate)."""
+def check_settings(log_folder: Path, settings: dict[str, Any], storage: GridStorage | None = None) -> None:
+    """A log folder (or a grid's ``storage``) holds one budget and evaluation schedule: a ValueError
+    if ``settings`` differ from those it was started with (results at different budgets do not aggregate)."""
     path = log_folder / SETTINGS_FILE
-    if path.is_file():
-        recorded = read_json_object(path)
+    text = storage.read_text(SETTINGS_FILE) if storage is not None else None
+    if text is not None or (storage is None and path.is_file()):
+        recorded = _settings_object(text, storage) if text is not None else read_json_object(path)
         changed = {key: (recorded.get(key), value) for key, value in settings.items() if recorded.get(key) != value}
         if changed:
             details = ", ".join(f"{key}={new!r} (it has {old!r})" for key, (old, new) in changed.items())
@@ -70,6 +74,16 @@ def check_settings(log_folder: Path, settings: dict[str, Any]) -> None:
                 f"{log_folder} holds a benchmark with other settings: {details}; "
                 "use another --log-folder or the same settings."
             )
+
+
+def _settings_object(text: str, storage: GridStorage | None) -> dict[str, Any]:
+    try:
+        data = json.loads(text)
+    except ValueError as error:
+        data = error
+    if not isinstance(data, dict):
+        raise ValueError(f"{getattr(storage, 'uri', '')}/{SETTINGS_FILE} is not a JSON object ({str(data)[:80]}).")
+    return data
 
 
 def run_benchmark(
@@ -85,6 +99,7 @@ def run_benchmark(
     max_failures: int = 2,
     verbose: int = 1,
     wait: bool = False,
+    storage: str | None = None,
 ) -> BenchmarkRun:
     """Run the unfinished trials of ``grid`` as Ray Tune trials (one CPU each).
 
@@ -98,6 +113,8 @@ def run_benchmark(
     :param max_concurrent: at most this many trials at once (default: as many as free CPUs)
     :param max_failures: Ray restarts a failed trial from its checkpoint this many times
     :param wait: wait for another launcher running ``log_folder`` to end (default: refuse, naming it)
+    :param storage: the grid's storage URI (``s3://...``, ``file://...``): the trials work in
+        node-local folders and keep the grid there; ``log_folder`` is then only the launcher's (its lock)
     :raises ValueError: on a bad argument, before Ray starts; when another launcher runs ``log_folder``
     """
     trials = make_grid(grid, tuple(densities), seeds)
@@ -107,23 +124,25 @@ def run_benchmark(
     if max_concurrent is not None:
         check_integer("max_concurrent", max_concurrent, 1)
     log_folder = Path(log_folder).resolve()
+    place = GridStorage(storage) if storage else None
     settings = {"budget": float(budget), "eval_every_episodes": eval_every_episodes, "eval_episodes": eval_episodes}
-    check_settings(log_folder, settings)
+    check_settings(log_folder, settings, place)
 
     outcome = BenchmarkRun()
-    todo = [spec for spec in trials if not _finished(log_folder, spec)]
+    todo = [spec for spec in trials if not _finished(log_folder, spec, place)]
     outcome.skipped = [spec.trial_id for spec in trials if spec not in todo]
     if verbose:
         print(
             f"Benchmark grid {grid!r}: {len(trials)} trials, {len(outcome.skipped)} finished before, {len(todo)} to run "
             f"(budget {budget:g} x 1M env steps, evaluation: {eval_episodes} episodes every {eval_every_episodes:g} "
-            f"training episodes) in {log_folder}"
+            f"training episodes) in {storage or log_folder}"
         )
     if not todo:
         return outcome
     ray = _import_ray()
     with grid_lock(log_folder, wait):
-        return _run_waves(ray, grid, todo, outcome, log_folder, settings, address, max_concurrent, max_failures, verbose)
+        launch = Launch(grid, log_folder, settings, address, max_concurrent, max_failures, verbose, place)
+        return _run_waves(ray, launch, todo, outcome)
 
 
 @contextmanager
@@ -152,41 +171,48 @@ def grid_lock(log_folder: Path, wait: bool = False) -> Iterator[None]:
         lock.release()
 
 
-def _run_waves(
-    ray: Any,
-    grid: str,
-    todo: list[TrialSpec],
-    outcome: BenchmarkRun,
-    log_folder: Path,
-    settings: dict[str, Any],
-    address: str | None,
-    max_concurrent: int | None,
-    max_failures: int,
-    verbose: int,
-) -> BenchmarkRun:
+@dataclass
+class Launch:
+    """What :func:`run_benchmark` hands to Ray: the grid, where it lives and how trials run."""
+
+    grid: str
+    log_folder: Path
+    settings: dict[str, Any]
+    address: str | None
+    max_concurrent: int | None
+    max_failures: int
+    verbose: int
+    storage: GridStorage | None
+
+
+def _run_waves(ray: Any, launch: Launch, todo: list[TrialSpec], outcome: BenchmarkRun) -> BenchmarkRun:
     """Run ``todo`` on Ray (the launcher holding the folder's lock) and fill ``outcome``."""
-    todo = [spec for spec in todo if not _finished(log_folder, spec)]  # another launcher may have run some
-    write_text(log_folder / SETTINGS_FILE, json.dumps(settings, indent=2) + "\n")
-    started_ray = _start_ray(ray, address, verbose)
+    log_folder, place, settings = launch.log_folder, launch.storage, launch.settings
+    todo = [spec for spec in todo if not _finished(log_folder, spec, place)]  # another launcher may have run some
+    if place is not None:
+        place.write_text(SETTINGS_FILE, json.dumps(settings, indent=2) + "\n")
+    else:
+        write_text(log_folder / SETTINGS_FILE, json.dumps(settings, indent=2) + "\n")
+    started_ray = _start_ray(ray, launch.address, launch.verbose)
     start = time.perf_counter()
     errors: dict[str, Any] = {}
     try:
         # a curriculum trial starts from another trial's final model: the trials run in waves, each
         # of those whose start has finished; a wave left unfinished (Ctrl-C) ends the run
         for wave in itertools.count():
-            ready = [spec for spec in todo if spec.trial_id not in errors and _ready(log_folder, spec)]
+            ready = [spec for spec in todo if spec.trial_id not in errors and _ready(log_folder, spec, place)]
             if not ready:
                 break
-            results = _tuner(grid, wave, ready, log_folder, settings, max_concurrent, max_failures, verbose).fit()
+            results = _tuner(launch, wave, ready).fit()
             errors.update({TrialSpec(**r.config["spec"]).trial_id: r.error for r in results if r.error is not None})
-            if any(not _finished(log_folder, spec) and spec.trial_id not in errors for spec in ready):
+            if any(not _finished(log_folder, spec, place) and spec.trial_id not in errors for spec in ready):
                 break
     finally:
         if started_ray:
             ray.shutdown()
     outcome.wall_time_s = time.perf_counter() - start
     for spec in todo:
-        if _finished(log_folder, spec):
+        if _finished(log_folder, spec, place):
             outcome.completed.append(spec.trial_id)
         elif spec.trial_id in errors:
             outcome.failed[spec.trial_id] = failure_reason(errors[spec.trial_id])
@@ -206,14 +232,17 @@ def failure_reason(error: BaseException) -> str:
     return re.sub(r"\x1b\[[0-9;]*m", "", f"{type(cause).__name__}: {text}")
 
 
-def _finished(log_folder: Path, spec: TrialSpec) -> bool:
-    """Whether the trial ``spec`` has finished in ``log_folder`` (its ``result.json``)."""
+def _finished(log_folder: Path, spec: TrialSpec, storage: GridStorage | None = None) -> bool:
+    """Whether the trial ``spec`` has finished in ``log_folder`` or ``storage`` (its ``result.json``)."""
+    if storage is not None:
+        return storage.exists(f"trials/{spec.trial_id}/{RESULT}")
     return (trial_folder(log_folder, spec) / RESULT).is_file()
 
 
-def _ready(log_folder: Path, spec: TrialSpec) -> bool:
+def _ready(log_folder: Path, spec: TrialSpec, storage: GridStorage | None = None) -> bool:
     """Whether ``spec`` is to run now: unfinished, and it starts from no trial or from a finished one."""
-    return not _finished(log_folder, spec) and (spec.starts_from is None or _finished(log_folder, spec.starts_from))
+    start = spec.starts_from
+    return not _finished(log_folder, spec, storage) and (start is None or _finished(log_folder, start, storage))
 
 
 def _import_ray() -> Any:
@@ -247,32 +276,25 @@ def _start_ray(ray: Any, address: str | None, verbose: int) -> bool:
     return started
 
 
-def _tuner(
-    grid: str,
-    wave: int,
-    todo: list[TrialSpec],
-    log_folder: Path,
-    settings: dict[str, Any],
-    max_concurrent: int | None,
-    max_failures: int,
-    verbose: int,
-) -> Any:
+def _tuner(launch: Launch, wave: int, todo: list[TrialSpec]) -> Any:
     """Ray Tune's Tuner of the trials ``todo`` (``wave`` > 0: trials that start from the models of
-    an earlier wave): one CPU each, Ray's state under ``<log_folder>/ray``."""
+    an earlier wave): one CPU each, Ray's state under ``<log_folder>/ray`` (or the storage's ``ray/``)."""
     from ray import tune
 
+    place = launch.storage
+    space = {"log_folder": str(launch.log_folder), "storage": place.uri if place else None, **launch.settings}
     return tune.Tuner(
         tune.with_resources(run_trial, {"cpu": 1}),
-        param_space={"spec": tune.grid_search([spec.to_dict() for spec in todo]), "log_folder": str(log_folder), **settings},
+        param_space={"spec": tune.grid_search([spec.to_dict() for spec in todo]), **space},
         tune_config=tune.TuneConfig(
-            max_concurrent_trials=max_concurrent, trial_name_creator=_trial_id, trial_dirname_creator=_trial_id
+            max_concurrent_trials=launch.max_concurrent, trial_name_creator=_trial_id, trial_dirname_creator=_trial_id
         ),
         run_config=tune.RunConfig(
-            name=f"{grid}-{time.strftime('%Y%m%d-%H%M%S')}" + (f"-{wave + 1}" if wave else ""),
-            storage_path=str(log_folder / "ray"),
-            failure_config=tune.FailureConfig(max_failures=max_failures),
+            name=f"{launch.grid}-{time.strftime('%Y%m%d-%H%M%S')}" + (f"-{wave + 1}" if wave else ""),
+            storage_path=place.ray_path if place else str(launch.log_folder / "ray"),
+            failure_config=tune.FailureConfig(max_failures=launch.max_failures),
             checkpoint_config=tune.CheckpointConfig(num_to_keep=1),
-            verbose=min(verbose, 1),
+            verbose=min(launch.verbose, 1),
         ),
     )
 

@@ -24,6 +24,7 @@ import os
 import platform
 import shutil
 import socket
+import tempfile
 import time
 from numbers import Real
 from pathlib import Path
@@ -32,6 +33,7 @@ from typing import Any
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_marl.benchmark.grid import TrialSpec
+from sb3_marl.benchmark.storage import GridStorage
 from sb3_marl.common.checks import is_integer
 from sb3_marl.common.files import REPLAY_BUFFER_FILE, read_json_object, write_replay_buffer, write_text
 
@@ -104,19 +106,22 @@ class CheckpointAndReport(BaseCallback):
     ``checkpoint/`` with the model and the evaluations so far, then report the evaluation to Ray
     Tune with that checkpoint."""
 
-    def __init__(self, folder: Path, spec: TrialSpec) -> None:
+    def __init__(self, folder: Path, spec: TrialSpec, storage: GridStorage | None = None) -> None:
         super().__init__()
-        self.folder, self.spec = folder, spec
+        self.folder, self.spec, self.storage = folder, spec, storage
 
     def _on_step(self) -> bool:
         from ray import tune
 
         evaluation: Any = self.parent  # the ScenarioEvalCallback that calls this one after each evaluation
         checkpoint = write_checkpoint(self.model, self.folder, evaluation.log_path / "evaluations.npz")
-        tune.report(
-            trial_metrics(self.spec, self.model.num_timesteps, evaluation.last_summary),
-            checkpoint=tune.Checkpoint.from_directory(str(checkpoint)),
-        )
+        metrics = trial_metrics(self.spec, self.model.num_timesteps, evaluation.last_summary)
+        if self.storage is not None:  # the checkpoint, then the trial folder, to the grid's storage
+            self.storage.upload_checkpoint(checkpoint, self.spec.trial_id, int(self.model.num_timesteps))
+            self.storage.upload_trial(self.folder)
+            tune.report(metrics)
+        else:
+            tune.report(metrics, checkpoint=tune.Checkpoint.from_directory(str(checkpoint)))
         return True
 
 
@@ -155,9 +160,10 @@ def run_trial(config: dict[str, Any]) -> None:
     (:attr:`TrialSpec.starts_from`) starts from the final weights of the trial before it.
 
     ``config``: ``spec`` (a :class:`TrialSpec` as a dict), ``log_folder`` (absolute), ``budget``
-    (fraction of 1M env steps), ``eval_every_episodes``, ``eval_episodes``.
-    Resumes from Ray's checkpoint when Ray restarts the trial, else from ``checkpoint/`` of an
-    earlier run of the benchmark.
+    (fraction of 1M env steps), ``eval_every_episodes``, ``eval_episodes``, and ``storage`` (a URI
+    or None). Resumes from Ray's checkpoint when Ray restarts the trial, else from ``checkpoint/``
+    of an earlier run of the benchmark. With ``storage``, the trial works in a node-local folder
+    that it fills from the storage and uploads to it (:mod:`~sb3_marl.benchmark.storage`).
     """
     import torch
     from ray import tune
@@ -168,9 +174,14 @@ def run_trial(config: dict[str, Any]) -> None:
 
     torch.set_num_threads(1)  # one core per trial: Ray schedules trials by CPU
     spec = TrialSpec(**config["spec"])
-    folder = trial_folder(config["log_folder"], spec)
-    folder.mkdir(parents=True, exist_ok=True)
+    storage = GridStorage(config["storage"]) if config.get("storage") else None
+    log_folder = Path(tempfile.mkdtemp(prefix=f"sb3-marl-{spec.trial_id}-")) if storage else Path(config["log_folder"])
+    folder = trial_folder(log_folder, spec)
     checkpoint = folder / CHECKPOINT
+    if storage is not None:  # this node's copy of the trial (and of the model it starts from)
+        storage.download_trials(log_folder, [spec.trial_id, *([spec.starts_from.trial_id] if spec.starts_from else [])])
+        storage.download_checkpoint(spec.trial_id, checkpoint)
+    folder.mkdir(parents=True, exist_ok=True)
     resumed_at = _restore_checkpoint(folder, tune.get_checkpoint())
     info = _record_attempt(folder, spec, config, resumed_at)
     run = RunSpec(
@@ -190,10 +201,10 @@ def run_trial(config: dict[str, Any]) -> None:
         monitor_file="monitor.csv" if not resumed_at else f"resumed_at_{resumed_at}.monitor.csv",
         evaluate_at_end=True,
     )
-    manager = MARLExperimentManager(run, callback_after_eval=CheckpointAndReport(folder, spec))
+    manager = MARLExperimentManager(run, callback_after_eval=CheckpointAndReport(folder, spec, storage))
     model, _ = manager.setup_experiment()  # type: ignore[misc]
     if spec.starts_from is not None and not resumed_at:  # a curriculum: the easier density's final weights
-        model.set_parameters(str(start_model(config["log_folder"], spec.starts_from)), device="cpu")
+        model.set_parameters(str(start_model(log_folder, spec.starts_from)), device="cpu")
     evaluation = next(c for c in manager.callbacks if isinstance(c, ScenarioEvalCallback))
     if resumed_at:
         evaluation.load_history(checkpoint / "evaluations.npz", resumed_at)
@@ -214,6 +225,9 @@ def run_trial(config: dict[str, Any]) -> None:
         "machine": f"{platform.node()} ({os.cpu_count()} cores)",
     }
     write_json(folder / RESULT, result)
+    if storage is not None:
+        storage.upload_trial(folder, last=RESULT)
+        shutil.rmtree(log_folder, ignore_errors=True)
 
 
 def start_model(log_folder: str | Path, start: TrialSpec) -> Path:
@@ -242,7 +256,7 @@ def _restore_checkpoint(folder: Path, ray_checkpoint: Any) -> int:
 
 
 def _record_attempt(folder: Path, spec: TrialSpec, config: dict[str, Any], resumed_at: int) -> dict[str, Any]:
-    """``trial.json`` with this attempt (time, host, process, AV-steps it resumes at) added; returned."""
+    """``trial.json`` with this attempt (time, host, Ray node, process, AV-steps it resumes at) added; returned."""
     info = (
         read_json_object(folder / TRIAL)
         if (folder / TRIAL).is_file()
@@ -255,7 +269,11 @@ def _record_attempt(folder: Path, spec: TrialSpec, config: dict[str, Any], resum
             "attempts": [],
         }
     )
+    import ray
+
     attempt = {"started": time.strftime("%Y-%m-%dT%H:%M:%S"), "host": socket.gethostname(), "pid": os.getpid()}
+    if ray.is_initialized():  # the Ray node (several may share a host)
+        attempt["node"] = ray.get_runtime_context().get_node_id()
     info["attempts"].append({**attempt, "resumed_at_timesteps": resumed_at})
     write_json(folder / TRIAL, info)
     return info

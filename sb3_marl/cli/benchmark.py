@@ -7,7 +7,7 @@ import re
 import signal
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sb3_marl.benchmark.grid import GRIDS, PAPER_EVAL_EPISODES, PAPER_EVAL_EVERY_EPISODES, PAPER_SEEDS
 from sb3_marl.cli.common import (
@@ -21,6 +21,9 @@ from sb3_marl.cli.common import (
     set_num_threads,
 )
 from sb3_marl.envs import DENSITIES
+
+if TYPE_CHECKING:
+    from sb3_marl.benchmark.storage import GridStorage
 
 
 def add_parsers(commands: Any) -> None:
@@ -70,6 +73,13 @@ def add_parsers(commands: Any) -> None:
     )
     benchmark.add_argument("--address", default=None, help="attach to this Ray cluster (default: a local Ray)")
     benchmark.add_argument(
+        "--storage",
+        default=None,
+        metavar="URI",
+        help="keep the grid in this storage (s3://bucket/grid, gs://..., file:///...; credentials from the environment), "
+        "for a cluster without a shared disk; -f is then the local copy that status, report and evaluate download into",
+    )
+    benchmark.add_argument(
         "--max-concurrent", type=positive(maximum=MAX_COPIES), default=None, help="trials at once (default: one per free CPU)"
     )
     benchmark.add_argument(
@@ -106,6 +116,10 @@ def benchmark_command(args: argparse.Namespace) -> int:
             "`report` and `evaluate` read a grid folder."
         )
     args.action, args.grid = args.action or "run", args.grid or "paper"
+    storage = _storage(args.storage) if args.storage else None
+    if storage is not None and args.action != "run":  # the grid's trial folders, into the local copy
+        downloaded = storage.download_trials(Path(args.log_folder))
+        print(f"downloaded {len(downloaded)} trial folders from {storage.uri} into {args.log_folder}")
     if args.seeds is None:
         args.seeds = max(PAPER_SEEDS, _seeds_in(args.log_folder)) if args.action == "status" else PAPER_SEEDS
     if args.action == "report":
@@ -123,7 +137,7 @@ def benchmark_command(args: argparse.Namespace) -> int:
         return _benchmark_status(args)
 
     if args.action == "evaluate":
-        return _benchmark_evaluate(args)
+        return _benchmark_evaluate(args, storage)
 
     from sb3_marl.benchmark.runner import run_benchmark
 
@@ -141,6 +155,7 @@ def benchmark_command(args: argparse.Namespace) -> int:
             args.max_failures,
             args.verbose,
             args.wait,
+            args.storage,
         )
     except ValueError as error:
         raise UsageError(str(error)) from None
@@ -152,7 +167,7 @@ def benchmark_command(args: argparse.Namespace) -> int:
     )
     for trial_id, message in outcome.failed.items():
         print(f"  failed: {trial_id}: {message.splitlines()[0]}")
-    print(f"report: sb3-marl benchmark report -f {args.log_folder}")
+    print(f"report: sb3-marl benchmark report -f {args.log_folder}" + (f" --storage {args.storage}" if storage else ""))
     if outcome.failed:
         raise CommandFailed(
             f"{len(outcome.failed)} trial(s) failed after {args.max_failures} restarts: "
@@ -164,9 +179,19 @@ def benchmark_command(args: argparse.Namespace) -> int:
     return 0
 
 
-def _benchmark_evaluate(args: argparse.Namespace) -> int:
+def _storage(uri: str) -> GridStorage:
+    from sb3_marl.benchmark.storage import GridStorage
+
+    try:
+        return GridStorage(uri)
+    except ValueError as error:
+        raise UsageError(str(error)) from None
+
+
+def _benchmark_evaluate(args: argparse.Namespace, storage: GridStorage | None = None) -> int:
     """Re-evaluate every finished trial under ``-f`` that lacks the policy-alone protocol or was
-    evaluated under another version of the safety supervisor (progress bar)."""
+    evaluated under another version of the safety supervisor (progress bar); with ``storage``,
+    upload the re-evaluated trials' folders there."""
     from tqdm import tqdm
 
     from sb3_marl.benchmark.trial import RESULT, reevaluate_trial
@@ -178,9 +203,12 @@ def _benchmark_evaluate(args: argparse.Namespace) -> int:
     set_num_threads(1)
     try:
         trials = [inside(path.parent, args.log_folder) for path in results]  # no link out of the grid
-        done = [folder.name for folder in tqdm(trials, desc="trials", unit="trial") if reevaluate_trial(folder)]
+        done = [folder for folder in tqdm(trials, desc="trials", unit="trial") if reevaluate_trial(folder)]
     except (ValueError, KeyError, TypeError) as error:  # an unreadable or edited result.json, named
         raise UsageError(f"-f/--log-folder: {error}") from None
+    if storage is not None:
+        for folder in done:
+            storage.upload_trial(folder, last=RESULT)
     print(
         f"re-evaluated {len(done)} of {len(results)} finished trials under both supervisor protocols (the current supervisor)"
     )

@@ -35,7 +35,9 @@ CASES: dict[str, tuple[str, int, dict]] = {
     "ma2c-d1-prior": ("ma2c", 1, {"prior": "idm-mobil", "prior_warm_start": 500, "prior_decay_steps": 2_000}),
     "madqn-d1-teacher-prior": ("madqn", 1, {"safety_loss_coef": 0.5, "prior": "idm-mobil", "prior_decay_steps": 2_000}),
 }
-RTOL, ATOL = 1e-4, 1e-6
+#: Float tolerance: the same code on another CPU's vector units (AVX2 against AVX-512) ends 3,000
+#: AV-steps up to ~2e-4 apart relative; a change in what is learned moves them by far more.
+RTOL, ATOL = 1e-3, 1e-5
 
 
 def fingerprint(case: str) -> dict[str, list[float]]:
