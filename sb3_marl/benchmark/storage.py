@@ -20,6 +20,7 @@ the trial folder; at the end the trial folder, ``result.json`` last. ``status``,
 from __future__ import annotations
 
 import shutil
+import time
 from pathlib import Path, PurePosixPath
 from typing import Any
 
@@ -50,6 +51,7 @@ class GridStorage:
         except (OSError, ValueError) as error:
             raise ValueError(f"--storage {uri!r}: no file system for this URI ({error}).") from None
         self.root = PurePosixPath(root)
+        self.sync_s, self.bytes = 0.0, 0  # [s] spent in and bytes moved by uploads and downloads
 
     @property
     def ray_path(self) -> str:
@@ -88,8 +90,7 @@ class GridStorage:
         for path in files:
             target = self._path(f"trials/{folder.name}/{path.relative_to(folder).as_posix()}")
             self.fs.create_dir(str(PurePosixPath(target).parent), recursive=True)
-            with path.open("rb") as source, self.fs.open_output_stream(target) as stream:
-                shutil.copyfileobj(source, stream)
+            self._copy(path, target)
 
     def upload_checkpoint(self, checkpoint: Path, trial_id: str, timesteps: int) -> None:
         """Upload the checkpoint folder ``checkpoint`` (written at ``timesteps`` AV-steps) to
@@ -99,8 +100,7 @@ class GridStorage:
         self.fs.create_dir(self._path(f"{prefix}/{timesteps}"), recursive=True)
         files = sorted((p for p in checkpoint.iterdir() if p.is_file()), key=lambda p: p.name == "state.json")
         for path in files:
-            with path.open("rb") as source, self.fs.open_output_stream(self._path(f"{prefix}/{timesteps}/{path.name}")) as out:
-                shutil.copyfileobj(source, out)
+            self._copy(path, self._path(f"{prefix}/{timesteps}/{path.name}"))
         for older in self._checkpoints(trial_id):
             if older != timesteps:
                 self.fs.delete_dir(self._path(f"{prefix}/{older}"))
@@ -157,8 +157,17 @@ class GridStorage:
         if info.size > MAX_FILE_BYTES:
             raise ValueError(f"{self.uri}: {info.path} holds {info.size:,} bytes, more than {MAX_FILE_BYTES:,}.")
         local.parent.mkdir(parents=True, exist_ok=True)
+        start = time.perf_counter()
         with self.fs.open_input_stream(info.path) as stream, local.open("wb") as out:
             shutil.copyfileobj(stream, out)
+        self.sync_s, self.bytes = self.sync_s + time.perf_counter() - start, self.bytes + info.size
+
+    def _copy(self, path: Path, target: str) -> None:
+        """Upload the local file ``path`` to ``target`` (a path in the storage's file system)."""
+        start = time.perf_counter()
+        with path.open("rb") as source, self.fs.open_output_stream(target) as stream:
+            shutil.copyfileobj(source, stream)
+        self.sync_s, self.bytes = self.sync_s + time.perf_counter() - start, self.bytes + path.stat().st_size
 
 
 def _uploaded(folder: Path) -> list[Path]:

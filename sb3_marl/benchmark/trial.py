@@ -224,6 +224,8 @@ def run_trial(config: dict[str, Any]) -> None:
         "wall_time_s": wall_time,
         "machine": f"{platform.node()} ({os.cpu_count()} cores)",
     }
+    if storage is not None:  # the transfers so far (all but the last upload): the storage's cost
+        result["storage"] = {"uri": storage.uri, "sync_s": round(storage.sync_s, 3), "bytes": storage.bytes}
     write_json(folder / RESULT, result)
     if storage is not None:
         storage.upload_trial(folder, last=RESULT)

@@ -96,6 +96,7 @@ def test_a_two_node_grid_keeps_everything_in_the_storage(s3, tmp_path, monkeypat
         result = json.loads(_stored(s3, f"trials/{trial}/result.json"))
         assert result["num_timesteps"] >= 6_000  # the budget's 6,000 AV-steps, in whole rollouts
         finished_at[trial] = result["num_timesteps"]
+        assert result["storage"]["uri"] == f"s3://{BUCKET}/{GRID}" and result["storage"]["bytes"] > 100_000
         if trial == killed:  # restarted on the head from the stored checkpoint
             assert [a["node"] for a in attempts] == [worker.node_id, head_id]
             resumed_at = attempts[1]["resumed_at_timesteps"]

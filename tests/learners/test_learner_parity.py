@@ -36,8 +36,9 @@ CASES: dict[str, tuple[str, int, dict]] = {
     "madqn-d1-teacher-prior": ("madqn", 1, {"safety_loss_coef": 0.5, "prior": "idm-mobil", "prior_decay_steps": 2_000}),
 }
 #: Float tolerance: the same code on another CPU's vector units (AVX2 against AVX-512) ends 3,000
-#: AV-steps up to ~2e-4 apart relative; a change in what is learned moves them by far more.
-RTOL, ATOL = 1e-3, 1e-5
+#: AV-steps up to ~2e-4 apart relative, 2e-4 absolute on small biases; a change in what is learned
+#: moves them by far more.
+RTOL, ATOL = 1e-3, 1e-3
 
 
 def fingerprint(case: str) -> dict[str, list[float]]:
