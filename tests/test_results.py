@@ -43,10 +43,11 @@ def test_the_plots_regenerate(logs, tmp_path):
 @pytest.mark.parametrize("logs", LOG_FOLDERS, ids=lambda p: p.parent.name)
 def test_committed_models_reproduce_their_evaluation(logs):
     """Each density's first run: its model, re-evaluated on the first 3 seeds of its committed
-    30-episode evaluation (same protocol), gives the same returns."""
+    30-episode evaluation (same protocol, same supervisor version), gives the same returns."""
     for evaluation in sorted(logs.glob("ma2c/*_1/evaluation.json")):
         committed = json.loads(evaluation.read_text())
         run = find_run(logs, "ma2c", committed["env_id"], exp_id=1)
+        run.hyperparams["env_config"] = {**run.env_config, "supervisor_version": committed["supervisor_version"]}
         model = run.load_model("cpu")
         again = run.evaluate(model, 3, committed["seeds"][0], committed["deterministic"])
         assert again["returns"] == pytest.approx(committed["returns"][:3], rel=1e-9, abs=1e-9)

@@ -20,6 +20,8 @@ from sb3_marl.algos import ALGO_NAMES, get_algo
 from sb3_marl.algos.common.loading import UnsafeModelError, read_model_data, saved_policy_class
 from sb3_marl.algos.common.policies import model_policy, uses_action_masks
 from sb3_marl.common.files import inside, read_json_object, read_run_yaml
+from sb3_marl.envs import scenario_of
+from sb3_marl.envs.config import supervisor_version
 from sb3_marl.evaluation import evaluate_protocols, protocol_label
 from sb3_marl.runs.hyperparams import validate_hyperparams
 
@@ -152,7 +154,8 @@ class Run:
         """The paper's metrics of ``model`` on ``n_episodes`` seeded episodes of the run's scenario,
         with the safety supervisor (top level, the authors' protocol) and without it
         (``supervisor_off``), with what identifies the evaluation (algo, env, timesteps, seeds, env
-        config, protocol: sampled actions by default, the authors') and each return; with ``traffic``, the
+        config and the supervisor version it ran, protocol: sampled actions by default, the authors')
+        and each return; with ``traffic``, the
         traffic metrics and trip records (:func:`~sb3_marl.evaluation.evaluate_protocols`)."""
         return {
             "algo": self.algo,
@@ -162,6 +165,7 @@ class Run:
             "protocol": protocol_label(deterministic, uses_action_masks(model)),
             "seeds": [seed, seed + n_episodes - 1],
             "env_config": self.env_config,
+            "supervisor_version": supervisor_version(self.env_config, scenario_of(self.env_id)),
             **evaluate_protocols(
                 model_policy(model, deterministic), self.env_id, n_episodes, seed, self.env_config, progress, traffic
             ),
