@@ -7,7 +7,9 @@ it. The compile time of a fresh process (numba, cached on disk after the first r
 apart. Prints ``name: value unit`` lines; the target is a supervisor cost under half of a step
 (``supervisor_share`` < 0.5 of the step without supervisor).
 
-    python benchmarks/supervisor_cost.py [--steps 3000] [--densities 1 2 3]
+    python benchmarks/supervisor_cost.py [--steps 3000] [--densities 1 2 3] [--versions 3 5]
+
+``--versions``: the supervisor's versions to time side by side in one run (default: the scenario's).
 """
 
 from __future__ import annotations
@@ -26,12 +28,12 @@ from sb3_marl.envs import DENSITIES, ENV_IDS
 from sb3_marl.safety.supervisor import Supervisor
 
 
-def measure(density: int, steps: int, supervisor: bool, seed: int = 0) -> dict[str, float]:
-    """Seconds per step and per supervisor call over ``steps`` steps of a random masked policy."""
+def measure(density: int, steps: int, supervisor: bool, seed: int = 0, version: int | None = None) -> dict[str, float]:
+    """Seconds per step and per supervisor call over ``steps`` steps of a random masked policy
+    (``version``: the supervisor's, default the scenario's)."""
     n_avs, n_hdvs = DENSITIES[density]["avs"][1], DENSITIES[density]["hdvs"][1]
-    env = gym.make(
-        ENV_IDS[density], config={"n_avs": n_avs, "hdv_count_range": [n_hdvs, n_hdvs], "safety_supervisor": supervisor}
-    ).unwrapped
+    config = {"n_avs": n_avs, "hdv_count_range": [n_hdvs, n_hdvs], "safety_supervisor": supervisor}
+    env = gym.make(ENV_IDS[density], config={**config, **({"supervisor_version": version} if version else {})}).unwrapped
     supervise, spent = Supervisor.__call__, [0.0, 0]
 
     def timed(*args, **kwargs):
@@ -68,19 +70,22 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=3000, help="env steps per measurement")
     parser.add_argument("--densities", type=int, nargs="+", default=sorted(DENSITIES))
+    parser.add_argument("--versions", type=int, nargs="+", default=[None], help="supervisor versions (default: the default)")
     args = parser.parse_args()
     tic = time.perf_counter()
     measure(1, 2, supervisor=True)  # compiles, or loads the on-disk cache
     print(f"supervisor_first_call_in_process: {time.perf_counter() - tic:.2f} s")
     for density in args.densities:
         off = measure(density, args.steps, supervisor=False)
-        on = measure(density, args.steps, supervisor=True)
         tag = f"density{density}"
         print(f"{tag}_step_without_supervisor: {1e3 * off['step']:.3f} ms")
-        print(f"{tag}_step_with_supervisor: {1e3 * on['step']:.3f} ms")
-        print(f"{tag}_supervisor_call: {1e3 * on['supervisor']:.3f} ms")
-        print(f"{tag}_supervisor_share: {on['supervisor'] / off['step']:.2f} of a step without supervisor")
-        print(f"{tag}_interventions_per_step: {on['interventions_per_step']:.2f} AVs")
+        for version in args.versions:
+            on = measure(density, args.steps, supervisor=True, version=version)
+            at = tag + (f"_v{version}" if version else "")
+            print(f"{at}_step_with_supervisor: {1e3 * on['step']:.3f} ms")
+            print(f"{at}_supervisor_call: {1e3 * on['supervisor']:.3f} ms")
+            print(f"{at}_supervisor_share: {on['supervisor'] / off['step']:.2f} of a step without supervisor")
+            print(f"{at}_interventions_per_step: {on['interventions_per_step']:.2f} AVs")
 
 
 if __name__ == "__main__":

@@ -16,11 +16,12 @@ from sb3_marl.envs import SCENARIO_IDS, av_counts, make_scenario
 EPISODE_SEEDS = (0, 1)
 
 
-def episode_hash(env_id: str, supervisor: bool, seed: int) -> str:
+def episode_hash(env_id: str, supervisor: bool, seed: int, version: int | None = None) -> str:
     """The hash of one episode at the density's largest AV count, random masked meta-actions
-    drawn from ``numpy.random.default_rng(seed)``."""
+    drawn from ``numpy.random.default_rng(seed)`` (``version``: the supervisor's, default the scenario's)."""
     n_avs = av_counts(env_id)[-1]
-    env = make_scenario(env_id, {"safety_supervisor": supervisor, "n_avs": n_avs})
+    config = {"safety_supervisor": supervisor, "n_avs": n_avs, **({"supervisor_version": version} if version else {})}
+    env = make_scenario(env_id, config)
     rng = np.random.default_rng(seed)
     digest = hashlib.sha256()
     obs, info = env.reset(seed=seed)
@@ -40,12 +41,18 @@ def episode_hash(env_id: str, supervisor: bool, seed: int) -> str:
 
 
 def all_hashes() -> dict[str, str]:
-    return {
+    """Every scenario id with the supervisor on (its default version) and off; the lane change's
+    also under its earlier default, version 3 (the paper's numbers as committed before version 5)."""
+    hashes = {
         f"{env_id} supervisor={on} seed={seed}": episode_hash(env_id, on, seed)
         for env_id in SCENARIO_IDS
         for on in (True, False)
         for seed in EPISODE_SEEDS
     }
+    for env_id in (i for i in SCENARIO_IDS if "LaneChange" in i):
+        for seed in EPISODE_SEEDS:
+            hashes[f"{env_id} supervisor=v3 seed={seed}"] = episode_hash(env_id, True, seed, version=3)
+    return hashes
 
 
 if __name__ == "__main__":

@@ -1,5 +1,7 @@
 """The same seeds give the same episodes as the recorded code (tests/envs/episode_hashes.json,
-recorded before the packages became layers): every scenario id, supervisor on and off."""
+recorded before the packages became layers; the lane change's supervisor-on episodes recorded again
+when its default became version 5, its version-3 episodes kept as they were): every scenario id,
+supervisor on and off."""
 
 import json
 from pathlib import Path

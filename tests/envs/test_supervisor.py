@@ -155,8 +155,9 @@ def test_repeated_slower_is_predicted_to_brake_in_time():
     env.place(avs=[(100.0, 0, 30.0)], hdvs=[(126.0, 0, 12.0)])
     mask = env.action_masks()
     mask[0, [ACTION_INDEX["LANE_LEFT"], ACTION_INDEX["LANE_RIGHT"]]] = False
-    held = Supervisor.from_config({**env.config, "supervisor_repeat_actions": False})(env.state, 1, np.array([SLOWER]), mask)
-    repeated = Supervisor.from_config(env.config)(env.state, 1, np.array([SLOWER]), mask)
+    passes = {**env.config, "supervisor_version": 3}  # the passes alone: no emergency brake rescues the held SLOWER
+    held = Supervisor.from_config({**passes, "supervisor_repeat_actions": False})(env.state, 1, np.array([SLOWER]), mask)
+    repeated = Supervisor.from_config(passes)(env.state, 1, np.array([SLOWER]), mask)
     assert held[1][0] < 0 < repeated[1][0]
     for _ in range(15):
         _, _, terminated, _, _ = env.step(np.array([SLOWER]))
