@@ -52,6 +52,7 @@ class GridStorage:
             raise ValueError(f"--storage {uri!r}: no file system for this URI ({error}).") from None
         self.root = PurePosixPath(root)
         self.sync_s, self.bytes = 0.0, 0  # [s] spent in and bytes moved by uploads and downloads
+        self._sent: dict[Path, tuple[int, int]] = {}  # local file -> (size, mtime) at its last upload
 
     @property
     def ray_path(self) -> str:
@@ -85,9 +86,14 @@ class GridStorage:
 
     def upload_trial(self, folder: Path, last: str | None = None) -> None:
         """Upload the trial folder ``folder`` to ``trials/<its name>/`` (see :data:`CHECKPOINT_KEPT`),
-        the file ``last`` (relative to ``folder``) after every other."""
+        the file ``last`` (relative to ``folder``) after every other; a file unchanged (size and
+        modification time) since this object uploaded it is not sent again."""
         files = sorted(_uploaded(folder), key=lambda path: path.relative_to(folder).as_posix() == last)
         for path in files:
+            stat = path.stat()
+            if self._sent.get(path) == (stat.st_size, stat.st_mtime_ns):
+                continue
+            self._sent[path] = (stat.st_size, stat.st_mtime_ns)
             target = self._path(f"trials/{folder.name}/{path.relative_to(folder).as_posix()}")
             self.fs.create_dir(str(PurePosixPath(target).parent), recursive=True)
             self._copy(path, target)
