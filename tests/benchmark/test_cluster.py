@@ -2,7 +2,7 @@
 Ray node on this machine as separate processes (one CPU each), an S3 server on localhost (moto's),
 and a tiny grid launched with ``--storage s3://...``: each node runs a trial, the second node is
 killed mid-trial and its trial finishes on the head from the checkpoint in the storage, and
-``status`` on the head sees every trial through the storage."""
+``status`` and ``report`` on the head see every trial through the storage."""
 
 from __future__ import annotations
 
@@ -117,3 +117,12 @@ def test_a_two_node_grid_keeps_everything_in_the_storage(s3, tmp_path, monkeypat
     assert evaluations["timesteps"][-1] == finished_at[killed]
     assert not list(copy.rglob("checkpoints"))  # the checkpoints stay in the storage
     assert b"testing" not in b"".join(path.read_bytes() for path in copy.rglob("*") if path.is_file())
+    # and the report, from a fresh copy of the storage
+    report = subprocess.run(
+        [*command[:4], "report", "--storage", f"s3://{BUCKET}/{GRID}", "-f", str(tmp_path / "c"), "-o", str(tmp_path / "out")],
+        capture_output=True,
+        text=True,
+    )
+    assert report.returncode == 0, report.stderr[-2000:]
+    table = (tmp_path / "out" / "paper_table.md").read_text()
+    assert "| local reward | 1 | 1 |" in table and "| global reward | 1 | 1 |" in table
