@@ -306,9 +306,9 @@ def paper_evaluation(model: Any, env_id: str, config: dict[str, Any] | None) -> 
 def reevaluate_trial(folder: Path) -> bool:
     """Replace a finished trial's final evaluation (``paper_evaluation`` of its ``result.json``) by
     one under both supervisor protocols (same model, seeds and episodes) where it lacks the
-    policy-alone protocol or the yields, or was made under another version of the safety
-    supervisor; the supervisor-on return of an earlier evaluation is kept in ``note`` if it
-    differs. Returns whether the trial was re-evaluated."""
+    policy-alone protocol, the yields or the traffic metrics, or was made under another version of
+    the safety supervisor; the supervisor-on return of an earlier evaluation is kept in ``note`` if
+    it differs. Returns whether the trial was re-evaluated."""
     from sb3_marl.envs import scenario_of
     from sb3_marl.envs.config import supervisor_version
     from sb3_marl.runs.folders import find_run
@@ -323,7 +323,11 @@ def reevaluate_trial(folder: Path) -> bool:
     earlier = result.get("paper_evaluation") or {}
     run = find_run(folder, spec.algo, spec.env_id, RUN_ID)
     version = supervisor_version(run.env_config, scenario_of(spec.env_id))
-    if earlier.get("supervisor_version") == version and "yields_per_episode" in earlier.get("supervisor_off", {}):
+    if (
+        earlier.get("supervisor_version") == version
+        and "yields_per_episode" in earlier.get("supervisor_off", {})
+        and "traffic" in earlier
+    ):
         return False
     evaluation = paper_evaluation(run.load_model("cpu"), spec.env_id, run.env_config)
     if "note" in earlier:

@@ -37,7 +37,8 @@ def add_parsers(commands: Any) -> None:
         choices=["run", "report", "status", "evaluate"],
         default=None,
         help="run the grid (default when --grid is given), report on it, list where its trials stand, or evaluate "
-        "its finished trials under both supervisor protocols where they lack one or predate the current supervisor",
+        "its finished trials under both supervisor protocols where they lack one or the traffic metrics, or predate the "
+        "current supervisor",
     )
     benchmark.add_argument(
         "--grid",
