@@ -450,6 +450,7 @@ def test_benchmark_evaluate_redoes_the_trials_evaluated_under_another_version_of
     committed = json.loads((grid / "trials" / trials[MERGE] / "result.json").read_text())["paper_evaluation"]
     assert redone["supervisor_version"] == versions[MERGE] == 4
     assert redone["return_mean"] == pytest.approx(committed["return_mean"], abs=1e-9)
+    assert redone["traffic"]["flow_veh_h"] > 0 and "traffic" in redone["supervisor_off"]  # with the traffic view
     assert (copy / "trials" / trials[LANE_CHANGE] / "result.json").stat().st_mtime_ns == stamp[trials[LANE_CHANGE]]
     stamp = (copy / "trials" / trials[MERGE] / "result.json").stat().st_mtime_ns
     assert main(["benchmark", "evaluate", "-f", str(copy)]) == 0
