@@ -10,7 +10,6 @@ they moved (``result.json``'s ``storage``, every transfer but the last upload).
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import socket
 import tempfile
@@ -62,7 +61,7 @@ def main() -> None:
         for trial in sorted(outcome.completed):
             if uri is None:
                 continue
-            result = json.loads(GridStorage(uri).read_text(f"trials/{trial}/result.json") or "{}")
+            result = GridStorage(uri).read_json_object(f"trials/{trial}/result.json") or {}
             sync = result["storage"]
             print(
                 f"  {trial}: trained {result['wall_time_s']:.1f} s, transfers {sync['sync_s']:.2f} s, "

@@ -64,9 +64,11 @@ def check_settings(log_folder: Path, settings: dict[str, Any], storage: GridStor
     """A log folder (or a grid's ``storage``) holds one budget and evaluation schedule: a ValueError
     if ``settings`` differ from those it was started with (results at different budgets do not aggregate)."""
     path = log_folder / SETTINGS_FILE
-    text = storage.read_text(SETTINGS_FILE) if storage is not None else None
-    if text is not None or (storage is None and path.is_file()):
-        recorded = _settings_object(text, storage) if text is not None else read_json_object(path)
+    if storage is not None:
+        recorded = storage.read_json_object(SETTINGS_FILE)
+    else:
+        recorded = read_json_object(path) if path.is_file() else None
+    if recorded is not None:
         changed = {key: (recorded.get(key), value) for key, value in settings.items() if recorded.get(key) != value}
         if changed:
             details = ", ".join(f"{key}={new!r} (it has {old!r})" for key, (old, new) in changed.items())
@@ -74,16 +76,6 @@ def check_settings(log_folder: Path, settings: dict[str, Any], storage: GridStor
                 f"{log_folder} holds a benchmark with other settings: {details}; "
                 "use another --log-folder or the same settings."
             )
-
-
-def _settings_object(text: str, storage: GridStorage | None) -> dict[str, Any]:
-    try:
-        data = json.loads(text)
-    except ValueError as error:
-        data = error
-    if not isinstance(data, dict):
-        raise ValueError(f"{getattr(storage, 'uri', '')}/{SETTINGS_FILE} is not a JSON object ({str(data)[:80]}).")
-    return data
 
 
 def run_benchmark(

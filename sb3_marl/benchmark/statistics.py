@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -161,40 +162,59 @@ def curve_summaries(trials: list[TrialLog]) -> dict[tuple[str, str, int], dict[s
     }
 
 
+#: Each road's reference MA2C variant and the suffix of its keys in :func:`reference_summaries`.
+REFERENCE_VARIANTS = {"lane-change": ("default", ""), "merge": ("merge", ", merge")}
+
+
+def reference_configs(trials: list[TrialLog], log_folder: str | Path) -> Iterator[tuple[str, int, str, dict[str, Any]]]:
+    """(road, density, scenario id, scenario config) of each road of :data:`REFERENCE_VARIANTS` and
+    density with a finished MA2C trial of the road's variant (the config of its first such trial)."""
+    from sb3_marl.runs.folders import find_run
+
+    for (road, (variant, _)), density in itertools.product(REFERENCE_VARIANTS.items(), DENSITIES):
+        finished = [t for t in select_trials(trials, "ma2c", variant, density) if t.result is not None]
+        if finished:
+            spec = finished[0].spec
+            yield (
+                road,
+                density,
+                spec.env_id,
+                find_run(Path(log_folder) / "trials" / spec.trial_id, spec.algo, spec.env_id).env_config,
+            )
+
+
 def reference_summaries(trials: list[TrialLog], log_folder: str | Path, seed: int) -> dict[tuple[str, int], dict[str, Any]]:
     """Each hand-written policy of :data:`sb3_marl.evaluation.baselines.BASELINES`, keyed by (name, density), on
     the final evaluation's episodes (seeds ``seed ..``, the same AV counts) at each density with a
     finished default MA2C trial, in that trial's scenario config (the zoo's: safety supervisor on),
     with the traffic metrics of each protocol (``traffic``); on the merge (keyed by ``"<name>, merge"``)
-    where a ``merge`` MA2C trial has finished.
+    where a ``merge`` MA2C trial has finished (:func:`reference_configs`).
 
     The IQM's confidence interval resamples the 30 episodes (a fixed policy: its only randomness
     is the episodes'), where the learners' resamples seeds."""
     from sb3_marl.benchmark.trial import FINAL_EVAL_EPISODES
-    from sb3_marl.evaluation import SUPERVISOR_PROTOCOLS, protocol_records, summarize
+    from sb3_marl.evaluation import evaluate_protocols
     from sb3_marl.evaluation.baselines import BASELINES
-    from sb3_marl.evaluation.traffic import TripRecorder
-    from sb3_marl.runs.folders import find_run
 
     summaries = {}
-    for (variant, suffix), density in itertools.product((("default", ""), ("merge", ", merge")), DENSITIES):
-        finished = [t for t in select_trials(trials, "ma2c", variant, density) if t.result is not None]
-        if not finished:
-            continue
-        spec = finished[0].spec
-        config = find_run(Path(log_folder) / "trials" / spec.trial_id, spec.algo, spec.env_id).env_config
+    for road, density, env_id, config in reference_configs(trials, log_folder):
+        suffix = REFERENCE_VARIANTS[road][1]
         for name, policy_class in BASELINES.items():
-            recorders = {protocol: TripRecorder() for protocol in SUPERVISOR_PROTOCOLS}
-            protocols = protocol_records(
-                policy_class(), spec.env_id, FINAL_EVAL_EPISODES, seed, config, on_step=dict(recorders)
-            )
-            records = protocols["on"]
-            summary = {**summarize(records), "traffic": recorders["on"].metrics()}
-            alone = {**summarize(protocols["off"]), "traffic": recorders["off"].metrics()}
+            summary = evaluate_protocols(policy_class(), env_id, FINAL_EVAL_EPISODES, seed, config, traffic=True)
+            alone = summary.pop("supervisor_off")
+            returns = summary.pop("returns")
+            for protocol in (summary, alone):
+                del protocol["trips"]
+            del alone["returns"]
             alone["return_std"] = 0.0  # a std over seeds: one fixed policy, like the learners' cells
-            iqm, low, high = iqm_with_ci(np.array([[r.episode_return] for r in records]))
-            bounds = {"iqm": iqm, "iqm_low": low, "iqm_high": high}
-            summaries[name + suffix, density] = {**summary, **bounds, "supervisor_off": alone}
+            iqm, low, high = iqm_with_ci(np.array([[r] for r in returns]))
+            summaries[name + suffix, density] = {
+                **summary,
+                "iqm": iqm,
+                "iqm_low": low,
+                "iqm_high": high,
+                "supervisor_off": alone,
+            }
     return summaries
 
 

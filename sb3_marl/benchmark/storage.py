@@ -24,7 +24,7 @@ import time
 from pathlib import Path, PurePosixPath
 from typing import Any
 
-from sb3_marl.common.files import MAX_JSON_BYTES
+from sb3_marl.common.files import MAX_JSON_BYTES, json_object
 
 #: What a trial folder's upload keeps of its checkpoint (the checkpoint goes to ``checkpoints/<n>/``).
 CHECKPOINT_KEPT = "checkpoint/state.json"
@@ -68,15 +68,19 @@ class GridStorage:
 
         return self.fs.get_file_info(self._path(relative)).type == fs.FileType.File
 
-    def read_text(self, relative: str) -> str | None:
-        """The text of the JSON file ``relative`` (at most :data:`MAX_JSON_BYTES`), None if absent."""
-        if not self.exists(relative):
+    def read_json_object(self, relative: str) -> dict[str, Any] | None:
+        """The JSON object in the file ``relative`` (at most :data:`MAX_JSON_BYTES`), None if absent;
+        a ValueError naming it otherwise (:func:`~sb3_marl.common.files.json_object`)."""
+        from pyarrow import fs
+
+        info = self.fs.get_file_info(self._path(relative))
+        if info.type != fs.FileType.File:
             return None
-        size = self.fs.get_file_info(self._path(relative)).size
-        if size > MAX_JSON_BYTES:
-            raise ValueError(f"{self.uri}/{relative}: {size:,} bytes, more than the {MAX_JSON_BYTES:,} a JSON file may have.")
-        with self.fs.open_input_stream(self._path(relative)) as stream:
-            return stream.read().decode("utf-8")
+        name = f"{self.uri}/{relative}"
+        if info.size > MAX_JSON_BYTES:
+            raise ValueError(f"{name}: {info.size:,} bytes, more than the {MAX_JSON_BYTES:,} a JSON file may have.")
+        with self.fs.open_input_stream(info.path) as stream:
+            return json_object(stream.read(), name)
 
     def write_text(self, relative: str, text: str) -> None:
         """Write ``relative`` (an object store's write replaces the object whole)."""

@@ -18,15 +18,12 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
-from sb3_marl.benchmark.statistics import TrialLog, select_trials
+from sb3_marl.benchmark.statistics import REFERENCE_VARIANTS, TrialLog, reference_configs, select_trials
 from sb3_marl.common.files import save_figure, write_text
 from sb3_marl.envs import DENSITIES
 from sb3_marl.evaluation.plotting import with_default_style
 from sb3_marl.evaluation.traffic import traffic_table
 
-#: The roads: the MA2C variant whose scenario config the references use, and their key suffix in
-#: :func:`~sb3_marl.benchmark.statistics.reference_summaries`.
-ROADS = {"lane-change": ("default", ""), "merge": ("merge", ", merge")}
 #: The figure's metrics and axis titles.
 FIGURE_METRICS = {
     "flow_veh_h": "flow [veh/h]",
@@ -55,20 +52,15 @@ def curve_traffic(trials: list[TrialLog], algo: str, variant: str, density: int)
 
 def human_references(trials: list[TrialLog], log_folder: str | Path, seed: int) -> dict[tuple[str, int], dict[str, float]]:
     """The all-human reference's traffic metrics, keyed by (road, density), on the final evaluation's
-    episodes (seeds ``seed ..``) where the road's MA2C has a finished trial, in its scenario config."""
+    episodes (seeds ``seed ..``) where the road's MA2C has a finished trial, in its scenario config
+    (:func:`~sb3_marl.benchmark.statistics.reference_configs`)."""
     from sb3_marl.benchmark.trial import FINAL_EVAL_EPISODES
     from sb3_marl.evaluation.traffic import human_reference
-    from sb3_marl.runs.folders import find_run
 
-    humans = {}
-    for road, (variant, _) in ROADS.items():
-        for density in DENSITIES:
-            finished = [t for t in select_trials(trials, "ma2c", variant, density) if t.result is not None]
-            if finished:
-                spec = finished[0].spec
-                config = find_run(Path(log_folder) / "trials" / spec.trial_id, spec.algo, spec.env_id).env_config
-                humans[road, density] = human_reference(spec.env_id, FINAL_EVAL_EPISODES, seed, config).metrics()
-    return humans
+    return {
+        (road, density): human_reference(env_id, FINAL_EVAL_EPISODES, seed, config).metrics()
+        for road, density, env_id, config in reference_configs(trials, log_folder)
+    }
 
 
 def traffic_rows(
@@ -83,7 +75,7 @@ def traffic_rows(
     for (road, density), human in humans.items():
         place = {"road": road, "density": density}
         rows.append(({**place, "policy": HUMAN, "seeds": "-", "supervisor": "-"}, human))
-        suffix = ROADS[road][1]
+        suffix = REFERENCE_VARIANTS[road][1]
         for (name, d), summary in references.items():
             if d == density and name.endswith(", merge") == (road == "merge") and "traffic" in summary:
                 label = {**place, "policy": name.removesuffix(suffix), "seeds": "-"}
@@ -130,7 +122,7 @@ def write_traffic(
     from sb3_marl.evaluation.traffic_plots import time_space_diagram
     from sb3_marl.runs.folders import find_run
 
-    if not any(curve_traffic(trials, t.spec.algo, t.spec.variant, t.spec.density) for t in trials):
+    if not any(isinstance(t.final().get("traffic"), dict) for t in trials if t.result is not None):
         return []
     rows = traffic_rows(trials, references, human_references(trials, log_folder, seed))
     if not rows:
@@ -144,7 +136,7 @@ def write_traffic(
         write_text(out_dir / "traffic.md", header + traffic_table(rows) + "\n"),
         plot_traffic(rows, out_dir / "traffic.png"),
     ]
-    for road, (variant, _) in ROADS.items():
+    for road, (variant, _) in REFERENCE_VARIANTS.items():
         finished = [t for d in reversed(DENSITIES) for t in select_trials(trials, "ma2c", variant, d) if t.result is not None]
         if finished:
             spec = finished[0].spec

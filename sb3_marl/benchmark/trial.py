@@ -104,7 +104,8 @@ def write_json(path: Path, data: dict[str, Any]) -> None:
 class CheckpointAndReport(BaseCallback):
     """After each evaluation (as ``callback_after_eval`` of the ScenarioEvalCallback): replace
     ``checkpoint/`` with the model and the evaluations so far, then report the evaluation to Ray
-    Tune with that checkpoint."""
+    Tune with that checkpoint; with a grid ``storage``, upload the checkpoint and the trial folder
+    there instead of handing the checkpoint to Ray."""
 
     def __init__(self, folder: Path, spec: TrialSpec, storage: GridStorage | None = None) -> None:
         super().__init__()

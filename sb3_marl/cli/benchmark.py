@@ -190,8 +190,8 @@ def _storage(uri: str) -> GridStorage:
 
 
 def _benchmark_evaluate(args: argparse.Namespace, storage: GridStorage | None = None) -> int:
-    """Re-evaluate every finished trial under ``-f`` that lacks the policy-alone protocol or was
-    evaluated under another version of the safety supervisor (progress bar); with ``storage``,
+    """Re-evaluate every finished trial under ``-f`` that lacks the policy-alone protocol or the
+    traffic metrics, or was evaluated under another version of the safety supervisor (progress bar); with ``storage``,
     upload the re-evaluated trials' folders there."""
     from tqdm import tqdm
 

@@ -72,11 +72,21 @@ def read_json_object(path: str | Path) -> dict[str, Any]:
         size = Path(path).stat().st_size
         if size > MAX_JSON_BYTES:
             raise ValueError(f"{size:,} bytes, more than the {MAX_JSON_BYTES:,} a JSON file here may have")
-        data = json.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, ValueError, RecursionError) as error:
+        text = Path(path).read_text(encoding="utf-8")
+    except (OSError, ValueError) as error:
         raise ValueError(f"{path} is not readable JSON ({type(error).__name__}: {error}).") from None
+    return json_object(text, path)
+
+
+def json_object(text: str | bytes, name: str | Path) -> dict[str, Any]:
+    """The JSON object (a mapping) in ``text`` (bytes: UTF-8), read from ``name``; a ValueError
+    naming it and what is wrong (not UTF-8, not JSON, or JSON that is not an object)."""
+    try:
+        data = json.loads(text)
+    except (ValueError, RecursionError) as error:
+        raise ValueError(f"{name} is not readable JSON ({type(error).__name__}: {error}).") from None
     if not isinstance(data, dict):
-        raise ValueError(f"{path} holds a JSON {type(data).__name__}, expected an object.")
+        raise ValueError(f"{name} holds a JSON {type(data).__name__}, expected an object.")
     return data
 
 
