@@ -38,6 +38,11 @@ from sb3_marl.sim.road import highway_lanes
 
 #: [s] the time an AV is given to leave a lane an obstacle ends (see :func:`dead_end_margin`)
 LEAVE_TIME = 2.5
+#: Rows of a predicted path's frame (:func:`predict`): x, y [m], heading [rad], speed [m/s], the
+#: velocity's x and y [m/s], and the half length along x and half width along y [m] of the
+#: axis-aligned box around the body.
+PATH_X, PATH_Y, PATH_HEADING, PATH_SPEED, VX, VY, HALF_X, HALF_Y = range(8)
+PATH_ROWS = 8
 
 
 class Horizon(NamedTuple):
@@ -71,8 +76,8 @@ class Horizon(NamedTuple):
 def predict(
     state0: np.ndarray, horizon: Horizon, speed_step: np.ndarray, ego: int, collidable: np.ndarray, floor: float
 ) -> tuple[np.ndarray, float]:
-    """(frames, 4, n) x, y [m], heading [rad] and speed [m/s] of every vehicle after each frame of
-    the road driven from ``state0`` (the kernel's layout, the AVs' targets set), and the room [m] of
+    """(frames, :data:`PATH_ROWS`, n) every vehicle after each frame of the road driven from
+    ``state0`` (the kernel's layout, the AVs' targets set), and the room [m] of
     vehicle ``ego`` along it (see :func:`path_room`; inf for ``ego`` -1). The prediction stops as soon
     as that room is at most ``floor`` m (it can only shrink): the rest of the path is then unset.
 
@@ -81,7 +86,7 @@ def predict(
     action over the horizon."""
     state = state0.copy()
     n = state.shape[0]
-    path = np.empty((horizon.frames, 4, n))
+    path = np.empty((horizon.frames, PATH_ROWS, n))
     room = np.inf
     ladder = horizon.ladder
     top = ladder.size - 1
@@ -92,15 +97,27 @@ def predict(
                     index = min(max(speed_index(state[k, SPEED], ladder) + speed_step[k], 0), top)
                     state[k, TARGET_SPEED] = ladder[index]
         drive(state, horizon.dt, horizon.lanes, horizon.speed_limit)
-        path[frame, 0], path[frame, 1] = state[:, X], state[:, Y]
-        path[frame, 2], path[frame, 3] = state[:, HEADING], state[:, SPEED]
+        _record(path[frame], state)
         if ego >= 0:
-            room = min(
-                room, frame_room(ego, path[frame, 0], path[frame, 1], path[frame, 2], path[frame, 3], collidable, horizon.dt)
-            )
+            room = min(room, frame_room(ego, path[frame], collidable, horizon.dt))
             if room <= floor:
                 break
     return path, room
+
+
+@numba.njit(cache=True)
+def _record(frame: np.ndarray, state: np.ndarray) -> None:
+    """One frame of a path (:data:`PATH_ROWS`, n) from the state array: the trigonometry of every
+    vehicle's heading is taken once per frame, not once per pair of vehicles."""
+    for k in range(state.shape[0]):
+        heading, speed = state[k, HEADING], state[k, SPEED]
+        c, s = cos(heading), sin(heading)
+        frame[PATH_X, k], frame[PATH_Y, k] = state[k, X], state[k, Y]
+        frame[PATH_HEADING, k], frame[PATH_SPEED, k] = heading, speed
+        frame[VX, k], frame[VY, k] = speed * c, speed * s
+        # the axis-aligned box around the body rotated by the heading (a lane change tilts it)
+        frame[HALF_X, k] = LENGTH / 2 * abs(c) + WIDTH / 2 * abs(s)
+        frame[HALF_Y, k] = LENGTH / 2 * abs(s) + WIDTH / 2 * abs(c)
 
 
 @numba.njit(cache=True)
@@ -109,36 +126,25 @@ def path_room(ego: int, path: np.ndarray, collidable: np.ndarray, dt: float) -> 
     vehicle ``ego`` and any collidable vehicle overlapping it laterally (negative: a collision)."""
     room = np.inf
     for frame in range(path.shape[0]):
-        room = min(room, frame_room(ego, path[frame, 0], path[frame, 1], path[frame, 2], path[frame, 3], collidable, dt))
+        room = min(room, frame_room(ego, path[frame], collidable, dt))
     return room
 
 
 @numba.njit(cache=True)
-def frame_room(
-    ego: int, x: np.ndarray, y: np.ndarray, h: np.ndarray, v: np.ndarray, collidable: np.ndarray, dt: float
-) -> float:
-    """:func:`path_room` of one frame's positions [m], headings [rad] and speeds [m/s]."""
+def frame_room(ego: int, frame: np.ndarray, collidable: np.ndarray, dt: float) -> float:
+    """:func:`path_room` of one frame of a path."""
     room = np.inf
-    ego_x, ego_y = _half_extents(h[ego])
+    x, y, vx, vy = frame[PATH_X], frame[PATH_Y], frame[VX], frame[VY]
     for j in range(x.size):
         if j != ego and collidable[j]:
-            other_x, other_y = _half_extents(h[j])
             # highway-env flags a collision when the bodies would meet within the next frame
             # (each moved by its velocity × dt): the gaps shrink by the closing speed × dt
             dx, dy = x[j] - x[ego], y[j] - y[ego]
-            closing_x = (v[ego] * cos(h[ego]) - v[j] * cos(h[j])) * np.sign(dx)
-            closing_y = (v[ego] * sin(h[ego]) - v[j] * sin(h[j])) * np.sign(dy)
-            if abs(dy) - max(closing_y, 0.0) * dt < ego_y + other_y:
-                room = min(room, abs(dx) - ego_x - other_x - max(closing_x, 0.0) * dt)
+            closing_y = (vy[ego] - vy[j]) * np.sign(dy)
+            if abs(dy) - max(closing_y, 0.0) * dt < frame[HALF_Y, ego] + frame[HALF_Y, j]:
+                closing_x = (vx[ego] - vx[j]) * np.sign(dx)
+                room = min(room, abs(dx) - frame[HALF_X, ego] - frame[HALF_X, j] - max(closing_x, 0.0) * dt)
     return room
-
-
-@numba.njit(cache=True)
-def _half_extents(heading: float) -> tuple[float, float]:
-    """Half length along x and half width along y [m] of the axis-aligned box around a vehicle
-    body rotated by ``heading`` rad (a lane change tilts it: the box covers the corners)."""
-    c, s = abs(cos(heading)), abs(sin(heading))
-    return LENGTH / 2 * c + WIDTH / 2 * s, LENGTH / 2 * s + WIDTH / 2 * c
 
 
 @numba.njit(cache=True)
@@ -151,8 +157,8 @@ def dead_end_margin(state: np.ndarray, ego: int, path: np.ndarray, lanes: np.nda
     if obstacles.size == 0:
         return np.inf
     last = path.shape[0] - 1
-    x, y, v = path[last, 0, ego], path[last, 1, ego], path[last, 3, ego]
-    lane = closest_lane(lanes, x, y, path[last, 2, ego])
+    x, y, v = path[last, PATH_X, ego], path[last, PATH_Y, ego], path[last, PATH_SPEED, ego]
+    lane = closest_lane(lanes, x, y, path[last, PATH_HEADING, ego])
     if follow(lanes, int(state[ego, TARGET_LANE]), x, y) != lane:
         return np.inf
     s = local_coordinates(lanes, lane, x, y)[0]

@@ -83,7 +83,7 @@ from sb3_marl.safety.rooms import (
     set_brake,
     unsafe_cut_ins,
 )
-from sb3_marl.sim.drivers import lane_distance, lane_occupancy, leader
+from sb3_marl.sim.drivers import lane_distance, lane_order, leader
 from sb3_marl.sim.kernel import (
     COLLIDABLE,
     IS_OBSTACLE,
@@ -276,10 +276,10 @@ def _better(room: float, dead_end: float, best_room: float, best_dead_end: float
 def headway_margins(state: np.ndarray, n_avs: int, lanes: np.ndarray, headway_time: float) -> np.ndarray:
     """(n_avs,) each AV's headway margin [m]: the gap to its leader in its lane (:data:`NO_LEADER_GAP`
     without one) minus its speed [m/s] × ``headway_time`` [s] (the lane change's priority)."""
-    occupancy = lane_occupancy(state, lanes)
+    order = lane_order(state, lanes)
     margin = np.empty(n_avs)
     for i in range(n_avs):
-        front = leader(state, lanes, occupancy, i)
+        front = leader(state, lanes, order, i)
         gap = lane_distance(state, lanes, i, front) if front >= 0 else NO_LEADER_GAP
         margin[i] = gap - state[i, SPEED] * headway_time
     return margin

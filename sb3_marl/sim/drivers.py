@@ -6,6 +6,8 @@ driver's meta-action for each AV (:func:`rule_actions`), on the road's lane tabl
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numba
 import numpy as np
 
@@ -50,22 +52,81 @@ from sb3_marl.sim.kernel import (
     tan,
     wrap_to_pi,
 )
-from sb3_marl.sim.lanes import LEFT, RIGHT, ROAD, follow, heading_at, local_coordinates, on_lane, reachable_from
+from sb3_marl.sim.lanes import LEFT, RIGHT, ROAD, follow, heading_at, local_coordinates, on_lane_at, reachable_from
 from sb3_marl.sim.meta_actions import available_actions
+
+#: Lanes of at most this many vehicles are searched in one pass; longer ones by bisection.
+SCANNED = 16
+
+
+class LaneOrder(NamedTuple):
+    """The vehicles on each lane in order along it, for ``Road.neighbour_vehicles``' search by
+    bisection (:func:`lane_order`); positions must not change while it is in use."""
+
+    s: np.ndarray  # (lanes, n) [m] every row's longitudinal coordinate on every lane
+    # (lanes, n) int: each lane's first ``sizes`` entries are its rows: by s (ties: row order) on a
+    # lane of more than SCANNED rows, else in row order
+    members: np.ndarray
+    sizes: np.ndarray  # (lanes,) int: vehicles on each lane
 
 
 @numba.njit(cache=True)
-def _neighbours(state: np.ndarray, lanes: np.ndarray, occupancy: np.ndarray, k: int, lane: int) -> tuple[int, int]:
+def lane_order(state: np.ndarray, lanes: np.ndarray) -> LaneOrder:
+    """Which vehicles and obstacles are on each lane (highway-env's ``lane.on_lane`` with its 1 m
+    margin: the membership ``Road.neighbour_vehicles`` searches), sorted along the lane."""
+    n, n_lanes = state.shape[0], lanes.shape[0]
+    s = np.empty((n_lanes, n))
+    members = np.empty((n_lanes, n), dtype=np.int64)
+    sizes = np.zeros(n_lanes, dtype=np.int64)
+    for lane in range(n_lanes):
+        for j in range(n):
+            s[lane, j], lateral = local_coordinates(lanes, lane, state[j, X], state[j, Y])
+            if state[j, PRESENT] and on_lane_at(lanes, lane, s[lane, j], lateral, ON_LANE_MARGIN):
+                members[lane, sizes[lane]] = j
+                sizes[lane] += 1
+        if sizes[lane] > SCANNED:
+            rows = members[lane, : sizes[lane]]
+            rows[:] = rows[np.argsort(s[lane][rows], kind="mergesort")]
+    return LaneOrder(s, members, sizes)
+
+
+@numba.njit(cache=True)
+def _neighbours(state: np.ndarray, lanes: np.ndarray, order: LaneOrder, k: int, lane: int) -> tuple[int, int]:
     """``Road.neighbour_vehicles``: (front, rear) of vehicle k on ``lane`` (-1: none), vehicles
-    and obstacles, by their longitudinal coordinate on ``lane``."""
-    s = local_coordinates(lanes, lane, state[k, X], state[k, Y])[0]
-    front = rear = -1
-    s_front = s_rear = 0.0
-    for j in range(state.shape[0]):
-        if j == k or not occupancy[lane, j]:
-            continue
-        s_v = local_coordinates(lanes, lane, state[j, X], state[j, Y])[0]
-        front, rear, s_front, s_rear = nearer(s, j, s_v, front, rear, s_front, s_rear)
+    and obstacles, by their longitudinal coordinate on ``lane``: the front is the nearest at or
+    ahead of k's (the last of equals in row order), the rear the nearest behind (the first of
+    equals), found by bisection in :class:`LaneOrder`."""
+    s, rows, count = order.s, order.members, order.sizes[lane]
+    s_k = s[lane, k]
+    if count <= SCANNED:  # a few rows, in row order: one pass
+        front = rear = -1
+        s_front = s_rear = 0.0
+        for i in range(count):
+            if rows[lane, i] != k:
+                front, rear, s_front, s_rear = nearer(s_k, rows[lane, i], s[lane, rows[lane, i]], front, rear, s_front, s_rear)
+        return front, rear
+    low, high = 0, count  # bisection: rows[lane, low:count] are at or ahead of s_k
+    while low < high:
+        middle = (low + high) // 2
+        if s[lane, rows[lane, middle]] < s_k:
+            low = middle + 1
+        else:
+            high = middle
+    rear = -1
+    if low > 0:
+        first = low - 1
+        while first > 0 and s[lane, rows[lane, first - 1]] == s[lane, rows[lane, first]]:
+            first -= 1
+        rear = rows[lane, first]
+    front, i = -1, low
+    while i < count and rows[lane, i] == k:
+        i += 1
+    if i < count:
+        nearest = s[lane, rows[lane, i]]
+        while i < count and s[lane, rows[lane, i]] == nearest:
+            if rows[lane, i] != k:
+                front = rows[lane, i]
+            i += 1
     return front, rear
 
 
@@ -135,14 +196,14 @@ def _steering(state: np.ndarray, lanes: np.ndarray, k: int, lane: int) -> float:
 
 
 @numba.njit(cache=True)
-def mobil(state: np.ndarray, lanes: np.ndarray, occupancy: np.ndarray, k: int, lane: int, speed_limit: float) -> bool:
+def mobil(state: np.ndarray, lanes: np.ndarray, order: LaneOrder, k: int, lane: int, speed_limit: float) -> bool:
     """``IDMVehicle.mobil``: should HDV k move to ``lane``? (no planned route)."""
-    new_preceding, new_following = _neighbours(state, lanes, occupancy, k, lane)
+    new_preceding, new_following = _neighbours(state, lanes, order, k, lane)
     new_following_a = idm(state, lanes, new_following, new_preceding, speed_limit)
     new_following_pred_a = idm(state, lanes, new_following, k, speed_limit)
     if new_following_pred_a < -state[k, MAX_BRAKING_IMPOSED]:
         return False
-    old_preceding, old_following = _neighbours(state, lanes, occupancy, k, int(state[k, LANE]))
+    old_preceding, old_following = _neighbours(state, lanes, order, k, int(state[k, LANE]))
     self_pred_a = idm(state, lanes, k, new_preceding, speed_limit)
     self_a = idm(state, lanes, k, old_preceding, speed_limit)
     old_following_a = idm(state, lanes, old_following, k, speed_limit)
@@ -156,7 +217,7 @@ def mobil(state: np.ndarray, lanes: np.ndarray, occupancy: np.ndarray, k: int, l
 
 
 @numba.njit(cache=True)
-def _change_lane_policy(state: np.ndarray, lanes: np.ndarray, occupancy: np.ndarray, k: int, speed_limit: float) -> None:
+def _change_lane_policy(state: np.ndarray, lanes: np.ndarray, order: LaneOrder, k: int, speed_limit: float) -> None:
     """``IDMVehicle.change_lane_policy`` of HDV k (sets its target lane and timer)."""
     lane, target = int(state[k, LANE]), int(state[k, TARGET_LANE])
     if lane != target:  # a lane change is ongoing: abort it if another vehicle is moving into the lane
@@ -178,28 +239,15 @@ def _change_lane_policy(state: np.ndarray, lanes: np.ndarray, occupancy: np.ndar
             continue
         if abs(state[k, SPEED]) < 1:
             continue
-        if mobil(state, lanes, occupancy, k, side, speed_limit):
+        if mobil(state, lanes, order, k, side, speed_limit):
             state[k, TARGET_LANE] = side
 
 
 @numba.njit(cache=True)
-def lane_occupancy(state: np.ndarray, lanes: np.ndarray) -> np.ndarray:
-    """(lanes, n) bool: which vehicles and obstacles are on each lane (highway-env's
-    ``lane.on_lane`` with its 1 m margin), the membership ``Road.neighbour_vehicles`` searches."""
-    n = state.shape[0]
-    occupancy = np.zeros((lanes.shape[0], n), dtype=np.bool_)
-    for j in range(n):
-        if state[j, PRESENT]:
-            for lane in range(lanes.shape[0]):
-                occupancy[lane, j] = on_lane(lanes, lane, state[j, X], state[j, Y], ON_LANE_MARGIN)
-    return occupancy
-
-
-@numba.njit(cache=True)
-def leader(state: np.ndarray, lanes: np.ndarray, occupancy: np.ndarray, k: int) -> int:
+def leader(state: np.ndarray, lanes: np.ndarray, order: LaneOrder, k: int) -> int:
     """The vehicle (or obstacle) ahead of vehicle k on its own lane (``Road.neighbour_vehicles``'
     front; -1: none)."""
-    return _neighbours(state, lanes, occupancy, k, int(state[k, LANE]))[0]
+    return _neighbours(state, lanes, order, k, int(state[k, LANE]))[0]
 
 
 @numba.njit(cache=True)
@@ -207,7 +255,7 @@ def act(state: np.ndarray, lanes: np.ndarray, speed_limit: float) -> None:
     """``Road.act``: every vehicle, in road order, follows its road past a lane's end, then decides
     steering and acceleration (obstacles do nothing)."""
     n = state.shape[0]
-    occupancy = lane_occupancy(state, lanes)  # positions are frozen during the act phase
+    order = lane_order(state, lanes)  # positions are frozen during the act phase
     for k in range(n):
         if not state[k, PRESENT] or state[k, IS_OBSTACLE]:
             continue
@@ -219,14 +267,12 @@ def act(state: np.ndarray, lanes: np.ndarray, speed_limit: float) -> None:
         if state[k, CRASHED]:
             continue
         state[k, TARGET_LANE] = follow(lanes, int(state[k, TARGET_LANE]), state[k, X], state[k, Y])
-        _change_lane_policy(state, lanes, occupancy, k, speed_limit)
+        _change_lane_policy(state, lanes, order, k, speed_limit)
         lane, target = int(state[k, LANE]), int(state[k, TARGET_LANE])
         steering = _steering(state, lanes, k, target)
-        acceleration = idm(state, lanes, k, _neighbours(state, lanes, occupancy, k, lane)[0], speed_limit)
+        acceleration = idm(state, lanes, k, _neighbours(state, lanes, order, k, lane)[0], speed_limit)
         if lane != target:
-            acceleration = min(
-                acceleration, idm(state, lanes, k, _neighbours(state, lanes, occupancy, k, target)[0], speed_limit)
-            )
+            acceleration = min(acceleration, idm(state, lanes, k, _neighbours(state, lanes, order, k, target)[0], speed_limit))
         state[k, STEERING] = steering
         state[k, ACCELERATION] = clip(acceleration, -ACC_MAX, ACC_MAX)
 
@@ -255,7 +301,7 @@ def rule_actions(
     else IDLE. Meta-action indices as highway-env's (LANE_LEFT 0, IDLE 1, LANE_RIGHT 2, FASTER 3,
     SLOWER 4)."""
     mask = available_actions(state, n_avs, lanes, ladder)
-    occupancy = lane_occupancy(state, lanes)
+    order = lane_order(state, lanes)
     actions = np.ones(n_avs, dtype=np.int64)
     driver = state.copy()
     for i in range(n_avs):
@@ -270,11 +316,11 @@ def rule_actions(
         changing = False
         if lane == int(driver[i, TARGET_LANE]) and abs(driver[i, SPEED]) >= 1:
             for action, side in ((0, int(lanes[lane, LEFT])), (2, int(lanes[lane, RIGHT]))):
-                if side >= 0 and mask[i, action] and mobil(driver, lanes, occupancy, i, side, speed_limit):
+                if side >= 0 and mask[i, action] and mobil(driver, lanes, order, i, side, speed_limit):
                     actions[i], changing = action, True
                     break
         if not changing:
-            acceleration = idm(driver, lanes, i, leader(driver, lanes, occupancy, i), speed_limit)
+            acceleration = idm(driver, lanes, i, leader(driver, lanes, order, i), speed_limit)
             if acceleration > acceleration_threshold and mask[i, 3]:
                 actions[i] = 3
             elif acceleration < -acceleration_threshold and mask[i, 4]:

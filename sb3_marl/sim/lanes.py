@@ -129,6 +129,12 @@ def position(lanes: np.ndarray, lane: int, longitudinal: float, lateral: float) 
 def on_lane(lanes: np.ndarray, lane: int, x: float, y: float, margin: float) -> bool:
     """``lane.on_lane((x, y), margin=margin)``."""
     longitudinal, lateral = local_coordinates(lanes, lane, x, y)
+    return on_lane_at(lanes, lane, longitudinal, lateral, margin)
+
+
+@numba.njit(cache=True)
+def on_lane_at(lanes: np.ndarray, lane: int, longitudinal: float, lateral: float, margin: float) -> bool:
+    """:func:`on_lane` of a point at local coordinates (longitudinal, lateral) [m] of ``lane``."""
     return abs(lateral) <= lanes[lane, WIDTH] / 2 + margin and (
         -LANE_VEHICLE_LENGTH <= longitudinal < lanes[lane, LENGTH] + LANE_VEHICLE_LENGTH
     )

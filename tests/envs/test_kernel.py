@@ -12,6 +12,8 @@ from helpers import make
 from parity import compare, run_episode
 
 from sb3_marl.envs import ENV_IDS
+from sb3_marl.sim.collisions import SWEPT
+from sb3_marl.sim.drivers import SCANNED
 from sb3_marl.sim.simulator import COMPILED, STOCK
 
 #: [m, rad, m/s, m/s²] largest state difference accepted: numpy's SIMD arcsin / arctan / tan /
@@ -30,6 +32,28 @@ def test_compiled_kernel_matches_highway_env(density, policy, config):
         assert result.crashes >= (10 if policy == "uniform" else 3)  # collisions and their impacts
     if policy == "cruise":
         assert result.hdv_lane_changes >= 2  # MOBIL lane changes and their aborts
+
+
+@pytest.mark.parametrize(("policy", "supervisor"), [("uniform", False), ("cruise", True)])
+def test_a_crowded_road_matches_highway_env(policy, supervisor):
+    """90 vehicles on 3 lanes: past the sizes where the kernel searches a lane's neighbours by
+    bisection (drivers.SCANNED) and finds the collision test's pairs by a sweep (collisions.SWEPT)."""
+    lanes, vehicles = 3, 90
+    slots = vehicles // lanes + 1
+    config = {
+        "n_avs": 6,
+        "hdv_count_range": [vehicles - 6, vehicles - 6],
+        "lanes_count": lanes,
+        "spawn_slots_per_lane": slots,
+        "road_length": 10.0 + slots * 40.0 + 200.0,
+        "duration": 6,
+        "safety_supervisor": supervisor,
+    }
+    assert vehicles // lanes > SCANNED and vehicles > SWEPT
+    result = compare(STOCK, COMPILED, ENV_IDS[3], range(2), policy, **config)
+    assert result.different_outcomes == []
+    assert result.max_state_difference < TOLERANCE and result.max_observation_difference < TOLERANCE
+    assert result.crashes >= 1 if policy == "uniform" else result.hdv_lane_changes >= 5
 
 
 def test_compiled_kernel_is_the_default():
