@@ -3,9 +3,14 @@
 For each density at its maximum vehicle count, a seeded random policy over the available actions
 drives the scenario with the supervisor on; every step is timed, and so is the supervisor's own
 call (its prediction: array copy of the vehicle states + the compiled horizon simulation) inside
-it. The compile time of a fresh process (numba, cached on disk after the first run) is reported
-apart. Prints ``name: value unit`` lines; the target is a supervisor cost under half of a step
-(``supervisor_share`` < 0.5 of the step without supervisor).
+it. Beside each call, on the same road state, one prediction of the whole road over the horizon
+(:func:`~sb3_marl.safety.rooms.predict`: the base path every call starts from; each replacement
+candidate costs another, cut short once it cannot win) and one compiled policy step (its frames and
+the collision test) are timed: their ratio says how many predictions a call makes on average, and
+the prediction's cost per frame is the floor of a supervised step. The compile time of a fresh
+process (numba, cached on disk after the first run) is reported apart. Prints ``name: value unit``
+lines; the target is a supervisor cost under half of a step (``supervisor_share`` < 0.5 of the
+step without supervisor).
 
     python benchmarks/supervisor_cost.py [--steps 3000] [--densities 1 2 3] [--versions 3 5]
 
@@ -25,22 +30,33 @@ import numpy as np
 
 import sb3_marl  # noqa: F401  (registers our ids)
 from sb3_marl.envs import DENSITIES, ENV_IDS
+from sb3_marl.safety.rooms import predict
 from sb3_marl.safety.supervisor import Supervisor
+from sb3_marl.sim.dynamics import policy_step
+from sb3_marl.sim.kernel import COLLIDABLE
 
 
 def measure(density: int, steps: int, supervisor: bool, seed: int = 0, version: int | None = None) -> dict[str, float]:
-    """Seconds per step and per supervisor call over ``steps`` steps of a random masked policy
-    (``version``: the supervisor's, default the scenario's)."""
+    """Seconds per step, per supervisor call, per prediction over the horizon and per compiled policy
+    step over ``steps`` steps of a random masked policy (``version``: the supervisor's, default the
+    scenario's)."""
     n_avs, n_hdvs = DENSITIES[density]["avs"][1], DENSITIES[density]["hdvs"][1]
     config = {"n_avs": n_avs, "hdv_count_range": [n_hdvs, n_hdvs], "safety_supervisor": supervisor}
     env = gym.make(ENV_IDS[density], config={**config, **({"supervisor_version": version} if version else {})}).unwrapped
-    supervise, spent = Supervisor.__call__, [0.0, 0]
+    supervise, spent = Supervisor.__call__, [0.0, 0, 0.0, 0.0]
 
-    def timed(*args, **kwargs):
+    def timed(self: Supervisor, state: np.ndarray, n_avs: int, proposed: np.ndarray, available: np.ndarray):
         tic = time.perf_counter()
-        result = supervise(*args, **kwargs)
+        result = supervise(self, state, n_avs, proposed, available)
         spent[0] += time.perf_counter() - tic
         spent[1] += 1
+        h, idle = self.horizon, np.zeros(n_avs, dtype=np.int64)
+        tic = time.perf_counter()
+        predict(state, h, idle, -1, state[:, COLLIDABLE] > 0, -np.inf)
+        spent[2] += time.perf_counter() - tic
+        tic = time.perf_counter()
+        policy_step(state, idle + 1, h.frames_per_step, h.dt, h.lanes, h.road_end, h.speed_limit, h.ladder, idle > 0)
+        spent[3] += time.perf_counter() - tic
         return result
 
     Supervisor.__call__ = timed  # every env's supervisor, timed
@@ -60,8 +76,11 @@ def measure(density: int, steps: int, supervisor: bool, seed: int = 0, version: 
     finally:
         Supervisor.__call__ = supervise
     return {
-        "step": stepping / steps,
+        "step": (stepping - spent[2] - spent[3]) / steps,  # without the timings beside the calls
         "supervisor": spent[0] / max(spent[1], 1),
+        "prediction": spent[2] / max(spent[1], 1),
+        "policy_step": spent[3] / max(spent[1], 1),
+        "frames": float(env.supervisor.horizon.frames),
         "interventions_per_step": interventions / steps,
     }
 
@@ -86,6 +105,9 @@ def main() -> None:
             print(f"{at}_supervisor_call: {1e3 * on['supervisor']:.3f} ms")
             print(f"{at}_supervisor_share: {on['supervisor'] / off['step']:.2f} of a step without supervisor")
             print(f"{at}_interventions_per_step: {on['interventions_per_step']:.2f} AVs")
+            print(f"{at}_one_prediction: {1e3 * on['prediction']:.3f} ms ({on['frames']:.0f} frames)")
+            print(f"{at}_predictions_per_supervisor_call: {on['supervisor'] / on['prediction']:.2f}")
+            print(f"{at}_compiled_policy_step: {1e3 * on['policy_step']:.3f} ms (its frames and collision test)")
 
 
 if __name__ == "__main__":
