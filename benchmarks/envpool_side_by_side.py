@@ -5,7 +5,10 @@ lane-change road is driven: 2 lanes, 12 vehicles (the ego and 11 others), 15 Hz 
 policy, a batch of ``--copies`` envs stepped on one thread. Ours: the parameter-sharing VecEnv of
 ``--copies`` scenario copies at ``--density`` (every AV a slot), in-process, with the safety
 supervisor off and on, the copies stepped in one compiled call (the default, ``RoadBatch``) and one by
-one (``batched=False``, ``_one_by_one``). Both take seeded uniformly random actions (ours: among each AV's available
+one (``batched=False``, ``_one_by_one``), and the compiled step of the batch alone
+(``_compiled_step_only``: :func:`~sb3_marl.envs.batch_kernel.step_copies` timed on the inputs that
+a round of VecEnv steps recorded, without the VecEnv's Python: rewards, slot infos, resets). Both
+take seeded uniformly random actions (ours: among each AV's available
 meta-actions, drawn in one vectorised call) and auto-reset. The three are measured in turn for
 ``--rounds`` rounds and the median of each is printed (single timings on a shared 2-core VM drift
 by a third), as ``name: value unit`` lines: env-steps/s (one road advanced by one policy step) and
@@ -35,6 +38,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 from sb3_marl.envs import ENV_IDS
+from sb3_marl.envs.batch_kernel import step_copies
 from wrappers import ParameterSharingVecEnv
 
 
@@ -67,6 +71,22 @@ def ours_round(venv: ParameterSharingVecEnv, steps: int, rng: np.random.Generato
     return steps * len(venv.slices) / (time.perf_counter() - start)
 
 
+def compiled_round(venv: ParameterSharingVecEnv, steps: int, rng: np.random.Generator) -> float:
+    """Env-steps/s of the batch's compiled step alone, on the states and actions of ``steps`` VecEnv
+    steps (as :func:`ours_round`'s) recorded first."""
+    batch, inputs = venv.batch, []
+    assert batch is not None, "the compiled step of a batched VecEnv"
+    for _ in range(steps):
+        masks = venv.action_masks()
+        actions = np.where(masks, rng.random(masks.shape), -1.0).argmax(axis=1)
+        inputs.append((batch.states, batch.offsets.copy(), actions, batch.steps.copy()))
+        venv.step(actions)  # batch.states is a new array after every step and reset
+    start = time.perf_counter()
+    for states, offsets, actions, steps_done in inputs:
+        step_copies(states, offsets, batch.slot_starts, actions, batch.supervise, batch.shadow, steps_done, batch.parameters)
+    return steps * len(venv.slices) / (time.perf_counter() - start)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--density", type=int, default=3, choices=sorted(ENV_IDS))
@@ -85,6 +105,11 @@ def main() -> None:
             name = f"ours_density{args.density}_{args.copies}copies_supervisor_{'on' if supervisor else 'off'}"
             name += "" if batched else "_one_by_one"
             runs[name] = (lambda venv=venv: ours_round(venv, args.steps, rng), venv.num_envs / args.copies)
+            if batched:
+                runs[name + "_compiled_step_only"] = (
+                    lambda venv=venv: compiled_round(venv, args.steps, rng),
+                    venv.num_envs / args.copies,
+                )
     envpool = load_envpool()
     if envpool is None:
         print("envpool: not installed (pip install envpool==1.2.5); EnvPool's numbers are left out")
@@ -117,9 +142,10 @@ def main() -> None:
         print(f"{name}: {medians[name]:.0f} env-steps/s")
         print(f"{name}_av_steps: {medians[name] * avs_per_road:.0f} AV-steps/s")
     for name in medians:
-        if name.endswith("_one_by_one"):
-            batched = name.removesuffix("_one_by_one")
-            print(f"{batched}_batched_vs_one_by_one: {medians[batched] / medians[name]:.2f} x")
+        if name.endswith("_one_by_one") or name.endswith("_compiled_step_only"):
+            batched = name.removesuffix("_one_by_one").removesuffix("_compiled_step_only")
+            other = name.removeprefix(batched + "_")
+            print(f"{batched}_batched_vs_{other}: {medians[batched] / medians[name]:.2f} x")
     peer = next((medians[name] for name in medians if name.startswith("envpool")), None)
     if peer is not None:
         for name in medians:
