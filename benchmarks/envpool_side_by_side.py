@@ -9,7 +9,7 @@ one (``batched=False``, ``_one_by_one``), and the compiled step of the batch alo
 (``_compiled_step_only``: :func:`~sb3_marl.envs.batch_kernel.step_copies` timed on the inputs that
 a round of VecEnv steps recorded, without the VecEnv's Python: rewards, slot infos, resets). Both
 take seeded uniformly random actions (ours: among each AV's available
-meta-actions, drawn in one vectorised call) and auto-reset. The three are measured in turn for
+meta-actions, drawn in one vectorised call) and auto-reset. Each is measured in turn for
 ``--rounds`` rounds and the median of each is printed (single timings on a shared 2-core VM drift
 by a third), as ``name: value unit`` lines: env-steps/s (one road advanced by one policy step) and
 AV-steps/s (our slots; EnvPool controls one vehicle per road). Roads differ: EnvPool's highway is
