@@ -24,6 +24,14 @@ os.environ.setdefault(
     ),
 )
 
+# Intel MKL (torch's matrix products on x86-64) picks its kernels by CPU generation, and an
+# AVX-512 kernel sums in another order than an AVX2 one: a learner's trajectory then drifts apart
+# from machine to machine. MKL's conditional numerical reproducibility pins the AVX2 kernels on
+# every CPU that has them (read at MKL's first call, so it holds when sb3_marl is imported before
+# any matrix product); with one torch thread (the CLI's default) the same seed then learns the
+# same parameters on any such machine. MKL_CBWR, if set, wins (AUTO: MKL's fastest kernels).
+os.environ.setdefault("MKL_CBWR", "AVX2")
+
 from sb3_marl import envs  # noqa: E402, F401  (registers the gymnasium ids)
 
 __version__ = "0.1.0"

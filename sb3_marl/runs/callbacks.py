@@ -208,7 +208,9 @@ class ScenarioEvalCallback(BaseCallback):
     (``timesteps``, ``results``, ``ep_lengths``: supervisor on) plus one array per driving metric,
     and the same with the prefix ``supervisor_off_`` for the policy alone; to the logger under
     ``eval/`` and ``eval/supervisor_off/``; and the best model so far (supervisor on) to
-    ``<best_model_save_path>/best_model.zip``. ``callback_after_eval`` is called
+    ``<best_model_save_path>/best_model.zip``. A run that ends before its first evaluation was due
+    (a budget below ``eval_freq``, or one spent in a warm start that calls no callback) evaluates
+    its final model once, so that ``best_model.zip`` and ``evaluations.npz`` exist. ``callback_after_eval`` is called
     after each evaluation (as in SB3's ``EvalCallback``; it sees this callback as ``parent``, with
     the latest summary in ``last_summary``; returning False stops training). With ``evaluate_at_end``, training
     that ends normally
@@ -269,7 +271,11 @@ class ScenarioEvalCallback(BaseCallback):
 
     def _on_training_end(self) -> None:
         timesteps = self.evaluations["timesteps"]
-        if self.evaluate_at_end and (not timesteps or timesteps[-1] != self.num_timesteps):
+        if not timesteps and self.eval_freq > 0:
+            if self.verbose >= 1:  # e.g. a budget that was all the DAgger warm start
+                print(f"No evaluation was due during training: evaluating the final model ({self.num_timesteps} AV-steps)")
+            self.evaluate()
+        elif self.evaluate_at_end and (not timesteps or timesteps[-1] != self.num_timesteps):
             self.evaluate()
 
     def final_summary(self) -> dict[str, float]:

@@ -5,7 +5,8 @@ import copy
 
 import pytest
 import torch as th
-from stable_baselines3.common.logger import KVWriter, Logger
+from logged import Dumps
+from stable_baselines3.common.logger import Logger
 
 from sb3_marl.algos import get_algo
 from sb3_marl.algos.common.rule_prior import RulePrior, prior_loss
@@ -14,19 +15,6 @@ from sb3_marl.runs.training import make_model, make_venv
 
 ENV = "sb3_marl/LaneChange-density1-v0"
 PRIOR = {"prior": "idm-mobil", "prior_coef": 1.0, "prior_coef_final": 0.1, "prior_decay_steps": 1000}
-
-
-class Dumps(KVWriter):
-    """Keeps every logger dump (SB3's logger output interface)."""
-
-    def __init__(self) -> None:
-        self.dumps: list[dict] = []
-
-    def write(self, key_values, key_excluded, step=0) -> None:
-        self.dumps.append(dict(key_values))
-
-    def values(self, key: str) -> list:
-        return [dump[key] for dump in self.dumps if key in dump]
 
 
 def test_the_prior_loss_raises_the_rule_action_and_vanishes_at_zero_weight():
@@ -163,3 +151,18 @@ def test_bad_prior_settings_exit_2_before_any_folder(algo, params, message, tmp_
     assert main(["train", "--algo", algo, "-f", str(tmp_path / "logs"), "-n", "100", "-params", params]) == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "logs").exists()
+
+
+def test_a_budget_within_the_warm_start_says_so_and_still_evaluates_the_model(tmp_path, capsys):
+    """A budget the DAgger warm start spends whole (the quick start's safe recipe) calls no
+    callback: the run says that its model is the imitation alone, and evaluates it once at the end
+    so that ``evaluate --load-best`` finds ``best_model.zip``."""
+    logs = tmp_path / "logs"
+    argv = ["train", "--algo", "ma2c", "-f", str(logs), "-n", "240", "--eval-freq", "120", "--eval-episodes", "1"]
+    assert main([*argv, "-params", "prior:'idm-mobil'", "prior_warm_start:600"]) == 0
+    out = capsys.readouterr().out
+    assert "ends within the DAgger warm start (prior_warm_start 600)" in out
+    assert "No evaluation was due during training: evaluating the final model" in out
+    run = logs / "ma2c" / "sb3_marl-LaneChange-density1-v0_1"
+    assert (run / "best_model.zip").is_file() and (run / "evaluations.npz").is_file()
+    assert main(["evaluate", "--algo", "ma2c", "-f", str(logs), "--load-best", "--eval-episodes", "1"]) == 0

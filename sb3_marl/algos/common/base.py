@@ -129,6 +129,12 @@ class MaskableOnPolicy(_OnPolicyHost):
         prior = self.rule_prior
         warm_start = min(prior.warm_start, result[0])  # result[0]: the budget's total AV-steps
         if prior.active and self.num_timesteps < warm_start:
+            if warm_start < prior.warm_start and self.verbose >= 1:
+                print(
+                    f"The budget ({warm_start} AV-steps) ends within the DAgger warm start (prior_warm_start "
+                    f"{prior.warm_start}): the model will be the rule driver's imitation, with no reinforcement learning",
+                    flush=True,
+                )
             dagger(self, warm_start - self.num_timesteps, prior)
         return result
 
