@@ -21,13 +21,16 @@ ALGO_CLASSES: dict[str, str] = {
     "madqn": "sb3_marl.algos.dqn:MaskableDQN",
     "matrpo": "sb3_marl.algos.trpo:SafeTRPO",
     "maacktr": "sb3_marl.algos.acktr:MaskableACKTR",
-    "acktr": "sb3_marl.algos.acktr:MaskableACKTR",
 }
 ALGO_NAMES: tuple[str, ...] = tuple(sorted(ALGO_CLASSES))
+#: Other names :func:`get_algo` takes (the algorithm's own name for a learner the paper names MA...);
+#: the command line takes only :data:`ALGO_NAMES`, each learner under one name.
+ALIASES: dict[str, str] = {"acktr": "maacktr"}
 
 
 def get_algo(name: str) -> type[BaseAlgorithm]:
-    """The class registered under ``name``; a ValueError listing the valid names otherwise."""
+    """The class registered under ``name`` (or an alias); a ValueError listing the valid names otherwise."""
+    name = ALIASES.get(name, name)
     if name not in ALGO_CLASSES:
         raise ValueError(f"Unknown algorithm {name!r}: expected one of {list(ALGO_NAMES)}.")
     module, cls = ALGO_CLASSES[name].split(":")

@@ -29,9 +29,9 @@ from typing import Any
 import filelock
 
 from sb3_marl.benchmark.grid import (
+    GRID_SEEDS,
     PAPER_EVAL_EPISODES,
     PAPER_EVAL_EVERY_EPISODES,
-    PAPER_SEEDS,
     TrialSpec,
     check_budget,
     make_grid,
@@ -82,7 +82,7 @@ def run_benchmark(
     grid: str = "paper",
     log_folder: str | Path = "logs/benchmark",
     budget: float = 1.0,
-    seeds: int = PAPER_SEEDS,
+    seeds: int = GRID_SEEDS,
     densities: tuple[int, ...] = tuple(DENSITIES),
     eval_every_episodes: float = PAPER_EVAL_EVERY_EPISODES,
     eval_episodes: int = PAPER_EVAL_EPISODES,
@@ -307,7 +307,7 @@ class TrialStatus:
 
 
 def grid_status(
-    grid: str, log_folder: str | Path, seeds: int = PAPER_SEEDS, densities: tuple[int, ...] = tuple(DENSITIES)
+    grid: str, log_folder: str | Path, seeds: int = GRID_SEEDS, densities: tuple[int, ...] = tuple(DENSITIES)
 ) -> list[TrialStatus]:
     """Each trial of ``grid`` (as :func:`run_benchmark` would run it into ``log_folder``), in order.
 

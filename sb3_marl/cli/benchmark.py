@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from sb3_marl.benchmark.grid import GRIDS, PAPER_EVAL_EPISODES, PAPER_EVAL_EVERY_EPISODES, PAPER_SEEDS
+from sb3_marl.benchmark.grid import GRID_SEEDS, GRIDS, PAPER_EVAL_EPISODES, PAPER_EVAL_EVERY_EPISODES
 from sb3_marl.cli.common import (
     EXIT_INTERRUPTED,
     MAX_COPIES,
@@ -54,7 +54,7 @@ def add_parsers(commands: Any) -> None:
         "--seeds",
         type=positive(maximum=MAX_COUNT),
         default=None,
-        help=f"seeds per trial setting (default: {PAPER_SEEDS}; status: as many as -f holds, at least {PAPER_SEEDS})",
+        help=f"seeds per trial setting (default: {GRID_SEEDS}; status: as many as -f holds, at least {GRID_SEEDS})",
     )
     benchmark.add_argument(
         "--densities", type=int, nargs="+", choices=sorted(DENSITIES), default=sorted(DENSITIES), help="traffic densities"
@@ -122,7 +122,7 @@ def benchmark_command(args: argparse.Namespace) -> int:
         downloaded = storage.download_trials(Path(args.log_folder))
         print(f"downloaded {len(downloaded)} trial folders from {storage.uri} into {args.log_folder}")
     if args.seeds is None:
-        args.seeds = max(PAPER_SEEDS, _seeds_in(args.log_folder)) if args.action == "status" else PAPER_SEEDS
+        args.seeds = max(GRID_SEEDS, _seeds_in(args.log_folder)) if args.action == "status" else GRID_SEEDS
     if args.action == "report":
         from sb3_marl.benchmark.report import write_report
 

@@ -98,9 +98,11 @@ def add_parsers(commands: Any) -> None:
     baselines = commands.add_parser("baselines", help="metrics of the reference policies (random, cruise, IDM/MOBIL)")
     baselines.add_argument("--env", default=DEFAULT_ENV, choices=SCENARIO_IDS, help="scenario id")
     baselines.add_argument(
-        "--eval-episodes", type=positive(maximum=MAX_EPISODES), default=20, help="episodes per policy, AV count and protocol"
+        "--eval-episodes", type=positive(maximum=MAX_EPISODES), default=30, help="episodes per row (as evaluate's)"
     )
-    baselines.add_argument("--seed", type=int, default=0, help="first episode seed")
+    baselines.add_argument(
+        "--seed", type=int, default=0, help="episode seeds start at seed + 10000, as evaluate's (default: 0)"
+    )
     baselines.add_argument(
         "--supervisor",
         nargs="+",
@@ -363,8 +365,9 @@ def summary_command(args: argparse.Namespace) -> int:
 
 def baselines_command(args: argparse.Namespace) -> int:
     from sb3_marl.envs.config import with_supervisor
-    from sb3_marl.evaluation import markdown_table, run_episodes, summarize
+    from sb3_marl.evaluation import evaluate_protocols, markdown_table, run_episodes, summarize
     from sb3_marl.evaluation.baselines import BASELINES
+    from sb3_marl.runs.experiment import EVAL_SEED_OFFSET
 
     env_id = args.env
     if args.density is not None or args.scenario is not None:  # the old --density / --scenario
@@ -373,18 +376,27 @@ def baselines_command(args: argparse.Namespace) -> int:
     output = args.output or Path("logs") / f"baselines_{env_id.replace('/', '-')}.md"
     check_file("-o/--output", output)
     rows, results = [], []
-    start = time.perf_counter()
+    start, seed = time.perf_counter(), args.seed + EVAL_SEED_OFFSET
     for name, policy_class in BASELINES.items():
-        for n_avs in av_counts(env_id):
-            for protocol in args.supervisor:
-                env = make_scenario(env_id, with_supervisor({"n_avs": n_avs}, protocol))
-                summary = summarize(run_episodes(env, policy_class(), args.eval_episodes, seed=args.seed))
-                label = {"policy": name, "n_avs": n_avs, "supervisor": protocol}
-                results.append({**label, **summary})
-                rows.append((label, summary))
+        # n_avs "all": the density's AV counts in turn, the episodes of `evaluate --with-baselines`
+        mixed = evaluate_protocols(policy_class(), env_id, args.eval_episodes, seed)
+        by_count = [
+            ((n_avs, protocol), summarize(run_episodes(env, policy_class(), args.eval_episodes, seed=seed)))
+            for n_avs in av_counts(env_id)
+            for protocol in args.supervisor
+            for env in [make_scenario(env_id, with_supervisor({"n_avs": n_avs}, protocol))]
+        ]
+        mixed_rows = [
+            (("all", protocol), mixed if protocol == "on" else mixed["supervisor_off"]) for protocol in args.supervisor
+        ]
+        for (n_avs, protocol), summary in [*mixed_rows, *by_count]:
+            summary = {key: value for key, value in summary.items() if key != "supervisor_off"}
+            label = {"policy": name, "n_avs": n_avs, "supervisor": protocol}
+            results.append({**label, **summary})
+            rows.append((label, summary))
     table = (
-        f"Scenario {env_id}: {args.eval_episodes} episodes per row, "
-        f"seeds {args.seed}..{args.seed + args.eval_episodes - 1}\n\n" + markdown_table(rows)
+        f"Scenario {env_id}: {args.eval_episodes} episodes per row, seeds {seed}..{seed + args.eval_episodes - 1} "
+        "(n_avs all: the density's AV counts in turn, the episodes of `evaluate --with-baselines`)\n\n" + markdown_table(rows)
     )
     print(table)
     write_text(output, table + "\n")

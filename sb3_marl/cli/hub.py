@@ -25,7 +25,9 @@ def add_parsers(commands: Any) -> None:
     push = commands.add_parser("push-to-hub", help="build a model folder with a model card and upload it (rl-zoo's flags)")
     add_run_selection(push)
     push.add_argument("--repo-name", default=None, help="default: <algo>-<env name>")
-    push.add_argument("-orga", "--organization", required=True, help="Hub user or organisation")
+    push.add_argument(
+        "-orga", "--organization", default=None, help="Hub user or organisation (needed to upload; not with --dry-run)"
+    )
     push.add_argument("-m", "--commit-message", default="Upload sb3-marl model", help="the Hub commit's message")
     push.add_argument(
         "--eval-episodes", type=positive(maximum=MAX_EPISODES), default=10, help="episodes of the card's evaluation"
@@ -48,7 +50,10 @@ def push_to_hub(args: argparse.Namespace) -> int:
     from sb3_marl.hub import HubError, build_model_folder, push_folder
     from sb3_marl.runs.experiment import EVAL_SEED_OFFSET
 
-    repo_id = f"{args.organization}/{args.repo_name or f'{args.algo}-{EnvironmentName(args.env)}'}"
+    if args.organization is None and args.dry_run is None:
+        raise UsageError("-orga/--organization: required to upload (the Hub user or organisation); --dry-run PATH only builds")
+    organization = args.organization or "your-organization"  # a dry run's card names a placeholder
+    repo_id = f"{organization}/{args.repo_name or f'{args.algo}-{EnvironmentName(args.env)}'}"
     _check_repo_id("-orga/--organization and --repo-name", repo_id)
     dry_run = args.dry_run
     occupied = os.path.exists(dry_run or "") and (not os.path.isdir(dry_run) or bool(os.listdir(dry_run)))

@@ -19,7 +19,7 @@ MAX_VEHICLES = 40
 
 def add_parsers(commands: Any) -> None:
     """Add the sweep's subcommands to the ``sb3-marl`` parser's ``commands``."""
-    sweep = commands.add_parser("sweep", help="trained agents across conditions: `sweep generalisation`")
+    sweep = commands.add_parser("sweep", help="trained agents across conditions: `sweep generalisation`, `sweep penetration`")
     kinds = sweep.add_subparsers(dest="sweep", required=True, metavar="SWEEP")
     matrix = kinds.add_parser(
         "generalisation",

@@ -139,6 +139,13 @@ def test_evaluate_prints_and_saves_the_paper_metrics(logs, capsys):
     assert sorted(result["baselines"]) == ["cruise", "idm-mobil", "random"]
     assert result["baselines"]["idm-mobil"]["collision_rate"] == 0.0
     assert result["baselines"]["cruise"]["lane_changes_per_episode"] == 0.0  # always IDLE: keeps its lane
+    # `baselines` scores the same episodes with the same flags: its rows over every AV count are these
+    assert main(["baselines", "--eval-episodes", "3", "-o", str(logs / "baselines.md")]) == 0
+    rows = json.loads((logs / "baselines.json").read_text())
+    for row in [row for row in rows if row["n_avs"] == "all"]:
+        reference = result["baselines"][row["policy"]]
+        reference = reference if row["supervisor"] == "on" else reference["supervisor_off"]
+        assert row["returns"] == reference["returns"], row["policy"]
     out = capsys.readouterr().out
     assert f"| ma2c | {result['num_timesteps']} |" in out and "| random | - |" in out and "| idm-mobil | - |" in out
     # the traffic view beside it: a table of both protocols and every policy, and the trip records
@@ -346,7 +353,7 @@ def test_two_processes_writing_one_file_do_not_collide(tmp_path):
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["train", "--algo", "a3c"], "invalid choice: 'a3c' (choose from 'acktr', 'ma2c'"),
+        (["train", "--algo", "a3c"], "invalid choice: 'a3c' (choose from 'ma2c', 'maacktr'"),
         (["train", "--env", "highway-v0"], "invalid choice: 'highway-v0'"),
         (["train", "--bogus-flag"], "unrecognized arguments: --bogus-flag"),
         (["train", "--n-envs", "0"], "expected a finite value >= 1"),
@@ -382,9 +389,10 @@ def test_baselines_table(tmp_path, capsys):
     out = tmp_path / "baselines.md"
     assert main(["baselines", "--eval-episodes", "1", "-o", str(out)]) == 0
     rows = json.loads(out.with_suffix(".json").read_text())
-    expected = [(p, n, s) for p in ("random", "cruise", "idm-mobil") for n in (1, 2, 3) for s in ("on", "off")]
+    expected = [(p, n, s) for p in ("random", "cruise", "idm-mobil") for n in ("all", 1, 2, 3) for s in ("on", "off")]
     assert [(r["policy"], r["n_avs"], r["supervisor"]) for r in rows] == expected
     assert "| idm-mobil | 3 | on |" in out.read_text() and "ramp AVs merged" not in out.read_text()
+    assert "seeds 10000..10000" in out.read_text()  # evaluate's seeds
     merge = "sb3_marl/Merge-density1-v0"
     assert main(["baselines", "--env", merge, "--eval-episodes", "1", "--supervisor", "off", "-o", str(out)]) == 0
     assert "| ramp AVs merged | time to merge [s] | stranded/ep |" in out.read_text() and "| on |" not in out.read_text()

@@ -144,6 +144,7 @@ def test_hub_flags_are_checked(trained, tmp_path, capsys):
         (["load-from-hub", "--repo-id", "no slash here", "-f", str(tmp_path)], "--repo-id: invalid Hub repo id"),
         (["load-from-hub", "--repo-id", "a/b/c", "-f", str(tmp_path)], "--repo-id: invalid Hub repo id 'a/b/c'"),
         (["push-to-hub", "-orga", "bad org!", "-f", str(trained), "--dry-run", str(tmp_path / "new")], "invalid Hub repo id"),
+        (["push-to-hub", "-f", str(trained)], "-orga/--organization: required to upload"),
         (
             ["push-to-hub", "-orga", "me", "-f", str(trained), "--dry-run", str(not_empty)],
             f"--dry-run: '{not_empty}' exists and is not an empty folder",
@@ -229,4 +230,7 @@ def test_every_flag_has_help_and_help_shows_the_defaults(capsys):
     with pytest.raises(SystemExit):
         main(["baselines", "--help"])
     out = " ".join(capsys.readouterr().out.split())
-    assert "first episode seed (default: 0)" in out and "(default: logs/baselines_<env>.md)" in out
+    assert (
+        "episode seeds start at seed + 10000, as evaluate's (default: 0)" in out
+        and "(default: logs/baselines_<env>.md)" in out
+    )

@@ -48,6 +48,9 @@ def hub(monkeypatch, tmp_path) -> FakeHub:
 def test_dry_run_builds_the_folder_with_a_model_card_matching_the_evaluation(logs, tmp_path):
     folder = tmp_path / "card"
     assert main(["push-to-hub", "-f", str(logs), "-orga", "me", "--eval-episodes", "3", "--dry-run", str(folder)]) == 0
+    # a dry run needs no organisation: the card names a placeholder
+    assert main(["push-to-hub", "-f", str(logs), "--eval-episodes", "1", "--no-video", "--dry-run", str(tmp_path / "x")]) == 0
+    assert "your-organization/" in (tmp_path / "x" / "README.md").read_text()
     assert {p.name for p in folder.iterdir()} == FILES
     results = json.loads((folder / "results.json").read_text())
     assert results["episodes"] == 3 and results["num_timesteps"] == 240

@@ -10,7 +10,7 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.evaluation import evaluate_policy
 from torch import nn
 
-from sb3_marl.algos import ALGOS, get_algo
+from sb3_marl.algos import get_algo
 from sb3_marl.algos.acktr import ACKTR, KFAC, MaskableACKTR
 
 
@@ -239,5 +239,5 @@ def test_box_actions_train_the_log_std():
 
 
 def test_registered_as_maacktr_and_acktr():
-    assert get_algo("maacktr") is MaskableACKTR and ALGOS["acktr"] is MaskableACKTR
+    assert get_algo("maacktr") is MaskableACKTR and get_algo("acktr") is MaskableACKTR
     assert issubclass(MaskableACKTR, ACKTR)

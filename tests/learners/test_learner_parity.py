@@ -145,6 +145,9 @@ def test_the_first_update_logs_what_it_logged_before(case):
     for key, value in expected.items():
         if key.endswith("explained_variance"):
             continue
+        if not np.isfinite(value):  # e.g. MA2C's clip range (inf), a round's collision rate with no episode ended (nan)
+            assert found[key] == value or (np.isnan(value) and np.isnan(found[key])), f"{case}: {key}: {found[key]}"
+            continue
         scale = max(abs(value), abs(found[key]), 1e-3)
         assert abs(found[key] - value) <= FIRST_RTOL * scale, f"{case}: {key}: {found[key]} (reference {value})"
 
