@@ -26,7 +26,7 @@ import signal
 import sys
 
 from sb3_marl import __version__
-from sb3_marl.cli import benchmark, evaluate, hub, sweep, train
+from sb3_marl.cli import baselines, benchmark, evaluate, hub, sweep, train
 from sb3_marl.cli.common import EXIT_INTERRUPTED, CommandFailed, CommandParser, DefaultsHelpFormatter, UsageError
 
 
@@ -39,7 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=CommandParser)
-    for group in (train, evaluate, hub, benchmark, sweep):
+    for group in (train, evaluate, baselines, hub, benchmark, sweep):
         group.add_parsers(commands)
     return parser
 
