@@ -2,6 +2,7 @@
 
 import hashlib
 import os
+import sys
 from pathlib import Path
 
 
@@ -16,13 +17,13 @@ def _compiled_sources_digest() -> str:
 
 
 # numba caches the compiled road kernel in the user's cache folder, not beside the installed
-# modules (where `pip uninstall` would leave it behind); NUMBA_CACHE_DIR, if set, wins
-os.environ.setdefault(
-    "NUMBA_CACHE_DIR",
-    os.path.join(
-        os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "sb3-marl", "numba", _compiled_sources_digest()
-    ),
-)
+# modules (where `pip uninstall` would leave it behind), or in the temporary folder where that
+# cannot be written; NUMBA_CACHE_DIR, if set, wins
+from sb3_marl.common.compiled import choose_cache_folder  # noqa: E402
+
+_fallback = choose_cache_folder(_compiled_sources_digest())
+if _fallback:
+    print(_fallback, file=sys.stderr)
 
 # Intel MKL (torch's matrix products on x86-64) picks its kernels by CPU generation, and an
 # AVX-512 kernel sums in another order than an AVX2 one: a learner's trajectory then drifts apart

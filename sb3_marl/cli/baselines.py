@@ -46,6 +46,7 @@ def add_parsers(commands: Any) -> None:
 
 
 def baselines_command(args: argparse.Namespace) -> int:
+    from sb3_marl.common.compiled import announce_compiling
     from sb3_marl.envs.config import with_supervisor
     from sb3_marl.evaluation import evaluate_protocols, markdown_table, run_episodes, summarize
     from sb3_marl.evaluation.baselines import BASELINES
@@ -57,6 +58,7 @@ def baselines_command(args: argparse.Namespace) -> int:
         env_id = (MERGE_ENV_IDS if scenario == MERGE else ENV_IDS)[args.density or 1]
     output = args.output or Path("logs") / f"baselines_{env_id.replace('/', '-')}.md"
     check_file("-o/--output", output)
+    announce_compiling()
     rows, results = [], []
     start, seed = time.perf_counter(), args.seed + EVAL_SEED_OFFSET
     for name, policy_class in BASELINES.items():

@@ -170,6 +170,7 @@ def _with_env_kwargs(run: Any, args: argparse.Namespace) -> Any:
 
 def evaluate_command(args: argparse.Namespace) -> int:
     from sb3_marl.algos.common.policies import model_policy
+    from sb3_marl.common.compiled import announce_compiling
     from sb3_marl.evaluation import evaluate_protocols, markdown_table, protocol_rows
     from sb3_marl.evaluation.traffic import human_reference, traffic_table, trips_csv
     from sb3_marl.evaluation.traffic_plots import time_space_diagram
@@ -179,6 +180,7 @@ def evaluate_command(args: argparse.Namespace) -> int:
     check_file("-o/--output", args.output)
     run = _with_env_kwargs(find_run_of(args), args)
     model = load_model_of(run, args)
+    announce_compiling()
     seed, episodes, progress = args.seed + EVAL_SEED_OFFSET, _episodes(args, run), args.verbose > 0
     start = time.perf_counter()
     result = {"model": str(run.model_path), **run.evaluate(model, episodes, seed, args.deterministic, progress, traffic=True)}

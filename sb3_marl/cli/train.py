@@ -267,6 +267,7 @@ def _check_trained_agent(args: argparse.Namespace) -> None:
 
 
 def train_command(args: argparse.Namespace) -> int:
+    from sb3_marl.common.compiled import announce_compiling, compiling
     from sb3_marl.runs.callbacks import DivergedError
     from sb3_marl.runs.experiment import MARLExperimentManager
     from sb3_marl.runs.folders import RunSpec, latest_checkpoint
@@ -276,6 +277,7 @@ def train_command(args: argparse.Namespace) -> int:
     spec = RunSpec.from_args(args)
     tensorboard_log = spec.tensorboard_folder
     manager = MARLExperimentManager(spec)
+    announce_compiling()
     try:
         experiment = manager.setup_experiment()
     except (ValueError, FileNotFoundError) as error:  # bad hyperparameters: nothing has been trained
@@ -287,7 +289,7 @@ def train_command(args: argparse.Namespace) -> int:
         return EXIT_INTERRUPTED[signal.SIGINT] if manager.interrupted else 0
     model, _ = experiment  # type: ignore[misc]
     start = time.perf_counter()
-    with _StopTraining() as stop:
+    with _StopTraining() as stop, compiling() as compile_time:
         try:
             manager.learn(model)
         except OSError as error:  # a full disk, a folder removed under us: saving would likely fail too
@@ -316,7 +318,10 @@ def train_command(args: argparse.Namespace) -> int:
         manager.save_trained_model(model)
     except OSError as error:
         raise CommandFailed(_write_failure(manager, model, error)) from None
-    print(f"Training wall time: {time.perf_counter() - start:.1f} s, {model.num_timesteps} timesteps (AV-steps)")
+    compiled = (
+        f" ({compile_time.seconds:.1f} s of it compiling the road kernel, first run only)" if compile_time.seconds >= 1 else ""
+    )
+    print(f"Training wall time: {time.perf_counter() - start:.1f} s{compiled}, {model.num_timesteps} timesteps (AV-steps)")
     if tensorboard_log:
         print(f"TensorBoard: tensorboard --logdir {tensorboard_log}")
     if manager.interrupted:
