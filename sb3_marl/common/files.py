@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 import os
+import re
+import socket
 import zipfile
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -14,27 +16,58 @@ from typing import Any
 import numpy as np
 import yaml
 
+#: This machine's name in temporary files' names (no dots or separators).
+HOST = re.sub(r"[^A-Za-z0-9_-]", "_", socket.gethostname())
+#: A temporary file of :func:`replaced_atomically`: its host (absent in older names) and process id.
+PARTIAL = re.compile(r"^\..+\.(?:(?P<host>[A-Za-z0-9_-]+)-)?(?P<pid>\d+)\.partial(\.[^.]+)?$")
+
 
 @contextmanager
 def replaced_atomically(path: str | Path) -> Iterator[Path]:
-    """Yield a temporary path beside ``path`` (``.<stem>.<pid>.partial<suffix>``) to write to.
+    """Yield a temporary path beside ``path`` (``.<stem>.<host>-<pid>.partial<suffix>``) to write to.
 
-    The process id in the name keeps two processes that write the same file (two benchmark
+    The host and process id in the name keep two processes that write the same file (two benchmark
     launchers on one folder) from renaming each other's temporary file away.
 
     When the block ends normally, the temporary file replaces ``path`` in one rename. When it
     raises (an error, Ctrl-C, SIGTERM turned into KeyboardInterrupt), the temporary file is
-    removed and ``path`` keeps its previous content.
+    removed and ``path`` keeps its previous content. A process killed mid-write cannot remove its
+    own: the next write into the folder removes every temporary file of a process of this host
+    that is gone (:func:`remove_debris`).
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = path.with_name(f".{path.stem}.{os.getpid()}.partial{path.suffix}")
+    remove_debris(path.parent)
+    temporary = path.with_name(f".{path.stem}.{HOST}-{os.getpid()}.partial{path.suffix}")
     try:
         yield temporary
         os.replace(temporary, path)
     except BaseException:
         temporary.unlink(missing_ok=True)
         raise
+
+
+def _running(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        return True
+    return True
+
+
+def remove_debris(folder: str | Path) -> list[Path]:
+    """Remove the temporary files that processes of this host which are gone left in ``folder``
+    (killed mid-write); returns them. Another host's are left alone (its process may be alive)."""
+    removed = []
+    for candidate in Path(folder).glob(".*.partial*"):
+        match = PARTIAL.match(candidate.name)
+        if match is None or (match["host"] or HOST) != HOST or _running(int(match["pid"])):
+            continue
+        candidate.unlink(missing_ok=True)
+        removed.append(candidate)
+    return removed
 
 
 def inside(path: str | Path, folder: str | Path) -> Path:
