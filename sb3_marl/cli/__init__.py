@@ -27,7 +27,14 @@ import sys
 
 from sb3_marl import __version__
 from sb3_marl.cli import baselines, benchmark, evaluate, hub, sweep, train
-from sb3_marl.cli.common import EXIT_INTERRUPTED, CommandFailed, CommandParser, DefaultsHelpFormatter, UsageError
+from sb3_marl.cli.common import (
+    EXIT_INTERRUPTED,
+    CommandFailed,
+    CommandParser,
+    DefaultsHelpFormatter,
+    StopOnSignals,
+    UsageError,
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -48,9 +55,11 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
+    stop = StopOnSignals()
     try:
         handler = vars(args).pop("handler")  # not an argument: rl-zoo saves the arguments in args.yml
-        return handler(args)
+        with stop:
+            return handler(args)
     except (UsageError, CommandFailed) as error:
         print(f"sb3-marl {args.command}: error: {error}", file=sys.stderr)
         return 2 if isinstance(error, UsageError) else 1
@@ -59,12 +68,13 @@ def main(argv: list[str] | None = None) -> int:
 
         if not interrupted_by_user(error):
             raise
+        signum = signal.Signals(stop.signal or signal.SIGINT)
         print(
-            f"sb3-marl {args.command}: interrupted; files it had written are complete (each is written whole), "
-            "nothing else was written.",
+            f"sb3-marl {args.command}: interrupted ({signum.name}); files it had written are complete (each is "
+            "written whole), nothing else was written.",
             file=sys.stderr,
         )
-        return EXIT_INTERRUPTED[signal.SIGINT]
+        return EXIT_INTERRUPTED[signum]
     except BrokenPipeError:  # `sb3-marl ... | head` closed the pipe: stop quietly, as other tools do
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no error when Python flushes at exit
         return 1

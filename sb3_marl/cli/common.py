@@ -21,6 +21,27 @@ DEFAULT_ENV = ENV_IDS[1]
 EXIT_INTERRUPTED = {signal.SIGINT: 130, signal.SIGTERM: 143}
 
 
+class StopOnSignals:
+    """While active, SIGINT and SIGTERM raise KeyboardInterrupt (the first one; ``signal`` records
+    which), so a command stops where Python is and its atomic writes and saves run as for Ctrl-C."""
+
+    def __init__(self) -> None:
+        self.signal: int | None = None
+
+    def __enter__(self) -> StopOnSignals:
+        self._previous = {sig: signal.signal(sig, self._handle) for sig in EXIT_INTERRUPTED}
+        return self
+
+    def _handle(self, signum: int, frame: Any) -> None:
+        if self.signal is None:
+            self.signal = signum
+            raise KeyboardInterrupt
+
+    def __exit__(self, *exc: Any) -> None:
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+
+
 class StoreHyperparams(argparse.Action):
     """rl-zoo's ``-params key:value ...``: each value is a literal, never evaluated as code
     (:func:`sb3_marl.common.literals.parse_literal`: ``n_steps:20``, ``env_config:"dict(comfort=False)"``,

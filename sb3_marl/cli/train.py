@@ -17,6 +17,7 @@ from sb3_marl.cli.common import (
     MAX_COUNT,
     MAX_EPISODES,
     CommandFailed,
+    StopOnSignals,
     StoreHyperparams,
     UsageError,
     add_num_threads,
@@ -166,26 +167,6 @@ def _add_search_flags(search: Any) -> None:
     search.add_argument("--study-name", default=None, help="study name in --storage (required with it)")
 
 
-class _StopTraining:
-    """While active, SIGTERM raises KeyboardInterrupt like Ctrl-C, so training stops and saves."""
-
-    def __init__(self) -> None:
-        self.signal: int | None = None
-
-    def __enter__(self) -> _StopTraining:
-        self._previous = {sig: signal.signal(sig, self._handle) for sig in EXIT_INTERRUPTED}
-        return self
-
-    def _handle(self, signum: int, frame: Any) -> None:
-        if self.signal is None:
-            self.signal = signum
-            raise KeyboardInterrupt
-
-    def __exit__(self, *exc: Any) -> None:
-        for sig, handler in self._previous.items():
-            signal.signal(sig, handler)
-
-
 def _check_train_args(args: argparse.Namespace) -> None:
     """Everything about ``train``'s flags that can be checked before any work or folder."""
     from sb3_marl.algos import get_algo
@@ -289,7 +270,7 @@ def train_command(args: argparse.Namespace) -> int:
         return EXIT_INTERRUPTED[signal.SIGINT] if manager.interrupted else 0
     model, _ = experiment  # type: ignore[misc]
     start = time.perf_counter()
-    with _StopTraining() as stop, compiling() as compile_time:
+    with StopOnSignals() as stop, compiling() as compile_time:
         try:
             manager.learn(model)
         except OSError as error:  # a full disk, a folder removed under us: saving would likely fail too
