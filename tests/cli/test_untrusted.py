@@ -4,6 +4,7 @@ file when unpickled or evaluated, as the tests with ``trust_remote_code`` show."
 
 import base64
 import contextlib
+import io
 import json
 import os
 import re
@@ -50,19 +51,28 @@ def run(tmp_path_factory) -> Path:
 
 
 def poisoned_copy(run: Path, tmp_path: Path, entry: str = "policy_class") -> tuple[Path, Path]:
-    """A copy of the run whose model zip's ``entry`` is a cloudpickle payload; (logs, marker)."""
+    """A copy of the run whose model zip carries a payload (logs, marker): its data's ``entry``
+    cloudpickled, or for a member name (``policy.pth``, ...) that member a ``torch.save`` of a
+    state dict whose value is the payload (added if the zip had no such member)."""
+    import torch
+
     logs = tmp_path / "logs"
     subprocess.run(["cp", "-r", str(run), str(logs)], check=True)
     marker = tmp_path / "marker"
     model = logs / "ma2c" / f"{ENV_NAME}_1" / f"{ENV_NAME}.zip"
     with zipfile.ZipFile(model) as archive:
         files = {name: archive.read(name) for name in archive.namelist()}
-    data = json.loads(files["data"])
-    data[entry] = {
-        ":type:": "<class 'abc.ABCMeta'>",
-        ":serialized:": base64.b64encode(cloudpickle.dumps(Payload(marker))).decode(),
-    }
-    files["data"] = json.dumps(data).encode()
+    if entry.endswith(".pth"):
+        weights = io.BytesIO()
+        torch.save({"weight": Payload(marker)}, weights)
+        files[entry] = weights.getvalue()
+    else:
+        data = json.loads(files["data"])
+        data[entry] = {
+            ":type:": "<class 'abc.ABCMeta'>",
+            ":serialized:": base64.b64encode(cloudpickle.dumps(Payload(marker))).decode(),
+        }
+        files["data"] = json.dumps(data).encode()
     with zipfile.ZipFile(model, "w") as archive:
         for name, content in files.items():
             archive.writestr(name, content)
@@ -90,6 +100,41 @@ def test_a_poisoned_model_zip_is_refused_by_every_command(run, tmp_path, capsys,
     # the payload is no policy class (the load then fails): what matters is that it ran
     with pytest.warns(UserWarning, match="trust_remote_code=True"), contextlib.suppress(Exception):
         get_algo("ma2c").load(model, trust_remote_code=True)
+    assert marker.exists()
+
+
+@pytest.mark.parametrize("member", ["policy.pth", "pytorch_variables.pth", "policy.optimizer.pth"])
+def test_a_model_zip_with_pickled_weights_is_refused_in_one_line(run, tmp_path, capsys, member):
+    """A zip whose ``member`` holds a pickled payload where tensors belong: every command exits 2
+    with one line naming the zip and the member (not torch's paragraph on ``weights_only``), and
+    ``load`` raises UnsafeModelError, with or without trust_remote_code; the payload never runs."""
+    import torch
+
+    logs, marker = poisoned_copy(run, tmp_path, member)
+    model = logs / "ma2c" / f"{ENV_NAME}_1" / f"{ENV_NAME}.zip"
+    refusal = f"{model}: {member}: not plain tensors (a pickled object where weights belong"
+    completed = subprocess.run(
+        [SB3_MARL, "evaluate", "-f", str(logs), "--eval-episodes", "1"], capture_output=True, text=True, timeout=300
+    )
+    assert completed.returncode == 2, completed.stderr
+    (line,) = completed.stderr.splitlines()
+    assert line.startswith(f"sb3-marl evaluate: error: {refusal}") and line.endswith("refused without running it."), line
+    for argv in (
+        ["record-video", "-f", str(logs), "-o", str(tmp_path / "v.mp4")],
+        ["train", "-f", str(tmp_path / "resumed"), "-i", str(model), *TINY],
+    ):
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and refusal in err, err
+    assert not (tmp_path / "resumed").exists() and not (tmp_path / "v.mp4").exists()
+    with pytest.raises(UnsafeModelError, match=re.escape(f"{member}: not plain tensors")):
+        get_algo("ma2c").load(model)
+    with pytest.warns(UserWarning, match="trust_remote_code=True"), pytest.raises(UnsafeModelError, match=member):
+        get_algo("ma2c").load(model, trust_remote_code=True)
+    assert not marker.exists()
+    # the payload is real: unpickling the member runs it
+    with zipfile.ZipFile(model) as archive:
+        torch.load(io.BytesIO(archive.read(member)), weights_only=False)
     assert marker.exists()
 
 
@@ -326,16 +371,28 @@ def test_bad_seeds_exit_2_before_any_folder(seed, tmp_path, capsys):
     assert "--seed" in capsys.readouterr().err and not (tmp_path / "logs").exists()
 
 
-def test_unwritable_and_overlong_log_folders_exit_2(tmp_path, capsys):
+def test_unwritable_and_overlong_log_folders_exit_2(tmp_path, capsys, monkeypatch):
+    """A log folder inside a read-only folder (mode 0500), an over-long name, /proc, a non-UTF-8
+    name: exit 2 naming the flag, nothing made. Root writes into a 0500 folder regardless of its
+    mode, so as root the OS's answer for another user (``os.access``: not writable) stands in."""
     locked = tmp_path / "locked"
     locked.mkdir()
     locked.chmod(0o500)
+    if os.geteuid() == 0:
+        access = os.access
+        monkeypatch.setattr(
+            os,
+            "access",
+            lambda path, mode, **kw: False if Path(path) == locked and mode & os.W_OK else access(path, mode, **kw),
+        )
     try:
-        if not os.access(locked, os.W_OK):  # root writes everywhere: nothing to check then
-            assert main(["train", "-f", str(locked / "logs"), "-n", "100"]) == 2
-            assert "not writable" in capsys.readouterr().err
+        assert not os.access(locked, os.W_OK)
+        assert main(["train", "-f", str(locked / "logs"), "-n", "100"]) == 2
+        assert f"'{locked}' is not writable" in capsys.readouterr().err
+        assert list(locked.iterdir()) == []
     finally:
         locked.chmod(0o700)
+        monkeypatch.undo()
     assert main(["train", "-f", str(tmp_path / ("x" * 300)), "-n", "100"]) == 2
     assert "too long" in capsys.readouterr().err
     assert main(["train", "-f", "/proc/nope", "-n", "100"]) == 2  # a folder no one can make

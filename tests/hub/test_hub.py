@@ -37,6 +37,8 @@ def logs(tmp_path_factory) -> Path:
 def hub(monkeypatch, tmp_path) -> FakeHub:
     # a cache of our own: the fake Hub's fixed commit hash must never meet files cached by another test run
     monkeypatch.setattr(huggingface_hub.constants, "HF_HUB_CACHE", str(tmp_path / "hf_cache"))
+    # large files through LFS over HTTP: hf_xet's transfer runs outside the replaced HTTP boundary
+    monkeypatch.setattr(huggingface_hub.constants, "HF_HUB_DISABLE_XET", True)
     fake = FakeHub()
     huggingface_hub.set_client_factory(fake.client)
     monkeypatch.setenv("HF_TOKEN", "hf_test_token")
@@ -94,6 +96,9 @@ def test_push_then_load_round_trip(logs, tmp_path, hub, capsys):
         == 0
     )
     assert set(hub.repos["me/lane"]) == FILES
+    # the model and the video go through LFS (uploaded, verified, committed by sha256), as on the real Hub
+    assert hub.lfs_paths["me/lane"] == {MODEL, "replay.mp4"}
+    assert sum(method == "PUT" and path.startswith("/lfs-upload/me/lane/") for method, path in hub.requests) == 2
     assert hub.commits[-1]["summary"] == "first upload"
     assert "uploaded to https://huggingface.co/me/lane/commit/" in capsys.readouterr().out
     built = next(logs.glob(f"ma2c/{ENV_NAME}_1/hub"))

@@ -5,9 +5,11 @@
   serialized entry from its readable fields and what the project knows (the algorithm's policy
   and buffer classes, gymnasium spaces, SB3 schedules, an allow-list of torch classes) and hands
   them to SB3's loader as ``custom_objects``, which then unpickles nothing; tensors are read with
-  ``torch.load(weights_only=True)`` (SB3's default). An entry that cannot be rebuilt refuses the
-  load with a :class:`UnsafeModelError` naming it. ``trust_remote_code=True`` (the Hugging Face
-  convention) loads a zip from another tool the way SB3 does, unpickling it, with a warning.
+  ``torch.load(weights_only=True)`` (SB3's default). An entry that cannot be rebuilt, and a
+  ``.pth`` member holding a pickled object where tensors belong (:func:`check_plain_tensors`),
+  refuse the load with a one-line :class:`UnsafeModelError` naming it. ``trust_remote_code=True``
+  (the Hugging Face convention) loads a zip from another tool the way SB3 does, unpickling its
+  ``data`` entries, with a warning (its tensors are still read as data only).
 
 The other data others share: run-folder YAML (:func:`sb3_marl.common.files.read_run_yaml`) and strings of
 hyperparameters (:func:`sb3_marl.common.literals.parse_literal`, whose :data:`~sb3_marl.common.literals.ALLOWED_NAMES`
@@ -277,9 +279,45 @@ def load_model(
         check_network_size(objects.get("policy_kwargs"), str(path))
     from stable_baselines3.common.base_class import BaseAlgorithm
 
-    model = BaseAlgorithm.load.__func__(algo_class, path, custom_objects=objects, **kwargs)  # type: ignore[attr-defined]  # SB3's own loader
+    try:
+        model = BaseAlgorithm.load.__func__(algo_class, path, custom_objects=objects, **kwargs)  # type: ignore[attr-defined]  # SB3's own loader
+    except Exception:
+        check_plain_tensors(path)
+        raise
     check_finite_weights(model, path)
     return model
+
+
+def check_plain_tensors(path: str | Path) -> None:
+    """An :class:`UnsafeModelError` naming the first ``.pth`` member of the zip at ``path`` (the
+    policy's and optimiser's tensors, ``pytorch_variables.pth``) that holds a pickled object where
+    plain tensors belong, in one line; ``torch.load(weights_only=True)`` refuses to unpickle it, so
+    nothing of it runs, with or without ``trust_remote_code``. Members that are unreadable for other
+    reasons (truncated, not a torch file) and an unreadable zip are left to SB3's loader to report."""
+    import pickle
+
+    import torch
+
+    try:
+        archive = zipfile.ZipFile(path)
+    except Exception:  # not a zip: SB3's loader says so
+        return
+    with archive:
+        for name in archive.namelist():
+            if not name.endswith(".pth") or archive.getinfo(name).file_size > MAX_MEMBER_BYTES:
+                continue
+            try:
+                with archive.open(name) as member:
+                    torch.load(member, map_location="cpu", weights_only=True)
+            except pickle.UnpicklingError as error:  # torch's refusal of a global it does not allow
+                named = re.search(r"GLOBAL (\S+) was not an allowed global", str(error))
+                detail = f": it names {named.group(1)}" if named else ""
+                raise UnsafeModelError(
+                    f"{path}: {name}: not plain tensors (a pickled object where weights belong{detail}); "
+                    "refused without running it."
+                ) from None
+            except Exception:  # truncated or not a torch file: SB3's loader reports it
+                continue
 
 
 def check_finite_weights(model: Any, path: str | Path) -> None:
@@ -328,6 +366,7 @@ safe_load = classmethod(_safe_load)
 __all__ = [
     "UnsafeModelError",
     "check_finite_weights",
+    "check_plain_tensors",
     "load_model",
     "read_model_data",
     "safe_custom_objects",
