@@ -64,3 +64,21 @@ def markdown_tables(text: str) -> list[list[dict[str, str]]]:
             header = cells(lines[0])
             tables.append([dict(zip(header, cells(line), strict=True)) for line in lines[2:]])
     return tables
+
+
+def prose(text: str) -> str:
+    """``text`` with its fenced code blocks emptied (their lines kept, blank)."""
+    return re.sub(r"^```.*?^```", lambda block: "\n" * block.group().count("\n"), text, flags=re.S | re.M)
+
+
+def blocks(page: str) -> list[tuple[str, str]]:
+    """The prose blocks of ``page`` (paragraphs, lists, tables: text between blank lines, code blocks
+    left out), each with the title of the heading it sits under ("" before the first)."""
+    found, title = [], ""
+    for block in re.split(r"\n[ \t]*\n", prose(read(page))):
+        for line in block.strip().splitlines():
+            if match := re.match(r"(#+) (.*)", line):
+                title = match.group(2).strip()
+        if block.strip():
+            found.append((title, block.strip()))
+    return found
