@@ -1,5 +1,7 @@
 """The packages are the architecture's layers: imports only point down, and no module imports
-itself back through others (no circle); module size and the learners' class stacks stay small."""
+itself back through others (no circle); the package's top and the learners' class stacks stay small.
+Module size is no rule here: a module is split where it holds two ideas (a line count was met by
+joining lines)."""
 
 from __future__ import annotations
 
@@ -25,7 +27,6 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("sb3_marl.cli",),
     ("sb3_marl.__main__",),
 )
-MAX_MODULE_LINES = 400
 MAX_TOP_LEVEL_MODULES = 8
 
 
@@ -112,9 +113,8 @@ def test_no_import_circle():
     assert not circles, "import circles:\n" + "\n".join(circles)
 
 
-def test_modules_are_small_and_few_at_the_top():
-    long = {module: n for module, path in MODULES.items() if (n := len(path.read_text().splitlines())) > MAX_MODULE_LINES}
-    assert not long, f"modules over {MAX_MODULE_LINES} lines: {long}"
+def test_few_modules_at_the_top():
+    """The package's top holds its entry points, not its concepts (those live in the layers)."""
     top = [path.name for path in ROOT.joinpath("sb3_marl").glob("*.py")]
     assert len(top) <= MAX_TOP_LEVEL_MODULES, top
 

@@ -19,7 +19,7 @@ from stable_baselines3.common.vec_env.base_vec_env import CloudpickleWrapper
 
 from sb3_marl.envs.config import with_supervisor
 from sb3_marl.envs.reward import apply_reward_mode
-from wrappers.slot_infos import Ending, copy_arrays
+from wrappers.step_arrays import Ending, copy_arrays
 
 
 class CopyRunner:
@@ -60,7 +60,7 @@ class CopyRunner:
         return self.env.observation_space, self.env.action_space
 
     def reset(self, seed: int | None, options: dict[str, Any]) -> tuple[np.ndarray, dict[str, Any]]:
-        """Observations (n_avs, ...) and the per-AV arrays of the slot infos (:func:`copy_arrays`)."""
+        """Observations (n_avs, ...) and the per-AV step arrays (:func:`copy_arrays`)."""
         options = self._episode_options(seed, options)
         obs, info = self.env.reset(seed=seed, **({"options": options} if options else {}))
         missing = [key for key in ("rewards", "neighbours") if key not in info]
@@ -82,7 +82,7 @@ class CopyRunner:
 
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool, dict[str, Any], Ending | None]:
         """Step with one action per AV: observations (the new episode's when done), rewards in
-        the reward mode, done, the per-AV arrays of the slot infos (:func:`copy_arrays`) and, when
+        the reward mode, done, the per-AV step arrays (:func:`copy_arrays`) and, when
         done, how the episode ended."""
         obs, _, terminated, truncated, info = self.env.step(actions)
         ending = None

@@ -28,12 +28,12 @@ from sb3_marl.envs import (  # importing sb3_marl.envs registers the scenario id
 from sb3_marl.envs.batch import RoadBatch, batchable
 from sb3_marl.envs.reward import REWARD_MODES
 from wrappers.copies import CopyGroups, CopyRunner, per_agent_spaces
-from wrappers.slot_infos import Ending, join_arrays, slice_arrays, slot_infos
+from wrappers.step_arrays import Ending, StepArrays
 
 VEC_BACKENDS = ("dummy", "subproc")
 #: Copy methods whose result has one row per AV; ``env_method`` hands each slot its own row.
 PER_AGENT_METHODS = ("action_masks", "rule_actions")
-#: Per-AV methods answered from the current observations' slot infos: method -> info key.
+#: Per-AV methods answered from the current observations' arrays: method -> :class:`StepArrays` field.
 CACHED_METHODS = {"action_masks": "action_mask", "rule_actions": "rule_action"}
 EnvFactory = Callable[[int], gym.Env]
 
@@ -74,10 +74,10 @@ class ParameterSharingVecEnv(VecEnv):
     final observation in ``terminal_observation``, ``TimeLimit.truncated`` (True for time-limit
     and road-end truncations, so SB3 bootstraps; crashes are terminations) and
     ``episode = {"r", "l", "t"}`` (the slot's return in the reward mode, length in steps, wall
-    time in s), and the copy is reset automatically. Every step's slot info also has the AV's
-    driving metrics (speed [m/s], headway [m], acceleration [m/s²], lane_change, crashed,
-    exited, action_mask), ``reward`` (its own), ``global_reward``, ``reward_terms`` and
-    ``copy`` / ``agent`` indices.
+    time in s), and the copy is reset automatically; the other infos are empty. What else the step
+    did, per slot, is in :attr:`step_arrays` (:class:`~wrappers.step_arrays.StepArrays`: driving
+    metrics, masks, proposed and executed actions, interventions, rule actions, rewards and their
+    terms, copy and AV indices), which learners and callbacks read (through any VecEnvWrapper).
 
     ``vec_backend="dummy"`` steps the copies in this process; ``"subproc"`` spreads them
     round-robin over ``n_workers`` worker processes (default: one per CPU core, at most one per
@@ -165,8 +165,9 @@ class ParameterSharingVecEnv(VecEnv):
         super().__init__(int(starts[-1]), single_obs_space, single_action_space)
 
         self._obs = np.zeros((self.num_envs, *single_obs_space.shape), dtype=single_obs_space.dtype)
-        #: action masks and rule actions of the current observations, from the copies' infos
-        #: (a method's entry is missing where the infos do not report it)
+        #: the last step's (or reset's) per-slot arrays
+        self.step_arrays: StepArrays | None = None
+        #: action masks and rule actions of the current observations (an ended copy's: its new episode's)
         self._current: dict[str, np.ndarray] = {}
         self._episode_returns = np.zeros(self.num_envs)
         self._episode_lengths = np.zeros(self.num_envs, dtype=np.int64)
@@ -217,9 +218,9 @@ class ParameterSharingVecEnv(VecEnv):
             for k in range(self.n_copies):
                 self.batch.load(k)  # the copies were reset by their envs (reset options may reconfigure)
             self._copies_touched = False
-        arrays = self._slot_arrays([results[k][1] for k in range(self.n_copies)])
-        self.reset_infos = list(slot_infos(arrays))
-        self._current = {method: arrays[key].copy() for method, key in CACHED_METHODS.items() if key in arrays}
+        self.step_arrays = self._join([results[k][1] for k in range(self.n_copies)])
+        self.reset_infos = [{} for _ in range(self.num_envs)]
+        self._current = {method: getattr(self.step_arrays, key).copy() for method, key in CACHED_METHODS.items()}
         self._episode_returns[:] = 0.0
         self._episode_lengths[:] = 0
         self._reset_seeds()
@@ -257,7 +258,7 @@ class ParameterSharingVecEnv(VecEnv):
             rewards[self.slices[k]] = slot_rewards
             if ending is not None:
                 endings[k] = ending
-        return self._finish(rewards, self._slot_arrays([results[k][3] for k in range(self.n_copies)]), endings)
+        return self._finish(rewards, self._join([results[k][3] for k in range(self.n_copies)]), endings)
 
     def _step_batch(self) -> VecEnvStepReturn:
         """One compiled step of every copy (:class:`~sb3_marl.envs.batch.RoadBatch`); the copies
@@ -268,7 +269,6 @@ class ParameterSharingVecEnv(VecEnv):
                 self.batch.load(k)
             self._copies_touched = False
         step, arrays, rewards = self.batch.step(self._actions)
-        arrays.update(copy=self.slot_copy, agent=self.slot_agent)
         self._obs[:] = step.obs
         ended = np.flatnonzero(step.terminated | step.truncated)
         endings: dict[int, Ending] = {}
@@ -280,27 +280,30 @@ class ParameterSharingVecEnv(VecEnv):
             for k in ended.tolist():
                 sl = self.slices[k]
                 self._obs[sl] = start.obs[sl]
-                endings[k] = Ending(step.obs[sl], bool(step.truncated[k]), slice_arrays(start_arrays, sl))
-        return self._finish(rewards, arrays, endings)
+                endings[k] = Ending(
+                    step.obs[sl], bool(step.truncated[k]), {key: start_arrays[key][sl] for key in CACHED_METHODS.values()}
+                )
+        return self._finish(rewards, StepArrays.join([arrays], self.slot_copy, self.slot_agent), endings)
 
-    def _slot_arrays(self, parts: list[dict[str, Any]]) -> dict[str, Any]:
-        """The copies' slot-info arrays joined over the slots, with each slot's copy and AV index."""
-        return {**join_arrays(parts), "copy": self.slot_copy, "agent": self.slot_agent}
+    def _join(self, parts: list[dict[str, Any]]) -> StepArrays:
+        """The copies' per-AV arrays (:func:`~wrappers.step_arrays.copy_arrays`) over the slots."""
+        return StepArrays.join(parts, self.slot_copy, self.slot_agent)
 
-    def _finish(self, rewards: np.ndarray, arrays: dict[str, Any], endings: dict[int, Ending]) -> VecEnvStepReturn:
-        """The step's return from every slot's reward, the slot-info arrays and the copies whose
+    def _finish(self, rewards: np.ndarray, arrays: StepArrays, endings: dict[int, Ending]) -> VecEnvStepReturn:
+        """The step's return from every slot's reward, the step's arrays and the copies whose
         episode ended (their observations in ``self._obs`` already the new episode's)."""
         self._episode_returns += rewards
         self._episode_lengths += 1
-        infos = slot_infos(arrays)
+        self.step_arrays = arrays
+        infos: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
         dones = np.zeros(self.num_envs, dtype=bool)
-        self._current = {method: arrays[key].copy() for method, key in CACHED_METHODS.items() if key in arrays}
+        self._current = {method: getattr(arrays, key).copy() for method, key in CACHED_METHODS.items()}
         elapsed = round(time.time() - self._t_start, 6)
         for k, ending in endings.items():
             sl = self.slices[k]
             dones[sl] = True
-            new_infos = slot_infos({**ending.reset_arrays, "copy": self.slot_copy[sl], "agent": self.slot_agent[sl]})
-            self.reset_infos[sl] = new_infos
+            for method, key in CACHED_METHODS.items():
+                self._current[method][sl] = ending.reset_arrays[key]
             for agent, slot in enumerate(range(sl.start, sl.stop)):
                 info = infos[slot]
                 info["terminal_observation"] = ending.terminal_observation[agent]
@@ -310,12 +313,9 @@ class ParameterSharingVecEnv(VecEnv):
                     "l": int(self._episode_lengths[slot]),
                     "t": elapsed,
                 }
-            for method, key in CACHED_METHODS.items():
-                if method in self._current and key in ending.reset_arrays:
-                    self._current[method][sl] = ending.reset_arrays[key]
             self._episode_returns[sl] = 0.0
             self._episode_lengths[sl] = 0
-        return self._obs.copy(), rewards.astype(np.float32), dones, list(infos)
+        return self._obs.copy(), rewards.astype(np.float32), dones, infos
 
     # ---- VecEnv plumbing --------------------------------------------------------------------
 

@@ -5,11 +5,11 @@ from __future__ import annotations
 
 from typing import Any
 
-import numpy as np
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvStepReturn
 
 from sb3_marl.common.checks import check_number
+from wrappers.step_arrays import step_arrays_of
 
 
 def check_penalty(penalty: float, name: str = "penalty") -> None:
@@ -27,11 +27,11 @@ class VecRewardScale(VecEnvWrapper):
 
     ``scale``: the MARL_CAVs code trains on rewards / 20. ``intervention_penalty`` (not the paper's,
     default 0) lowers the reward of each AV slot whose proposed action the safety supervisor
-    replaced (``info["intervened"]``), in the paper's units: a training signal that the proposal
-    was unsafe (the learner stores the proposed action, so without it the supervisor's braking
-    reaches that proposal only through its consequences).
-    Infos keep the unscaled, unpenalised values (``reward``, ``episode``), so metrics stay in the
-    paper's units, and evaluation uses the paper's reward.
+    replaced (the parameter-sharing VecEnv's ``step_arrays.intervened``), in the paper's units: a
+    training signal that the proposal was unsafe (the learner stores the proposed action, so
+    without it the supervisor's braking reaches that proposal only through its consequences).
+    The step arrays and infos keep the unscaled, unpenalised values (``reward``, ``episode``), so
+    metrics stay in the paper's units, and evaluation uses the paper's reward.
 
     :param venv: the VecEnv to wrap
     :param scale: the factor, > 0
@@ -51,5 +51,7 @@ class VecRewardScale(VecEnvWrapper):
     def step_wait(self) -> VecEnvStepReturn:
         obs, rewards, dones, infos = self.venv.step_wait()
         if self.intervention_penalty:
-            rewards = rewards - self.intervention_penalty * np.array([bool(i.get("intervened", False)) for i in infos])
+            arrays = step_arrays_of(self.venv)
+            if arrays is not None:
+                rewards = rewards - self.intervention_penalty * arrays.intervened
         return obs, rewards * self.scale, dones, infos

@@ -17,6 +17,7 @@ from sb3_marl.algos.common.loading import safe_load
 from sb3_marl.algos.common.policies import clip_gradients
 from sb3_marl.algos.common.rule_prior import RulePrior
 from sb3_marl.algos.common.teacher import check_safety_loss_coef
+from wrappers.step_arrays import step_arrays_of
 
 
 def large_margin_loss(q_values: th.Tensor, labels: th.Tensor, margin: float) -> th.Tensor:
@@ -124,6 +125,13 @@ class MaskableDQN(DQN):
         else:
             actions, _ = self.predict(self._last_obs, deterministic=False, action_masks=masks)  # type: ignore[arg-type]
         return actions, actions
+
+    def _store_transition(self, replay_buffer: Any, *args: Any, **kwargs: Any) -> None:
+        """SB3's, with what the VecEnv's step arrays say of the transition (the next masks, the
+        supervisor's and the rule driver's actions) kept beside it in a :class:`MaskedReplayBuffer`."""
+        if isinstance(replay_buffer, MaskedReplayBuffer):
+            replay_buffer.record(step_arrays_of(self.env))
+        super()._store_transition(replay_buffer, *args, **kwargs)
 
     def train(self, gradient_steps: int, batch_size: int = 100) -> None:
         """SB3's ``DQN.train`` with the bootstrap target's max over the available next actions."""

@@ -131,12 +131,12 @@ class RoadBatch:
 
     def start(self, copies: np.ndarray) -> tuple[BatchStep, dict[str, Any]]:
         """The first observations of the new episodes of ``copies`` (each :meth:`load`-ed) and
-        their slot infos' arrays; the other slots are empty."""
+        their per-slot arrays; the other slots are empty."""
         result = start_copies(self.states, self.offsets, self.slot_starts, np.asarray(copies, dtype=np.int64), self.parameters)
         return result, self.slot_arrays(result, result.executed)
 
     def slot_arrays(self, result: BatchStep, proposed: np.ndarray) -> dict[str, Any]:
-        """The per-slot arrays of a step's slot infos, named as the scenario's info entries, with
+        """The per-slot arrays of a step, named as the scenario's info entries, with
         each AV's own reward (``reward``) and its copy's mean (``global_reward``)."""
         terms = result.terms
         terms[1] = np.minimum(np.log(terms[1]), 0.0)  # numpy's log, as the scenario env's

@@ -165,7 +165,7 @@ def step_copies(
 def start_copies(
     states: np.ndarray, offsets: np.ndarray, slot_starts: np.ndarray, copies: np.ndarray, p: StepParameters
 ) -> BatchStep:
-    """The first observation (and what the slot infos carry) of the new episodes of ``copies``;
+    """The first observation (and the per-slot arrays of it) of the new episodes of ``copies``;
     the other copies' slots are left empty."""
     r = _allocate(states, offsets, slot_starts, p)
     for k in copies:

@@ -120,17 +120,17 @@ class EpisodeRecord:
             self.merge_times = np.asarray(info["merge_time"])[np.asarray(info["ramp_av"])]
             self.stranded = int(info["stranded"])
 
-    def add_slot_step(self, slot_info: dict) -> None:
-        """Accumulate one AV's share of a parameter-sharing VecEnv step (a slot's info, see
-        :class:`~wrappers.ParameterSharingVecEnv`): the copy's first AV adds the step and the
-        global reward, every AV its crash flag, lane change and supervisor intervention."""
-        if slot_info["agent"] == 0:
-            self.episode_return += slot_info["global_reward"]
+    def add_slot_step(self, arrays: Any, slot: int) -> None:
+        """Accumulate one AV's share of a parameter-sharing VecEnv step (row ``slot`` of its
+        ``step_arrays``, :class:`~wrappers.step_arrays.StepArrays`): the copy's first AV adds the
+        step and the global reward, every AV its crash flag, lane change and supervisor intervention."""
+        if arrays.agent[slot] == 0:
+            self.episode_return += float(arrays.global_reward[slot])
             self.length += 1
-        self.crashed = self.crashed or bool(slot_info["crashed"])
-        self.lane_changes += int(slot_info["lane_change"])
-        if not slot_info["exited"]:
-            self.interventions += int(slot_info.get("intervened", False))
+        self.crashed = self.crashed or bool(arrays.crashed[slot])
+        self.lane_changes += int(arrays.lane_change[slot])
+        if not arrays.exited[slot]:
+            self.interventions += int(arrays.intervened[slot])
             self.av_steps += 1
 
 

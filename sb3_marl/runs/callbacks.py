@@ -20,8 +20,9 @@ from sb3_marl.common.files import read_evaluations, replaced_atomically
 from sb3_marl.envs.lane_change_env import ACTIONS
 from sb3_marl.evaluation import EpisodeRecord, protocol_records, summarize
 from sb3_marl.evaluation.traffic import TripRecorder
+from wrappers.step_arrays import step_arrays_of
 
-#: Per-AV-step driving samples of the slot infos, averaged (speed, headway) or spread (acceleration).
+#: Per-AV-step driving samples of the step arrays, averaged (speed, headway) or spread (acceleration).
 DRIVING_SAMPLES = ("speed", "headway", "acceleration")
 
 
@@ -105,7 +106,7 @@ class StoreExecutedActions(BaseCallback):
 
     SB3 and sb3-contrib call the callback after each ``env.step`` and before the transition goes
     into the rollout / replay buffer; this callback overwrites, in place, the step's ``actions``
-    with each slot's ``info["executed_action"]`` and, for on-policy learners, the stored
+    with each slot's executed action (the VecEnv's ``step_arrays.executed_action``) and, for on-policy learners, the stored
     ``log_probs`` with the policy's log-probability of those actions (so the update stays A2C's:
     the probability ratio of the single step is 1). Slots whose action was not replaced are
     untouched. Used with ``stored_actions: executed`` in a zoo config.
@@ -114,7 +115,10 @@ class StoreExecutedActions(BaseCallback):
     def _on_step(self) -> bool:
         actions = self.locals["actions"]
         proposed = actions.reshape(-1)
-        executed = np.array([info.get("executed_action", a) for info, a in zip(self.locals["infos"], proposed)])
+        arrays = step_arrays_of(self.training_env)
+        if arrays is None:
+            return True
+        executed = np.where(arrays.executed_action >= 0, arrays.executed_action, proposed)
         if np.array_equal(executed, proposed):
             return True
         proposed[:] = executed  # a view: the array the algorithm stores
@@ -153,22 +157,20 @@ class DrivingMetricsCallback(BaseCallback):
         self._action_counts = np.zeros(len(ACTIONS), dtype=np.int64)
 
     def _on_step(self) -> bool:
-        finished = set()
-        for info, done in zip(self.locals["infos"], self.locals["dones"]):
-            if "copy" not in info:
-                continue
-            self._running[info["copy"]].add_slot_step(info)
-            if not info["exited"]:
-                for key in DRIVING_SAMPLES:
-                    self._samples[key].append(float(info[key]))
-                for term, value in info["reward_terms"].items():
-                    self._samples[f"reward_{term}"].append(value)
-                self._samples["supervisor_interventions"].append(float(info.get("intervened", False)))
-                if info.get("proposed_action", -1) >= 0:
-                    self._action_counts[int(info["proposed_action"])] += 1
-            if done:
-                finished.add(info["copy"])
-        for copy in finished:
+        arrays = step_arrays_of(self.training_env)
+        if arrays is None:
+            return True
+        for slot in range(len(arrays.copy)):
+            self._running[int(arrays.copy[slot])].add_slot_step(arrays, slot)
+        on_road = ~arrays.exited
+        for key in DRIVING_SAMPLES:
+            self._samples[key].extend(getattr(arrays, key)[on_road].tolist())
+        for term, values in arrays.reward_terms.items():
+            self._samples[f"reward_{term}"].extend(values[on_road].tolist())
+        self._samples["supervisor_interventions"].extend(arrays.intervened[on_road].astype(float).tolist())
+        proposed = arrays.proposed_action[on_road]
+        self._action_counts += np.bincount(proposed[proposed >= 0], minlength=len(ACTIONS))
+        for copy in sorted(set(arrays.copy[np.asarray(self.locals["dones"], dtype=bool)].tolist())):
             self.episodes.append(self._running.pop(copy))
         return True
 

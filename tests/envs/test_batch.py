@@ -1,21 +1,17 @@
 """The batched step (:class:`~sb3_marl.envs.batch.RoadBatch`) gives the episodes of stepping the
-scenario copies one by one: the same observations, rewards, masks, executed actions, events and
-slot infos, step by step, with the same seeds."""
+scenario copies one by one: the same observations, rewards, masks, executed actions, events,
+step arrays and infos, step by step, with the same seeds."""
 
 from __future__ import annotations
 
-import copy
-import pickle
+from dataclasses import fields
 
 import numpy as np
 import pytest
 
 from sb3_marl.envs import ENV_IDS, MERGE_ENV_IDS
 from wrappers import ParameterSharingVecEnv
-from wrappers.slot_infos import PER_AGENT_INFO, SlotInfo
-
-#: Slot-info entries compared (beside observations, rewards, dones and masks).
-ENTRIES = (*(key for key in PER_AGENT_INFO if key != "action_mask"), "reward", "global_reward", "copy", "agent")
+from wrappers.step_arrays import StepArrays
 
 
 def _trace(env_id: str, batched: bool, steps: int, config: dict, reward_mode: str = "local", **kwargs) -> list:
@@ -24,19 +20,25 @@ def _trace(env_id: str, batched: bool, steps: int, config: dict, reward_mode: st
     venv = ParameterSharingVecEnv(env_id, **options, **kwargs)
     assert (venv.batch is not None) == batched
     rng = np.random.default_rng(1)
-    trace: list = [venv.reset(), [dict(info) for info in venv.reset_infos]]
+    trace: list = [venv.reset(), venv.reset_infos, *_arrays(venv.step_arrays)]
     for _ in range(steps):
         masks = venv.action_masks()
         actions = np.array([rng.choice(np.flatnonzero(row)) for row in masks])
         obs, rewards, dones, infos = venv.step(actions)
-        trace += [obs, rewards, dones, masks, venv.rule_actions()]
+        trace += [obs, rewards, dones, masks, venv.rule_actions(), *_arrays(venv.step_arrays)]
         for info in infos:
-            trace.append([info[key] for key in ENTRIES] + [info["reward_terms"]])
+            assert set(info) in (set(), {"terminal_observation", "TimeLimit.truncated", "episode"})
             if "terminal_observation" in info:
                 episode = info["episode"]
                 trace += [info["terminal_observation"], info["TimeLimit.truncated"], episode["r"], episode["l"]]
     venv.close()
     return trace
+
+
+def _arrays(arrays: StepArrays) -> list:
+    """Every field of a step's arrays (each reward term by name)."""
+    values = [getattr(arrays, f.name) for f in fields(arrays) if f.name != "reward_terms"]
+    return [*values, sorted(arrays.reward_terms), *arrays.reward_terms.values()]
 
 
 def _assert_same(batched: list, one_by_one: list) -> None:
@@ -105,18 +107,3 @@ def test_what_steps_one_by_one(options):
     venv = ParameterSharingVecEnv(ENV_IDS[1], n_copies=2, **options)
     assert venv.batch is None
     venv.close()
-
-
-def test_slot_infos_behave_as_dicts():
-    arrays = {"reward": np.array([1.0, 2.0]), "speed": np.array([3.0, 4.0]), "reward_terms": {"speed": np.array([0.5, 0.25])}}
-    info = SlotInfo(arrays, 1)
-    info["episode"] = {"r": 1.0}
-    assert isinstance(info, dict) and len(info) == 4 and "speed" in info and info.get("missing", 7) == 7
-    assert info.copy() == {"reward": 2.0, "speed": 4.0, "reward_terms": {"speed": 0.25}, "episode": {"r": 1.0}}
-    assert dict(info) == {**info} == info.copy() and info == info.copy()
-    del info["speed"]
-    assert "speed" not in info and list(info) == ["reward", "reward_terms", "episode"]
-    with pytest.raises(KeyError):
-        info["speed"]
-    for clone in (copy.deepcopy(info), pickle.loads(pickle.dumps(info))):
-        assert clone == info

@@ -65,14 +65,14 @@ def test_load_history_keeps_the_evaluations_up_to_the_checkpoint(tmp_path):
     assert resumed.best_mean_reward == log["results"][0].mean()
 
 
-def test_episode_records_from_slot_infos_equal_those_from_the_copy():
-    """The driving-metrics callback builds episodes from slot infos (add_slot_step), evaluation
-    from the copy's info (add_step): on a real supervised episode both give the same record."""
+def test_episode_records_from_step_arrays_equal_those_from_the_copy():
+    """The driving-metrics callback builds episodes from the VecEnv's step arrays (add_slot_step),
+    evaluation from the copy's info (add_step): on a real supervised episode both give the same record."""
     import numpy as np
 
     from sb3_marl.envs import LaneChangeEnv
     from sb3_marl.evaluation import EpisodeRecord
-    from wrappers.slot_infos import copy_arrays, slot_infos
+    from wrappers.step_arrays import StepArrays, copy_arrays
 
     env = LaneChangeEnv(config={"density": 3, "safety_supervisor": True})
     env.reset(seed=3)
@@ -82,9 +82,9 @@ def test_episode_records_from_slot_infos_equal_those_from_the_copy():
         actions = np.array([rng.choice(np.flatnonzero(row)) for row in env.action_masks()])
         _, reward, terminated, truncated, info = env.step(actions)
         from_copy.add_step(reward, info)
-        arrays = copy_arrays(info)
-        for slot_info in slot_infos({**arrays, "copy": np.zeros(env.n_avs, dtype=int), "agent": np.arange(env.n_avs)}):
-            from_slots.add_slot_step(slot_info)
+        arrays = StepArrays.join([copy_arrays(info)], np.zeros(env.n_avs, dtype=int), np.arange(env.n_avs))
+        for slot in range(env.n_avs):
+            from_slots.add_slot_step(arrays, slot)
         done = terminated or truncated
     assert from_copy.length > 1 and from_copy.lane_changes > 0 and from_copy.interventions > 0
     for field in ("length", "crashed", "lane_changes", "interventions", "av_steps"):

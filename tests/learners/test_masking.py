@@ -119,8 +119,8 @@ class ExecutedRecorder(BaseCallback):
         self.executed, self.intervened = [], []
 
     def _on_step(self) -> bool:
-        self.executed.append([info["executed_action"] for info in self.locals["infos"]])
-        self.intervened.append([info["intervened"] for info in self.locals["infos"]])
+        self.executed.append(self.training_env.step_arrays.executed_action.tolist())
+        self.intervened.append(self.training_env.step_arrays.intervened.tolist())
         return True
 
 

@@ -18,7 +18,7 @@ SUPERVISED = {"safety_supervisor": True}
 
 
 class InterventionCounter(BaseCallback):
-    """Counts the slot-steps the supervisor overruled, from the step infos."""
+    """Counts the slot-steps the supervisor overruled, from the VecEnv's step arrays."""
 
     def __init__(self) -> None:
         super().__init__()
@@ -28,7 +28,8 @@ class InterventionCounter(BaseCallback):
         self.count = 0
 
     def _on_step(self) -> bool:
-        self.count += sum(bool(i.get("intervened")) and not i.get("exited") for i in self.locals["infos"])
+        arrays = self.training_env.step_arrays
+        self.count += int((arrays.intervened & ~arrays.exited).sum())
         return True
 
 
@@ -94,9 +95,9 @@ def _interventions_and_crashes(dropout: float, seed: int = 0, steps: int = 300) 
     interventions = crashes = 0
     trace = []
     for _ in range(steps):
-        _, rewards, _, infos = venv.step(rng.integers(0, 5, venv.num_envs))
-        interventions += sum(bool(i["intervened"]) for i in infos)
-        crashes += sum(bool(i["crashed"]) for i in infos)
+        _, rewards, _, _ = venv.step(rng.integers(0, 5, venv.num_envs))
+        interventions += int(venv.step_arrays.intervened.sum())
+        crashes += int(venv.step_arrays.crashed.sum())
         trace.append(rewards.copy())
     venv.close()
     return interventions, crashes, trace

@@ -79,9 +79,9 @@ def test_reward_modes():
     results = {}
     for mode in ("individual", "global", "local"):
         vec = _placed_three_avs(mode)
-        _, rewards, _, infos = vec.step(actions)
+        _, rewards, _, _ = vec.step(actions)
         results[mode] = rewards
-        own = np.array([info["reward"] for info in infos])
+        own = vec.step_arrays.reward
         vec.close()
     # The situations are identical, so each mode recombines the same per-AV rewards.
     assert len(set(np.round(own, 6))) == 3
@@ -114,7 +114,7 @@ def test_crash_is_a_termination_for_all_slots_of_the_copy():
     _, rewards, dones, infos = vec.step(np.full(4, IDLE))
     assert dones.tolist() == [True, True, False, False]
     assert [info["TimeLimit.truncated"] for info in infos[:2]] == [False, False]
-    assert infos[0]["crashed"] and not infos[1]["crashed"]
+    assert vec.step_arrays.crashed.tolist() == [True, False, False, False]
     assert rewards[0] < -99.0  # local: the crash (-200) shared with the neighbour AV
     assert "terminal_observation" not in infos[2]
     vec.close()
@@ -292,7 +292,7 @@ def test_stopped_worker_times_out_naming_the_copy():
 
 
 def test_action_masks_come_from_the_current_observations():
-    """The VecEnv answers ``action_masks`` from the copies' infos: the same as asking each copy."""
+    """The VecEnv answers ``action_masks`` from its step arrays: the same as asking each copy."""
     vec = ParameterSharingVecEnv(ENV_IDS[3], seed=0)
     vec.reset()
     rng = np.random.default_rng(0)
@@ -306,7 +306,8 @@ def test_action_masks_come_from_the_current_observations():
 
 def test_intervention_penalty_lowers_the_training_reward_of_overruled_slots_only():
     """Same seeds, same random actions: the penalised rewards differ from the plain ones by the
-    penalty exactly where the supervisor replaced the slot's action; infos keep the paper's reward."""
+    penalty exactly where the supervisor replaced the slot's action; the step arrays keep the
+    paper's reward (read through the wrapper)."""
     config = {"safety_supervisor": True}
     plain = ParameterSharingVecEnv(ENV_IDS[3], seed=5, config=config)
     penalised = VecRewardScale(ParameterSharingVecEnv(ENV_IDS[3], seed=5, config=config), 0.5, intervention_penalty=2.5)
@@ -315,12 +316,12 @@ def test_intervention_penalty_lowers_the_training_reward_of_overruled_slots_only
     overruled = 0
     for _ in range(60):
         actions = rng.integers(0, 5, size=plain.num_envs)
-        _, reward, _, infos = plain.step(actions)
-        _, penalised_reward, _, penalised_infos = penalised.step(actions)
-        intervened = np.array([info["intervened"] for info in infos])
+        _, reward, _, _ = plain.step(actions)
+        _, penalised_reward, _, _ = penalised.step(actions)
+        intervened = plain.step_arrays.intervened
         overruled += intervened.sum()
         np.testing.assert_allclose(penalised_reward, (reward - 2.5 * intervened) * 0.5)
-        assert [info["reward"] for info in penalised_infos] == [info["reward"] for info in infos]
+        np.testing.assert_array_equal(penalised.step_arrays.reward, plain.step_arrays.reward)
     assert overruled > 0  # random actions at density 3: the supervisor steps in
     with pytest.raises(ValueError, match="Invalid intervention_penalty=-1"):
         VecRewardScale(plain, intervention_penalty=-1)
@@ -334,8 +335,8 @@ def test_rule_actions_per_slot_follow_the_current_observations():
     for _ in range(40):
         expected = np.concatenate([venv.copy_env(k).rule_actions() for k in range(venv.n_copies)])
         np.testing.assert_array_equal(venv.rule_actions(), expected)
-        _, _, _, infos = venv.step(np.full(venv.num_envs, ACTION_INDEX["FASTER"]))
-        assert all("rule_action" in info for info in infos)
+        venv.step(np.full(venv.num_envs, ACTION_INDEX["FASTER"]))
+        assert venv.step_arrays.rule_action.shape == (venv.num_envs,)
     venv.close()
     with pytest.raises(RuntimeError, match="closed"):
         venv.action_masks()

@@ -12,7 +12,7 @@ from sb3_contrib.common.maskable.buffers import MaskableDictRolloutBuffer, Maska
 from stable_baselines3.common.buffers import ReplayBuffer
 
 from sb3_marl.algos.common.teacher import executed_labels
-from wrappers.slot_infos import slot_column
+from wrappers.step_arrays import StepArrays
 
 
 class MaskedReplayBufferSamples(NamedTuple):
@@ -32,11 +32,10 @@ class MaskedReplayBufferSamples(NamedTuple):
 
 
 class MaskedReplayBuffer(ReplayBuffer):
-    """SB3's ``ReplayBuffer`` that also keeps the action mask of every next observation, taken
-    from the step infos' ``action_mask`` (the scenario reports the mask of the observation it
-    returns; after an episode end, of the terminal observation; without one: all available), and
-    the action the safety supervisor executed where it replaced the stored one (-1 elsewhere), and
-    the rule driver's action for each next observation (``info["rule_action"]``, -1 without one)."""
+    """SB3's ``ReplayBuffer`` that also keeps, from the VecEnv's step arrays (:meth:`record`), the
+    action mask of every next observation (after an episode end, of the terminal observation), the
+    action the safety supervisor executed where it replaced the stored one (-1 elsewhere), and the
+    rule driver's action for each next observation (-1 where the AV has left the road)."""
 
     def __init__(
         self,
@@ -55,20 +54,15 @@ class MaskedReplayBuffer(ReplayBuffer):
         self.executed_actions = np.full((self.buffer_size, self.n_envs), -1, dtype=np.int64)
         self.next_rule_actions = np.full((self.buffer_size, self.n_envs), -1, dtype=np.int64)
 
-    def add(
-        self,
-        obs: np.ndarray,
-        next_obs: np.ndarray,
-        action: np.ndarray,
-        reward: np.ndarray,
-        done: np.ndarray,
-        infos: list[dict[str, Any]],
-    ) -> None:
-        self.next_action_masks[self.pos] = slot_column(infos, "action_mask", True)
-        self.executed_actions[self.pos] = executed_labels(infos)
-        exited = np.asarray(slot_column(infos, "exited", False), dtype=bool)
-        self.next_rule_actions[self.pos] = np.where(exited, -1, slot_column(infos, "rule_action", -1))
-        super().add(obs, next_obs, action, reward, done, infos)
+    def record(self, arrays: StepArrays | None) -> None:
+        """Keep what a step's arrays say of the transition that :meth:`add` stores next (None, a
+        VecEnv without them: every action available, no supervisor or rule action)."""
+        self.executed_actions[self.pos] = executed_labels(arrays, self.n_envs)
+        if arrays is None:
+            self.next_action_masks[self.pos], self.next_rule_actions[self.pos] = True, -1
+            return
+        self.next_action_masks[self.pos] = arrays.action_mask
+        self.next_rule_actions[self.pos] = np.where(arrays.exited, -1, arrays.rule_action)
 
     def _get_samples(self, batch_inds: np.ndarray, env: Any = None) -> MaskedReplayBufferSamples:  # type: ignore[override]
         """SB3's ``ReplayBuffer._get_samples`` (without the memory-optimised layout) plus the masks."""

@@ -42,6 +42,7 @@ from sb3_marl.algos.common.teacher import MAX_LOSS_WEIGHT, select_rows
 from sb3_marl.common.checks import check_integer, check_number, invalid
 from sb3_marl.envs.config import with_supervisor
 from sb3_marl.evaluation.episodes import evaluate_on_density
+from wrappers.step_arrays import step_arrays_of
 
 #: Rule drivers a learner can start from: the scenario's IDM/MOBIL decision.
 PRIORS = ("idm-mobil",)
@@ -202,10 +203,12 @@ def dagger(model: Any, timesteps: int, prior: RulePrior) -> None:
             observations.append(obs)
             masks.append(step_masks)
             obs, reward, done, infos = mixed.step(actions.cpu().numpy())
+            arrays = step_arrays_of(mixed)  # an ended episode counts once: at its first AV's slot
+            first_av = np.ones(n_envs, dtype=bool) if arrays is None else arrays.agent == 0
             for slot, info in enumerate(infos):
                 if done[slot] and info.get("TimeLimit.truncated", False):
                     reward[slot] += model.gamma * _value(policy, info["terminal_observation"])[0]
-                if done[slot] and info.get("agent", 0) == 0:
+                if done[slot] and first_av[slot]:
                     ended += 1
                     crashes += not info.get("TimeLimit.truncated", False)
                 if "episode" in info:

@@ -11,23 +11,21 @@ from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 
 from sb3_marl.algos.common.policies import clip_gradients
 from sb3_marl.common.checks import check_number
-from wrappers.slot_infos import slot_column
+from wrappers.step_arrays import StepArrays, step_arrays_of
 
 
-def executed_labels(infos: list[dict[str, Any]]) -> np.ndarray:
+def executed_labels(arrays: StepArrays | None, n_envs: int) -> np.ndarray:
     """Per VecEnv slot of one step: the action the safety supervisor executed where it replaced the
-    proposal of an AV still on the road, -1 elsewhere (the labels of the teachers' losses)."""
-    intervened = np.asarray(slot_column(infos, "intervened", False), dtype=bool)
-    exited = np.asarray(slot_column(infos, "exited", False), dtype=bool)
-    if not intervened.any():
-        return np.full(len(infos), -1, dtype=np.int64)
-    executed = np.asarray(slot_column(infos, "executed_action", -1), dtype=np.int64)
-    return np.where(intervened & ~exited, executed, -1)
+    proposal of an AV still on the road, -1 elsewhere (the labels of the teachers' losses; all -1
+    without ``arrays``, a VecEnv that does not report them)."""
+    if arrays is None:
+        return np.full(n_envs, -1, dtype=np.int64)
+    return np.where(arrays.intervened & ~arrays.exited, arrays.executed_action, -1).astype(np.int64)
 
 
 class InterventionRecorder(BaseCallback):
     """Records, per rollout step and VecEnv slot, the action the safety supervisor executed where
-    it replaced the policy's proposal (``info["intervened"]``), -1 elsewhere: the labels of
+    it replaced the policy's proposal (the VecEnv's ``step_arrays.intervened``), -1 elsewhere: the labels of
     :func:`safety_step`. Arrays are ``(n_steps, n_envs)``, as the rollout buffer's."""
 
     def __init__(self, n_steps: int, n_envs: int) -> None:
@@ -41,7 +39,7 @@ class InterventionRecorder(BaseCallback):
 
     def _on_step(self) -> bool:
         if self.position < len(self.executed):
-            self.executed[self.position] = executed_labels(self.locals["infos"])
+            self.executed[self.position] = executed_labels(step_arrays_of(self.training_env), self.executed.shape[1])
         self.position += 1
         return True
 
