@@ -34,6 +34,7 @@ from sb3_marl.cli.common import (
     DefaultsHelpFormatter,
     StopOnSignals,
     UsageError,
+    os_error_text,
 )
 
 
@@ -77,6 +78,9 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_INTERRUPTED[signum]
     except BrokenPipeError:  # `sb3-marl ... | head` closed the pipe: stop quietly, as other tools do
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no error when Python flushes at exit
+        return 1
+    except OSError as error:  # no room, read-only, no permission, ...: files already written are whole
+        print(f"sb3-marl {args.command}: error: {os_error_text(error)}.", file=sys.stderr)
         return 1
 
 

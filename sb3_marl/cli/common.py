@@ -4,6 +4,7 @@ help formatter, finding a run and loading its model."""
 from __future__ import annotations
 
 import argparse
+import errno
 import math
 import os
 import signal
@@ -169,6 +170,30 @@ def check_device(device: str) -> None:
         raise UsageError(f"--device: {device!r} asked for, but this machine has no CUDA GPU: use auto or cpu.")
 
 
+def os_error_text(error: OSError) -> str:
+    """What an OS error means for the user, in one line: the path (its folder, for the temporary
+    file of an atomic write) and what to do."""
+    from sb3_marl.common.files import PARTIAL
+
+    path = error.filename or error.filename2
+    if path is not None and PARTIAL.match(os.path.basename(str(path))):
+        path = os.path.dirname(str(path)) or "."
+    where = repr(str(path)) if path is not None else "a file"
+    room = "free some space (or write elsewhere), then run the command again"
+    advice = {
+        errno.ENOSPC: f"no space left on the device of {where}: {room}",
+        errno.EDQUOT: f"the disk quota of {where} is used up: {room}",
+        errno.EFBIG: f"a file in {where} grew beyond what this process may write (ulimit -f, or the file system): {room}",
+        errno.EROFS: f"{where} is on a read-only file system: choose a writable folder",
+        errno.EACCES: f"no permission for {where}: choose a folder you may write (and read), or change its permissions",
+        errno.EPERM: f"no permission for {where}: choose a folder you may write (and read), or change its permissions",
+        errno.ENOTDIR: f"{where}: a part of this path is a file, not a folder",
+        errno.EISDIR: f"{where} is a folder where a file was expected",
+        errno.ENOENT: f"{where} does not exist (was it removed while the command ran?)",
+    }
+    return advice.get(error.errno or 0, f"{where}: {error.strerror or error}")
+
+
 def check_folder(flag: str, path: str | None) -> None:
     """A folder the command may write into: not a file, no over-long name, and its nearest existing
     folder writable (checked before anything is created)."""
@@ -178,6 +203,13 @@ def check_folder(flag: str, path: str | None) -> None:
         path.encode("utf-8")
     except UnicodeEncodeError:
         raise UsageError(f"{flag}: {path!r} is not a valid UTF-8 path (the logs and configs name it).") from None
+    try:
+        _check_folder(flag, path)
+    except OSError as error:  # e.g. a parent folder the user may not enter
+        raise UsageError(f"{flag}: {path!r} cannot be used: {os_error_text(error)}.") from None
+
+
+def _check_folder(flag: str, path: str) -> None:
     if os.path.exists(path) and not os.path.isdir(path):
         raise UsageError(f"{flag}: {path!r} is a file, expected a folder.")
     too_long = [part for part in Path(path).parts if len(os.fsencode(part)) > 255]

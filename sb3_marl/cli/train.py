@@ -27,6 +27,7 @@ from sb3_marl.cli.common import (
     check_folder,
     check_seed,
     every,
+    os_error_text,
     positive,
     positive_or_default,
     set_num_threads,
@@ -318,14 +319,15 @@ def _write_failure(manager: Any, model: Any, error: OSError) -> str:
     """One message for a file training could not write (e.g. a full disk): what, and how to resume."""
     from sb3_marl.runs.folders import latest_checkpoint
 
-    where = f" ({error.filename})" if error.filename else ""
     checkpoint = latest_checkpoint(manager.save_path)
+    best = Path(manager.save_path) / "best_model.zip"
     resume = (
-        f"The last complete checkpoint is {checkpoint}: free some space, then continue with -i {checkpoint}."
+        f"The last complete checkpoint is {checkpoint}: continue with -i {checkpoint}."
         if checkpoint
-        else "No checkpoint was written (--save-freq saves them); free some space and train again."
+        else "No checkpoint was written (--save-freq saves them)"
+        + (f"; the best model so far is {best}." if best.is_file() else ".")
     )
     return (
-        f"could not write{where} at {model.num_timesteps} timesteps: {error.strerror or error}. "
+        f"could not write at {model.num_timesteps} timesteps: {os_error_text(error)}. "
         f"The model of this moment could not be saved. {resume}"
     )

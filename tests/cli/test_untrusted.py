@@ -434,6 +434,18 @@ def test_a_write_the_os_refuses_gives_one_message(tmp_path):
     assert "could not write" in completed.stderr and "free some space" in completed.stderr, completed.stderr
 
 
+def test_evaluate_whose_writes_the_os_refuses_ends_in_one_line(run, tmp_path):
+    """A full disk (here: a file-size limit) after the evaluation's work: exit 1, one line naming
+    the folder and what to do, no traceback, no temporary file left."""
+    argv = [SB3_MARL, "evaluate", "-f", str(run), "--eval-episodes", "2", "--verbose", "0"]
+    completed = subprocess.run(argv, capture_output=True, text=True, preexec_fn=_no_large_files, timeout=300)
+    assert completed.returncode == 1, completed.stderr
+    lines = [line for line in completed.stderr.splitlines() if not line.startswith("sb3-marl: compiling")]
+    assert len(lines) == 1 and lines[0].startswith("sb3-marl evaluate: error: a file in "), completed.stderr
+    assert "free some space" in lines[0] and ".partial" not in lines[0]
+    assert not list(run.rglob(".*partial*"))
+
+
 def test_one_unreadable_trial_is_named_and_the_rest_listed(tmp_path, capsys):
     grid = Path(__file__).resolve().parents[2] / "results" / "paper-grid"
     copy = tmp_path / "grid"
