@@ -1,10 +1,13 @@
 """The committed results regenerate from the committed slim logs (results/*/logs): the summary
-table byte for byte, the learning-curve PNGs byte for byte, and a committed model re-evaluated on
-the first seeds of its committed evaluation gives the same episode returns."""
+table byte for byte, the learning-curve PNGs pixel for pixel up to antialiasing, and a committed
+model re-evaluated on the first seeds of its committed evaluation gives the same episode returns
+(to a relative 1e-6: float rounding may differ between machines, AVX2 or AVX-512)."""
 
 import json
 from pathlib import Path
 
+import imageio.v2 as imageio
+import numpy as np
 import pytest
 from documents import markdown_tables
 
@@ -13,6 +16,25 @@ from sb3_marl.runs.folders import find_run
 
 RESULTS = Path(__file__).resolve().parent.parent / "results"
 LOG_FOLDERS = sorted(RESULTS.glob("*/logs"))
+#: Relative tolerance of a re-evaluated return against the committed one: far above the last bits
+#: another machine's rounding changes, far below what another action or reward changes.
+RETURN_TOLERANCE = 1e-6
+#: A regenerated PNG matches the committed one when it has the same size, at most this share of
+#: its pixels differ by more than PIXEL_LEVELS (of 255) in a channel, and its mean absolute
+#: difference is at most MEAN_LEVELS: room for another machine's antialiasing of text and lines,
+#: none for a curve left out (one of the 12 runs of results/ma2c-full-budget's collision-rate
+#: figure: 1.4 % of the pixels, mean difference 0.96).
+PIXEL_LEVELS, PIXEL_SHARE, MEAN_LEVELS = 16, 0.005, 0.5
+
+
+def image_difference(regenerated: Path, committed: Path) -> tuple[float, float] | None:
+    """(share of pixels differing by more than :data:`PIXEL_LEVELS` in a channel, mean absolute
+    difference) of two PNGs, None when their sizes differ."""
+    new, old = (imageio.imread(path).astype(np.int16) for path in (regenerated, committed))
+    if new.shape != old.shape:
+        return None
+    difference = np.abs(new - old)
+    return float((difference.max(axis=-1) > PIXEL_LEVELS).mean()), float(difference.mean())
 
 
 def test_there_are_committed_results():
@@ -37,7 +59,10 @@ def test_the_plots_regenerate(logs, tmp_path):
         out = tmp_path / folder.name
         assert main(["plot", "--algo", "ma2c", "--env", env, "-f", str(logs), "-o", str(out)]) == 0
         for png in folder.glob("*.png"):
-            assert (out / png.name).read_bytes() == png.read_bytes(), png
+            difference = image_difference(out / png.name, png)
+            assert difference is not None, f"{png}: another size in pixels"
+            share, mean = difference
+            assert share <= PIXEL_SHARE and mean <= MEAN_LEVELS, (png, share, mean)
 
 
 @pytest.mark.parametrize("logs", LOG_FOLDERS, ids=lambda p: p.parent.name)
@@ -50,7 +75,7 @@ def test_committed_models_reproduce_their_evaluation(logs):
         run.hyperparams["env_config"] = {**run.env_config, "supervisor_version": committed["supervisor_version"]}
         model = run.load_model("cpu")
         again = run.evaluate(model, 3, committed["seeds"][0], committed["deterministic"])
-        assert again["returns"] == pytest.approx(committed["returns"][:3], rel=1e-9, abs=1e-9)
+        assert again["returns"] == pytest.approx(committed["returns"][:3], rel=RETURN_TOLERANCE)
         assert again["protocol"] == committed["protocol"]
 
 
@@ -75,12 +100,16 @@ def test_the_paper_grid_table_regenerates():
 @pytest.mark.parametrize("algo", ["ma2c", "madqn", "maacktr", "mappo"])
 def test_committed_grid_models_reproduce_their_final_evaluation(algo):
     """Each learner's density-1 seed-0 grid model, re-evaluated on the first 3 episodes of its
-    final evaluation (same seeds, sampled actions, its scenario config), gives the committed returns."""
+    final evaluation (same seeds, sampled actions, its scenario config), gives the committed returns
+    with the supervisor and without it (to :data:`RETURN_TOLERANCE`), and the same protocol."""
     trial = PAPER_GRID / "trials" / f"{algo}_density1_default_seed0"
     committed = json.loads((trial / "result.json").read_text())["paper_evaluation"]
     run = find_run(trial, algo, "sb3_marl/LaneChange-density1-v0")
     again = run.evaluate(run.load_model("cpu"), 3, committed["seeds"][0])
-    assert again["returns"] == committed["returns"][:3]
+    assert again["supervisor_version"] == committed["supervisor_version"]
+    assert again["returns"] == pytest.approx(committed["returns"][:3], rel=RETURN_TOLERANCE)
+    alone = committed["supervisor_off"]["returns"][:3]
+    assert again["supervisor_off"]["returns"] == pytest.approx(alone, rel=RETURN_TOLERANCE)
     assert again["protocol"] == committed["protocol"]
 
 

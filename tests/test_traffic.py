@@ -127,23 +127,61 @@ def test_the_docs_command_runs_verbatim(tmp_path):
 
 
 def test_time_space_diagram_and_encounters_figures(tmp_path):
-    """A row of lane panels per policy, every vehicle's trajectory drawn; the encounter histograms
-    of each policy's trips."""
-    import imageio.v2 as imageio
+    """A row of lane panels per policy, every vehicle's trajectory drawn in the panel of its lane
+    band (the AVs' also as thick lines, in the policy's row only); the encounter histograms of each
+    policy's trips, each the share of its vehicles with a finite minimum."""
+    from figures import legend_labels, panels, png_size, saved_figures
 
     from sb3_marl.evaluation.episodes import run_episodes
-    from sb3_marl.evaluation.traffic_plots import PositionTrace, plot_encounters, plot_time_space
+    from sb3_marl.evaluation.traffic_plots import BAND, SPEED_RANGE, PositionTrace, plot_encounters, plot_time_space
 
     env_id = "sb3_marl/LaneChange-density2-v0"
-    policy, human = PositionTrace(), PositionTrace()
-    run_episodes(make_scenario(env_id, {"n_avs": av_counts(env_id)[0]}), IDMMobilPolicy(), 1, seed=3, on_step=policy)
+    policy, human, policy_trips = PositionTrace(), PositionTrace(), TripRecorder()
+
+    def record(env, info):
+        policy(env, info)
+        policy_trips(env, info)
+
+    run_episodes(make_scenario(env_id, {"n_avs": av_counts(env_id)[0]}), IDMMobilPolicy(), 1, seed=3, on_step=record)
     reference = human_reference(env_id, 1, seed=3, also=(human,))
     assert set(policy.rows[:, 1].astype(int)) == set(human.rows[:, 1].astype(int))  # the same vehicles
     assert policy.rows[:, 5].any() and not human.rows[:, 5].any()  # AVs only in the policy's episode
-    figure = imageio.imread(plot_time_space({"idm-mobil": policy, "all human": human}, tmp_path / "ts.png"))
-    assert figure.shape[0] > figure.shape[1] / 2 and figure.std() > 0  # two rows of two lane panels
-    encounters = imageio.imread(plot_encounters({"all human": reference.trips()}, tmp_path / "enc.png"))
-    assert encounters.std() > 0
+    traces = {"idm-mobil": policy, "all human": human}
+    trips = {"idm-mobil": policy_trips.trips(), "all human": reference.trips()}
+    with saved_figures() as figures:
+        time_space = figures[plot_time_space(traces, tmp_path / "ts.png")]
+        encounters = figures[plot_encounters(trips, tmp_path / "enc.png")]
+
+    assert png_size(tmp_path / "ts.png") == (2 * 420, 2 * 320)  # two rows of two lane panels, 100 dpi
+    axes = iter(panels(time_space))
+    for label, trace in traces.items():
+        rows = trace.rows
+        band = np.floor((rows[:, 3] + BAND / 2) / BAND).clip(0, None)
+        thick: set[tuple[float, float]] = set()
+        for b in (0, 1):
+            ax = next(axes)
+            assert ax.get_title() == f"{label}: lane band {b}"
+            mine = rows[band == b]
+            drawn = {tuple(point) for lines in ax.collections for segment in lines.get_segments() for point in segment}
+            expected = {(t, x) for t, x in mine[:, [0, 2]]}
+            assert drawn <= expected and len(drawn) >= 0.95 * len(expected), (label, b)  # all but lone samples
+            colours = np.concatenate([lines.get_array() for lines in ax.collections])
+            assert set(colours) <= set(mine[:, 4])  # coloured by speed, on one scale
+            assert {lines.get_clim() for lines in ax.collections} == {SPEED_RANGE}
+            avs = {(t, x) for line in ax.get_lines() for t, x in line.get_xydata()}
+            assert avs <= {(t, x) for t, x in mine[mine[:, 5] == 1][:, [0, 2]]}  # thick lines: the AVs'
+            thick |= avs
+        assert len(thick) >= 0.95 * rows[:, 5].sum()  # every AV, in the policy's row only
+    assert next(axes, None) is None
+
+    ttc, headway = panels(encounters)
+    assert legend_labels(ttc) == list(trips)
+    assert ttc.get_xlabel().startswith("minimum TTC [s]") and headway.get_xlabel().startswith("minimum time headway")
+    for ax, column in ((ttc, "minTTC"), (headway, "minTimeHeadway")):
+        assert [steps.get_label() for steps in ax.patches] == list(trips)
+        for steps, records in zip(ax.patches, trips.values(), strict=True):
+            values = np.array([trip[column] for trip in records], dtype=float)
+            assert steps.get_data().values.sum() == pytest.approx(np.isfinite(values).mean()), column
 
 
 def test_timid_hdvs_keep_longer_time_gaps_than_aggressive_ones():

@@ -3,6 +3,8 @@ naming the file and the entry, and each curve's overrides valid for its learner;
 output folder holds only what it wrote."""
 
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -167,7 +169,7 @@ def test_crafted_trial_files_are_named_and_links_out_of_the_grid_not_followed(tm
 def test_a_failed_trial_is_reported_by_its_own_error_without_terminal_colours():
     """Ray wraps a trial's exception (e.g. a refused foreign checkpoint) in a RayTaskError whose
     text starts with coloured worker details: the launcher reports the trial's own error."""
-    from ray.exceptions import RayTaskError
+    RayTaskError = pytest.importorskip("ray.exceptions").RayTaskError
 
     from sb3_marl.algos.common.loading import UnsafeModelError
     from sb3_marl.benchmark.runner import failure_reason
@@ -176,3 +178,32 @@ def test_a_failed_trial_is_reported_by_its_own_error_without_terminal_colours():
     wrapped = RayTaskError("\x1b[36mray::ImplicitFunc.train()\x1b[39m", "Traceback (most recent call last): ...", cause)
     for error in (wrapped, wrapped.as_instanceof_cause()):
         assert failure_reason(error) == f"UnsafeModelError: {cause}"
+
+
+#: ``python -c`` of the command line after it, where no module of Ray can be imported, as where it
+#: is not installed (a finder ahead of the others refuses them).
+WITHOUT_RAY = """
+import sys
+
+class NoRay:
+    def find_spec(self, name, path=None, target=None):
+        if name == "ray" or name.startswith("ray."):
+            raise ModuleNotFoundError(f"No module named {name!r}", name=name)
+        return None
+
+sys.meta_path.insert(0, NoRay())
+
+from sb3_marl.cli import main
+
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_without_ray_installed_the_command_says_how_to_install_it(tmp_path):
+    """In a fresh interpreter where importing Ray fails (whether or not it is installed here), the
+    benchmark command stops with the install command and starts no trial."""
+    argv = ["benchmark", "--grid", "reward", "--densities", "1", "--seeds", "1", "-f", str(tmp_path)]
+    completed = subprocess.run([sys.executable, "-c", WITHOUT_RAY, *argv], capture_output=True, text=True, timeout=300)
+    assert completed.returncode == 1, completed.stdout[-2000:] + completed.stderr[-2000:]
+    assert "pip install 'sb3-marl[ray]'" in completed.stderr
+    assert not list(tmp_path.glob("trials/*"))

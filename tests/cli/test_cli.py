@@ -16,6 +16,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
+from figures import legend_labels, line_data, panels, png_size, saved_figures
 from stable_baselines3 import A2C
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
@@ -121,7 +122,9 @@ def test_tensorboard_has_driving_metrics_and_reward_terms(logs):
 
 
 def test_evaluate_prints_and_saves_the_paper_metrics(logs, capsys):
-    assert main(["enjoy", "-f", str(logs), "--exp-id", "1", "--load-best", "--eval-episodes", "3", "--with-baselines"]) == 0
+    with saved_figures() as figures:
+        argv = ["enjoy", "-f", str(logs), "--exp-id", "1", "--load-best", "--eval-episodes", "3", "--with-baselines"]
+        assert main(argv) == 0
     result = json.loads((run_dir(logs, 1) / "evaluation.json").read_text())
     for key in (
         "return_mean",
@@ -156,13 +159,50 @@ def test_evaluate_prints_and_saves_the_paper_metrics(logs, capsys):
     assert set(trips["supervisor"]) == {"on", "off", "-"}
     assert trips.groupby(["policy", "supervisor"])["seed"].nunique().eq(3).all()
     assert "| all human (no AV) | - | - |" in out and set(trips[trips["policy"] == "all human (no AV)"]["vType"]) == {"HDV"}
-    assert imageio.imread(run_dir(logs, 1) / "evaluation_time_space.png").std() > 0
+    # the time-space diagram of the evaluation's first episode: the policy with the supervisor above
+    # the all-human reference, one panel per lane; every vehicle starts where its trip record does
+    diagram = run_dir(logs, 1) / "evaluation_time_space.png"
+    figure = figures[diagram]
+    assert figure.get_suptitle() == f"{ENV}, episode seed 10000 (AVs: thick, black edge)"
+    rows = {"ma2c, supervisor on": ("ma2c", "on"), "all human (no AV)": ("all human (no AV)", "-")}
+    titles = [f"{row}: lane band {band}" for row in rows for band in (0, 1)]
+    assert [ax.get_title() for ax in panels(figure)] == titles and png_size(diagram) == (2 * 420, 2 * 320)
+    for row, (policy, supervisor) in rows.items():
+        mine = [ax for ax in panels(figure) if ax.get_title().startswith(row + ":")]
+        starts = sorted(x for ax in mine for lines in ax.collections for (t, x), _ in lines.get_segments() if t == 0)
+        thick = sorted(x for ax in mine for line in ax.get_lines() for t, x in line.get_xydata() if t == 0)
+        first = trips[(trips["policy"] == policy) & (trips["supervisor"] == supervisor) & (trips["seed"] == 10_000)]
+        assert starts == pytest.approx(sorted(first["departPos"]), abs=1e-9), row
+        assert thick == pytest.approx(sorted(first[first["vType"] == "AV"]["departPos"]), abs=1e-9), row
 
 
 def test_plot_and_rl_zoo3_plots_read_our_logs(logs, tmp_path, monkeypatch, capsys):
-    assert main(["plot", "--algo", "ma2c", "mappo", "-f", str(logs), "-w", "2", "-o", str(tmp_path / "plots")]) == 0
+    from stable_baselines3.common.monitor import load_results
+
+    with saved_figures() as figures:
+        assert main(["plot", "--algo", "ma2c", "mappo", "-f", str(logs), "-w", "2", "-o", str(tmp_path / "plots")]) == 0
+    curves = {}
     for name in ("train_return.png", "eval_return.png", "collision_rate.png"):
-        assert imageio.imread(tmp_path / "plots" / name).std() > 0, name
+        path = tmp_path / "plots" / name
+        (ax,) = panels(figures[path])
+        curves[name] = line_data(ax)
+        assert png_size(path) == (700, 450) and legend_labels(ax) == list(curves[name]), name
+        assert ax.get_xlabel() == "Timesteps (AV-steps)", name
+    # each run's curves (labelled with its flags) are its logs: training returns over 2 episodes
+    # (-w 2), evaluations with the supervisor and without it (dashed)
+    labels = {exp_id: f"ma2c run {exp_id} (n_steps=20)" for exp_id in (1, 2)}
+    assert list(curves["train_return.png"]) == list(labels.values())
+    for exp_id, label in labels.items():
+        run = run_dir(logs, exp_id)
+        returns = load_results(str(run))["r"].to_numpy()
+        np.testing.assert_allclose(curves["train_return.png"][label][1], (returns[1:] + returns[:-1]) / 2)
+        evaluations = np.load(run / "evaluations.npz")
+        for name, key in (("eval_return.png", "results"), ("collision_rate.png", "collision_rate")):
+            for supervisor, prefix in (("on", ""), ("off", "supervisor_off_")):
+                x, y = curves[name][f"{label}, supervisor {supervisor}"]
+                values = evaluations[prefix + key]
+                assert x.tolist() == evaluations["timesteps"].tolist(), name
+                np.testing.assert_allclose(y, values.mean(axis=1) if key == "results" else values, err_msg=name)
     out = capsys.readouterr().out
     assert f"no runs of mappo on sb3_marl/LaneChange-density1-v0 under {logs}/: left out of the plots" in out
 

@@ -202,13 +202,16 @@ def test_bad_supervisor_keys_name_the_key(key, value):
         make(1, **{key: value})
 
 
-@pytest.mark.parametrize("version, rear_avs, crashes", [(3, True, True), (3, False, False), (4, True, False)])
+@pytest.mark.parametrize(
+    "version, rear_avs, crashes", [(3, True, True), (3, False, False), (4, True, False), (5, True, False)]
+)
 def test_an_av_followed_by_an_av_brakes_behind_a_slow_hdv(version, rear_avs, crashes):
     """The failure mode of v3 (supervisor_rear_avs: true) at the largest AV counts: an AV at
     25 m/s closes on a 15 m/s HDV with another AV 3 m behind it and the other lane blocked; counted
     in its room, the follower makes braking look worse than holding the speed, so the AV holds and
     crashes. Left to its own serving (false), the follower brakes too and no one crashes; v4 (the
-    default) finds the joint move (both brake) with the follower still counted."""
+    merge's default) and v5 (the lane change's default) find the joint move (both brake) with the
+    follower still counted."""
     env = make(1, n_avs=2, safety_supervisor=True, supervisor_rear_avs=rear_avs, supervisor_version=version)
     env.reset(seed=0)
     env.place([(135.0, 0, 25.0), (127.0, 0, 25.0)], [(150.0, 0, 15.0), (131.0, 1, 25.0), (142.0, 1, 25.0)])
@@ -219,47 +222,64 @@ def test_an_av_followed_by_an_av_brakes_behind_a_slow_hdv(version, rear_avs, cra
     assert bool(info["crashed"].any()) == crashes
 
 
-def test_version_4_holds_a_six_av_platoon_that_version_3_lets_crash():
-    """Density 3, six AVs, always IDLE, episode seed 300376 (from ``benchmarks/supervisor_safety.py
-    --seed 300000``, results/supervisor-v4/): v3 (the lane change's default) lets an AV run into
-    the vehicle ahead at step 72; ``supervisor_version: 4`` (emergency brake and joint search, the
-    merge's default) selects the version that holds by name, and the episode ends without a crash."""
-    from sb3_marl.evaluation import run_episodes
-    from sb3_marl.evaluation.baselines import CruisePolicy
+def platoon_run(version: int, spacing: float, ahead: float, steps: int = 60) -> tuple[int | None, int]:
+    """Six AVs at 25 m/s in lane 0, ``spacing`` m apart, closing on an HDV at 15 m/s ``ahead`` m in
+    front of the leader, lane 1 blocked by a column of HDVs at 25 m/s; every AV always IDLE under
+    supervisor ``version``: the step of the first crash (None: none in ``steps``) and the count of
+    AV-steps with an emergency brake."""
+    env = make(3, n_avs=6, safety_supervisor=True, supervisor_version=version)
+    env.reset(seed=0)
+    lead = 135.0
+    platoon = [(lead - spacing * k, 0, 25.0) for k in range(6)]
+    env.place(platoon, [(lead + ahead, 0, 15.0), *[(95.0 + 11.0 * k, 1, 25.0) for k in range(6)]])
+    brakes = 0
+    for step in range(steps):
+        _, _, terminated, truncated, info = env.step(np.full(6, IDLE))
+        brakes += int(info["emergency_brake"].sum())
+        if info["crashed"].any():
+            return step, brakes
+        if terminated or truncated:
+            break
+    return None, brakes
 
-    crashed = {}
-    for version in (3, 4):
-        env = make(3, n_avs=6, safety_supervisor=True, supervisor_version=version)
-        crashed[version] = run_episodes(env, CruisePolicy(), 1, 300376)[0].crashed
-    assert crashed == {3: True, 4: False}
+
+@pytest.mark.parametrize("spacing, ahead", [(8.0, 15.0), (8.0, 25.0), (12.0, 15.0), (12.0, 25.0)])
+def test_version_4_holds_a_six_av_platoon_that_version_3_lets_crash(spacing, ahead):
+    """Density 3's largest AV count as a platoon behind a slower HDV with no lane to escape to
+    (:func:`platoon_run`), for a few spacings and distances: v3 (the paper's numbers) counts the
+    platoon in each AV's room and lets it run into the HDV or into itself within 3 s; v4 (the
+    merge's default: emergency brake and joint search) and v5 (the lane change's default) brake it
+    and hold it for the whole 12 s without a crash. Hand-made states, so the outcome is the
+    supervisor's decision, not one seeded episode's trajectory."""
+    outcome = {version: platoon_run(version, spacing, ahead) for version in (3, 4, 5)}
+    crashed_at = {version: step for version, (step, _) in outcome.items()}
+    assert crashed_at[3] is not None and crashed_at[3] < 15, outcome
+    assert crashed_at[4] is None and crashed_at[5] is None, outcome
+    assert outcome[4][1] > 0 and outcome[5][1] > 0, outcome  # held by the emergency brake
 
 
 def test_version_5_keeps_a_braked_av_in_its_lane():
-    """Density 3, six AVs, each AV's action drawn among its available ones (seeded by the episode,
-    as ``benchmarks/supervisor_safety.py`` does), episode seed 300209 (results/supervisor-v4/):
-    under v4 the emergency brake slows AV 2 to 2 m/s, the policy then turns it towards lane 1, it
-    stops across both lanes and an HDV passing on lane 1 strikes it at step 67; v5 refuses a braked
-    AV's lane change, and the episode ends without a crash."""
-    from sb3_marl.evaluation import run_episodes
-
-    class MaskedRandom:
-        def __init__(self, seed: int) -> None:
-            self.rng = np.random.default_rng(seed)
-
-        def __call__(self, env, obs):
-            return np.array([self.rng.choice(np.flatnonzero(mask)) for mask in env.action_masks()])
-
-    crashed, lane_changes_when_braked = {}, {4: 0, 5: 0}
+    """The failure of v4 that v5 removes (results/supervisor-v4/, seed 300209): an AV at 25 m/s
+    15 m behind an HDV at 5 m/s, an HDV beside it on lane 1 at 25 m/s. Neither lane leaves room, so
+    the emergency brake stops it (target speed 0 m/s); the HDV beside passes and the policy keeps
+    proposing the lane change to lane 1. v4 lets the braked AV start it (at a few m/s, the start of
+    the AV left standing across both lanes in that episode); v5 refuses a braked AV's lane change,
+    and the AV stays on its lane's centre."""
+    right = ACTION_INDEX["LANE_RIGHT"]  # towards lane 1
+    lane_changes_when_braked, final_y = {}, {}
     for version in (4, 5):
-        env = make(3, n_avs=6, safety_supervisor=True, supervisor_version=version)
-        braked = {}
-
-        def watch(env, info, version=version, braked=braked):
-            executed = info["executed_action"]
-            if info["step"] > 0:
-                lane_changes_when_braked[version] += sum(braked.get(i, False) and executed[i] in (0, 2) for i in range(6))
-            braked.update(enumerate(env.state[:6, TARGET_SPEED] < env.config["target_speeds"][0]))
-
-        crashed[version] = run_episodes(env, MaskedRandom(300209), 1, 300209, on_step=watch)[0].crashed
-    assert crashed == {4: True, 5: False}
+        env = supervised_env(supervisor_version=version)
+        env.place(avs=[(100.0, 0, 25.0)], hdvs=[(115.0, 0, 5.0), (104.0, 1, 25.0)])
+        lane_changes_when_braked[version] = 0
+        for step in range(12):
+            braked = env.state[0, TARGET_SPEED] < env.config["target_speeds"][0]
+            _, _, terminated, _, info = env.step(np.array([right]))
+            assert not terminated
+            if step == 0:
+                assert info["emergency_brake"].tolist() == [True]
+            lane_changes_when_braked[version] += int(
+                braked and info["executed_action"][0] in (ACTION_INDEX["LANE_LEFT"], right)
+            )
+        final_y[version] = env.state[0, Y]
     assert lane_changes_when_braked[4] > 0 and lane_changes_when_braked[5] == 0
+    assert final_y[4] > 1.0 and final_y[5] == pytest.approx(0.0, abs=0.1)  # v4 left lane 0's centre, v5 did not
