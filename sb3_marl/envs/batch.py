@@ -2,9 +2,9 @@
 
 The copies' states lie in one array and one call of
 :func:`~sb3_marl.envs.batch_kernel.step_copies` steps them all (the supervisor, the frames of the
-step, observations, rewards, neighbour sets, masks, the rule driver's actions), with the same
-compiled functions as the single scenario env, so the same seeds give the same episodes
-(tests/envs/test_batch.py compares them step by step). The scenario envs stay the copies' owners:
+step, observations, rewards, neighbour sets, masks, the rule driver's actions): the step a single
+scenario env takes as a batch of one, so the same seeds give the same episodes (tests/envs/test_batch.py
+compares them step by step). The scenario envs stay the copies' owners:
 they spawn every episode (their seeded generators, once per finished episode), and get their state
 back when asked (:meth:`RoadBatch.sync`). Units: m, m/s, m/s², s, Hz.
 """
@@ -15,55 +15,17 @@ from typing import Any
 
 import numpy as np
 
-from sb3_marl.envs import merge_env
-from sb3_marl.envs.batch_kernel import BatchStep, StepParameters, copy_rewards, start_copies, step_copies
+from sb3_marl.envs.batch_kernel import BatchStep, copy_rewards, observe_copies, step_copies, step_report
 from sb3_marl.envs.lane_change_env import LaneChangeEnv
-from sb3_marl.envs.merge_env import ON_RAMP_SIDE, MergeEnv
-from sb3_marl.envs.reward import REWARD_MODES, REWARD_TERMS, _weighted
+from sb3_marl.envs.merge_env import MergeEnv
+from sb3_marl.envs.merge_rules import ON_RAMP_SIDE
+from sb3_marl.envs.reward import REWARD_MODES
 from sb3_marl.sim import kernel
-from sb3_marl.sim.merge_road import ENDS, MERGE_END, MERGING_LANE
 
+#: The global reward mode's index (each slot's copy's mean reward).
+GLOBAL = REWARD_MODES.index("global")
 #: Config keys that may differ between the copies of one batch (or between episodes of a copy).
 PER_COPY_KEYS = ("n_avs", "safety_supervisor", "supervisor_shadow")
-
-
-def step_parameters(env: LaneChangeEnv) -> StepParameters:
-    """What a step of ``env``'s scenario reads from its current config."""
-    c, horizon, merge = env.config, env.horizon, isinstance(env, MergeEnv)
-    no_table = np.zeros(1, dtype=np.int64)
-    return StepParameters(
-        horizon,
-        float(c["policy_frequency"]),
-        env.max_steps,
-        float(c["headway_time"]),
-        float(c["supervisor_min_gap"]),
-        bool(c["supervisor_repeat_actions"]),
-        bool(c["supervisor_rear_avs"]),
-        env.supervisor.emergency_brake,
-        env.supervisor.joint_search,
-        env.supervisor.brake_keeps_lane,
-        bool(c["supervisor_mobil_safety"]),
-        float(c["hdv_politeness"]),
-        float(c["hdv_b_safe"]),
-        float(c["hdv_lane_change_threshold"]),
-        float(c["rule_acceleration_threshold"]),
-        float(c["headway_max_distance"]),
-        float(c["reward_speed_range"][0]),
-        float(c["reward_speed_range"][1]),
-        float(c["harsh_acceleration_threshold"]),
-        int(c["obs_vehicles_count"]),
-        env.road_length,
-        float(c["obs_x_range"]),
-        float(c["obs_y_range"]),
-        float(c["obs_speed_range"]),
-        bool(c["obs_target_speed"]),
-        merge,
-        merge and c["supervisor_priority"] == "merging",
-        merge_env.ROUTE if merge else np.zeros((1, 1), dtype=np.bool_),
-        merge_env.ACROSS if merge else no_table,
-        merge_env.ACROSS_FROM if merge else np.zeros(1),
-        merge_env.NEXT_ON_ROUTE if merge else no_table,
-    )
 
 
 class RoadBatch:
@@ -80,7 +42,7 @@ class RoadBatch:
         self.envs = envs
         self.mode = REWARD_MODES.index(reward_mode)
         self._shared = _shared_config(envs[0])
-        self.parameters = step_parameters(envs[0])
+        self.parameters = envs[0].step_parameters()
         self.n_avs = np.array([env.n_avs for env in envs], dtype=np.int64)
         self.slot_starts = np.concatenate([[0], np.cumsum(self.n_avs)]).astype(np.int64)
         self.states = np.zeros((0, kernel.COLUMNS))  # every copy's rows, added by load() below
@@ -132,46 +94,17 @@ class RoadBatch:
     def start(self, copies: np.ndarray) -> tuple[BatchStep, dict[str, Any]]:
         """The first observations of the new episodes of ``copies`` (each :meth:`load`-ed) and
         their per-slot arrays; the other slots are empty."""
-        result = start_copies(self.states, self.offsets, self.slot_starts, np.asarray(copies, dtype=np.int64), self.parameters)
+        still, straight = np.zeros(len(self.ramp_av)), np.zeros(len(self.ramp_av), dtype=np.bool_)  # a first observation
+        copies = np.asarray(copies, dtype=np.int64)
+        result = observe_copies(self.states, self.offsets, self.slot_starts, copies, still, straight, self.parameters)
         return result, self.slot_arrays(result, result.executed)
 
     def slot_arrays(self, result: BatchStep, proposed: np.ndarray) -> dict[str, Any]:
-        """The per-slot arrays of a step, named as the scenario's info entries, with
-        each AV's own reward (``reward``) and its copy's mean (``global_reward``)."""
-        terms = result.terms
-        terms[1] = np.minimum(np.log(terms[1]), 0.0)  # numpy's log, as the scenario env's
-        c = self.envs[0].config
-        own = _weighted(
-            terms[0],
-            terms[1],
-            terms[2],
-            terms[3],
-            float(c["safety_weight"]),
-            float(c["headway_weight"]),
-            float(c["speed_weight"]),
-            float(c["comfort_weight"]) if c["comfort"] else 0.0,
-        )
-        names = dict(zip(REWARD_TERMS, terms[:6]))
-        if self.parameters.merge:  # MergeEnv's merging-lane cost, in numpy as there
-            cost = -np.exp(-((result.x - MERGE_END) ** 2) / (10 * ENDS[2]))
-            names["merging_lane"] = np.where(result.lane == MERGING_LANE, cost, 0.0)
-            own = own + c["merging_lane_weight"] * names["merging_lane"]
-        return {
-            "speed": result.speed,
-            "headway": terms[6],
-            "acceleration": result.acceleration,
-            "lane_change": result.lane_change,
-            "crashed": result.crashed,
-            "exited": result.exited,
-            "action_mask": result.action_mask,
-            "proposed_action": proposed,
-            "executed_action": result.executed,
-            "intervened": result.intervened,
-            "rule_action": result.rule_action,
-            "reward": own,
-            "global_reward": copy_rewards(own, result.neighbours, self.slot_starts, REWARD_MODES.index("global")),
-            "reward_terms": names,
-        }
+        """The per-slot arrays of a step (:func:`~sb3_marl.envs.batch_kernel.step_report`) with
+        each AV's copy's mean reward (``global_reward``)."""
+        arrays = step_report(result, proposed, self.envs[0].config, self.parameters.merge)
+        arrays["global_reward"] = copy_rewards(arrays["reward"], result.neighbours, self.slot_starts, GLOBAL)
+        return arrays
 
     def sync(self) -> None:
         """Give every copy's env its current state (before anything reads the envs)."""

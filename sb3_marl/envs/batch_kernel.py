@@ -12,20 +12,21 @@ driver's actions — with the same compiled functions. Units: m, m/s, m/s², s, 
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numba
 import numpy as np
 
-from sb3_marl.envs.merge_env import _merge_priorities, _regional_neighbours
+from sb3_marl.envs.merge_rules import _merge_priorities, _regional_neighbours
 from sb3_marl.envs.observation import _observe
-from sb3_marl.envs.reward import _neighbour_matrix, _terms, mode_rewards
+from sb3_marl.envs.reward import REWARD_TERMS, _neighbour_matrix, _terms, _weighted, mode_rewards
 from sb3_marl.safety.rooms import SLOWER, Horizon
 from sb3_marl.safety.supervisor import headway_margins, supervise_arrays
 from sb3_marl.sim import kernel
 from sb3_marl.sim.drivers import rule_actions
 from sb3_marl.sim.dynamics import policy_step
 from sb3_marl.sim.lanes import lane_changes
+from sb3_marl.sim.merge_road import ENDS, MERGE_END, MERGING_LANE
 from sb3_marl.sim.meta_actions import available_actions, meta_action_targets
 
 
@@ -59,7 +60,7 @@ class StepParameters(NamedTuple):
     target_speed_column: bool
     merge: bool  # the merge's reward term and regional neighbour sets (sb3_marl.envs.merge_env)
     merging_priority: bool  # the merge's order of service of the supervisor
-    route: np.ndarray  # the merge's lane tables (merge_env.ROUTE, ACROSS, ACROSS_FROM, NEXT_ON_ROUTE)
+    route: np.ndarray  # the merge's lane tables (merge_rules.ROUTE, ACROSS, ACROSS_FROM, NEXT_ON_ROUTE)
     across: np.ndarray
     across_from: np.ndarray
     next_on_route: np.ndarray
@@ -121,7 +122,7 @@ def _allocate(states: np.ndarray, offsets: np.ndarray, slot_starts: np.ndarray, 
 
 
 @numba.njit(cache=True)
-def step_copies(
+def _step_copies(
     states: np.ndarray,
     offsets: np.ndarray,
     slot_starts: np.ndarray,
@@ -130,9 +131,8 @@ def step_copies(
     shadow: np.ndarray,
     steps: np.ndarray,
     p: StepParameters,
-) -> BatchStep:
-    """One policy step of every copy (see the module doc); ``steps`` (copies,) counts each copy's
-    policy steps so far and is advanced in place."""
+) -> tuple:
+    """:func:`step_copies`'s fields."""
     h = p.horizon
     n_copies = offsets.size - 1
     r = _allocate(np.empty_like(states), np.zeros(n_copies + 1, dtype=np.int64), slot_starts, p)
@@ -143,7 +143,7 @@ def step_copies(
         proposed = actions[a:b]
         acting, brake = proposed.copy(), np.zeros(n, dtype=np.bool_)
         if supervise[k] or shadow[k]:
-            supervised, brake_to_stop = _supervise(before, n, proposed, p)
+            supervised, brake_to_stop = supervise_road(before, n, proposed, p)
             r.intervened[a:b] = (supervised != proposed) | brake_to_stop
             if supervise[k]:
                 acting, brake = supervised, brake_to_stop
@@ -158,19 +158,84 @@ def step_copies(
         _observe_into(r, state, a, b, p)
         r.terminated[k] = r.crashed[a:b].any()
         r.truncated[k] = not r.terminated[k] and (steps[k] >= p.max_steps or r.exited[a:b].all())
-    return r
+    return _fields(r)
 
 
 @numba.njit(cache=True)
-def start_copies(
-    states: np.ndarray, offsets: np.ndarray, slot_starts: np.ndarray, copies: np.ndarray, p: StepParameters
-) -> BatchStep:
-    """The first observation (and the per-slot arrays of it) of the new episodes of ``copies``;
-    the other copies' slots are left empty."""
+def _observe_copies(
+    states: np.ndarray,
+    offsets: np.ndarray,
+    slot_starts: np.ndarray,
+    copies: np.ndarray,
+    acceleration: np.ndarray,
+    lane_change: np.ndarray,
+    p: StepParameters,
+) -> tuple:
+    """:func:`observe_copies`'s fields."""
     r = _allocate(states, offsets, slot_starts, p)
     for k in copies:
-        _observe_into(r, states[offsets[k] : offsets[k + 1]], slot_starts[k], slot_starts[k + 1], p)
-    return r
+        a, b = slot_starts[k], slot_starts[k + 1]
+        r.acceleration[a:b], r.lane_change[a:b] = acceleration[a:b], lane_change[a:b]
+        _observe_into(r, states[offsets[k] : offsets[k + 1]], a, b, p)
+    return _fields(r)
+
+
+@numba.njit(cache=True)
+def _fields(r: BatchStep) -> tuple:
+    """``r``'s fields as a plain tuple: returning a named tuple to Python runs its constructor in
+    Python, where a signal's KeyboardInterrupt would land inside numba's boxing and crash it."""
+    return (
+        r.states,
+        r.offsets,
+        r.obs,
+        r.terms,
+        r.neighbours,
+        r.crashed,
+        r.exited,
+        r.speed,
+        r.acceleration,
+        r.lane_change,
+        r.action_mask,
+        r.executed,
+        r.braking,
+        r.intervened,
+        r.rule_action,
+        r.x,
+        r.lane,
+        r.terminated,
+        r.truncated,
+    )
+
+
+def step_copies(
+    states: np.ndarray,
+    offsets: np.ndarray,
+    slot_starts: np.ndarray,
+    actions: np.ndarray,
+    supervise: np.ndarray,
+    shadow: np.ndarray,
+    steps: np.ndarray,
+    p: StepParameters,
+) -> BatchStep:
+    """One policy step of every copy (see the module doc); ``steps`` (copies,) counts each copy's
+    policy steps so far and is advanced in place."""
+    return BatchStep(*_step_copies(states, offsets, slot_starts, actions, supervise, shadow, steps, p))
+
+
+def observe_copies(
+    states: np.ndarray,
+    offsets: np.ndarray,
+    slot_starts: np.ndarray,
+    copies: np.ndarray,
+    acceleration: np.ndarray,
+    lane_change: np.ndarray,
+    p: StepParameters,
+) -> BatchStep:
+    """The observation of ``copies``' states and what a step reports of it, their AVs having
+    changed speed by ``acceleration`` [m/s²] and changed lane where ``lane_change`` (zeros: a new
+    episode's first observation; else a step that highway-env's objects simulated); the other
+    copies' slots are left empty."""
+    return BatchStep(*_observe_copies(states, offsets, slot_starts, copies, acceleration, lane_change, p))
 
 
 @numba.njit(cache=True)
@@ -227,7 +292,7 @@ def _observe_into(r: BatchStep, state: np.ndarray, a: int, b: int, p: StepParame
 
 
 @numba.njit(cache=True)
-def _supervise(state: np.ndarray, n: int, proposed: np.ndarray, p: StepParameters) -> tuple[np.ndarray, np.ndarray]:
+def supervise_road(state: np.ndarray, n: int, proposed: np.ndarray, p: StepParameters) -> tuple[np.ndarray, np.ndarray]:
     """:class:`~sb3_marl.safety.supervisor.Supervisor` of a copy (priority: the headway margin, or
     the merge's): the executed meta-actions and which AVs brake to a stop."""
     h = p.horizon
@@ -267,3 +332,41 @@ def copy_rewards(own: np.ndarray, neighbours: np.ndarray, slot_starts: np.ndarra
         a, b = slot_starts[k], slot_starts[k + 1]
         rewards[a:b] = mode_rewards(own[a:b], neighbours[a:b, : b - a], mode)
     return rewards
+
+
+def step_report(result: BatchStep, proposed: np.ndarray, config: dict[str, Any], merge: bool) -> dict[str, Any]:
+    """The per-slot arrays of a step, named as the scenario's info entries: the driving metrics,
+    masks, actions and interventions of ``result``, each AV's own weighted reward (``reward``) and
+    its unweighted terms (``reward_terms``, with the merge's merging-lane cost where ``merge``)."""
+    terms = result.terms
+    terms[1] = np.minimum(np.log(terms[1]), 0.0)  # numpy's log: the same on every CPU as the env's always was
+    own = _weighted(
+        terms[0],
+        terms[1],
+        terms[2],
+        terms[3],
+        float(config["safety_weight"]),
+        float(config["headway_weight"]),
+        float(config["speed_weight"]),
+        float(config["comfort_weight"]) if config["comfort"] else 0.0,
+    )
+    names = dict(zip(REWARD_TERMS, terms[:6]))
+    if merge:  # MARL_CAVs' merging-lane cost: -exp(-(x - merge end)² / (10 × merging lane length))
+        cost = -np.exp(-((result.x - MERGE_END) ** 2) / (10 * ENDS[2]))
+        names["merging_lane"] = np.where(result.lane == MERGING_LANE, cost, 0.0)
+        own = own + config["merging_lane_weight"] * names["merging_lane"]
+    return {
+        "speed": result.speed,
+        "headway": terms[6],
+        "acceleration": result.acceleration,
+        "lane_change": result.lane_change,
+        "crashed": result.crashed,
+        "exited": result.exited,
+        "action_mask": result.action_mask,
+        "proposed_action": proposed,
+        "executed_action": result.executed,
+        "intervened": result.intervened,
+        "rule_action": result.rule_action,
+        "reward": own,
+        "reward_terms": names,
+    }

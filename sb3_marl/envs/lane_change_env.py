@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -14,14 +14,13 @@ from highway_env.road.road import Road
 from highway_env.vehicle.controller import MDPVehicle
 
 from sb3_marl.envs import config as cfg
-from sb3_marl.envs.observation import observation_space, observe
-from sb3_marl.envs.reward import neighbour_matrix, reward_terms, total_reward
+from sb3_marl.envs.batch_kernel import BatchStep, StepParameters, observe_copies, step_copies, step_report, supervise_road
+from sb3_marl.envs.observation import observation_space
 from sb3_marl.safety.supervisor import Supervisor
-from sb3_marl.sim import drivers, dynamics, kernel, lanes, meta_actions
+from sb3_marl.sim import drivers, kernel, lanes, meta_actions
 from sb3_marl.sim.meta_actions import ACTION_INDEX, ACTIONS
 from sb3_marl.sim.road import highway_lanes, make_road, spawn, vehicle_state
 from sb3_marl.sim.simulator import COMPILED, SIMULATORS, STOCK, capture, step_objects, vehicle_objects
-from sb3_marl.sim.traffic import TrafficSnapshot
 
 __all__ = ["ACTIONS", "ACTION_INDEX", "LaneChangeEnv"]
 
@@ -95,13 +94,9 @@ class LaneChangeEnv(AbstractEnv):
 
     def _derive(self) -> None:
         """What the steps read from the config: the road and time grid, the safety supervisor."""
-        self.supervisor = Supervisor.from_config(self.config, *self._road_data(), priorities=self._priorities())
+        self.supervisor = Supervisor.from_config(self.config, *self._road_data())
         self.horizon = self.supervisor.horizon
         self._n_avs = cfg.resolved_n_avs(self.config, self.scenario)
-
-    def _priorities(self) -> Callable[[np.ndarray, int, Supervisor], np.ndarray] | None:
-        """The supervisor's order of service (None: the headway margin's)."""
-        return None
 
     def _road_data(self) -> tuple[np.ndarray, float]:
         """The road as the kernel reads it: (lane table, road end [m])."""
@@ -118,6 +113,54 @@ class LaneChangeEnv(AbstractEnv):
     def _obstacles(self) -> np.ndarray:
         """The road's obstacle rows (none on the highway)."""
         return np.zeros((0, kernel.COLUMNS))
+
+    def _merge_tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+        """The merging road's lane tables (:mod:`~sb3_marl.envs.merge_rules`; None: not a merge)."""
+        return None
+
+    def step_parameters(self) -> StepParameters:
+        """What a compiled step of this scenario reads from its current config."""
+        c, tables = self.config, self._merge_tables()
+        no_table = np.zeros(1, dtype=np.int64)
+        route, across, across_from, next_on_route = tables or (
+            np.zeros((1, 1), dtype=np.bool_),
+            no_table,
+            np.zeros(1),
+            no_table,
+        )
+        return StepParameters(
+            self.horizon,
+            float(c["policy_frequency"]),
+            self.max_steps,
+            float(c["headway_time"]),
+            float(c["supervisor_min_gap"]),
+            bool(c["supervisor_repeat_actions"]),
+            bool(c["supervisor_rear_avs"]),
+            self.supervisor.emergency_brake,
+            self.supervisor.joint_search,
+            self.supervisor.brake_keeps_lane,
+            bool(c["supervisor_mobil_safety"]),
+            float(c["hdv_politeness"]),
+            float(c["hdv_b_safe"]),
+            float(c["hdv_lane_change_threshold"]),
+            float(c["rule_acceleration_threshold"]),
+            float(c["headway_max_distance"]),
+            float(c["reward_speed_range"][0]),
+            float(c["reward_speed_range"][1]),
+            float(c["harsh_acceleration_threshold"]),
+            int(c["obs_vehicles_count"]),
+            self.road_length,
+            float(c["obs_x_range"]),
+            float(c["obs_y_range"]),
+            float(c["obs_speed_range"]),
+            bool(c["obs_target_speed"]),
+            tables is not None,
+            tables is not None and c["supervisor_priority"] == "merging",
+            route,
+            across,
+            across_from,
+            next_on_route,
+        )
 
     @property
     def road_length(self) -> float:
@@ -223,53 +266,68 @@ class LaneChangeEnv(AbstractEnv):
         """Only ``AbstractEnv.__init__`` sets it (to []): the AVs are the state's first rows."""
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
-        """Apply one meta-action per AV for 1 / policy_frequency s of simulation."""
+        """Apply one meta-action per AV for 1 / policy_frequency s of simulation: one call of the
+        compiled batch step (:func:`~sb3_marl.envs.batch_kernel.step_copies`, this road a batch of
+        one), or highway-env's objects frame by frame where frames are drawn or the simulator is
+        ``stock``."""
         if self.done:
             raise RuntimeError("The episode is over (terminated or truncated): call reset() before step().")
         n = self.n_avs
         proposed = meta_actions.check_actions(action, n)
-        actions, braking, intervened = proposed, np.zeros(n, dtype=bool), None
-        if self.config["safety_supervisor"] or self.config["supervisor_shadow"]:
-            supervised, _, brake = self.supervisor(self.state, n, proposed, self.action_masks())
-            intervened = (supervised != proposed) | brake  # in shadow: where it would have
-            if self.config["safety_supervisor"]:
-                actions, braking = supervised, brake
-        speed_before = self.state[:n, kernel.SPEED].copy()
-        targets_before = self.state[:n, kernel.TARGET_LANE].copy()
-
-        self._simulate(actions, braking)
+        p = self.step_parameters()
+        supervise = np.array([bool(self.config["safety_supervisor"])])
+        shadow = np.array([bool(self.config["supervisor_shadow"])])
+        if self._uses_objects():
+            result = self._step_objects(proposed, p, bool(supervise[0]), bool(shadow[0]))
+        else:
+            steps = np.array([self.steps_done])
+            result = step_copies(self.state, self._rows(), np.array([0, n]), proposed, supervise, shadow, steps, p)
+            self.state = result.states[: result.offsets[-1]]
+            self.steps += self.horizon.frames_per_step
         self.time += 1.0 / self.config["policy_frequency"]
-
-        state = self.state
-        acceleration = (state[:n, kernel.SPEED] - speed_before) * self.config["policy_frequency"]
-        changed = lanes.lane_changes(self.horizon.lanes, targets_before, state)
-        obs, info = self._observe(acceleration, changed, proposed, actions, braking, intervened)
-        terminated = bool(info["crashed"].any())
-        truncated = not terminated and (self.steps_done >= self.max_steps or bool(info["exited"].all()))
+        obs, info = self._report(result, proposed)
+        terminated, truncated = bool(result.terminated[0]), bool(result.truncated[0])
         self.done = terminated or truncated
         if self.render_mode == "human":
             self.render()
         return obs, float(info["rewards"].sum()) / n, terminated, truncated, info
+
+    def _rows(self) -> np.ndarray:
+        """Where this road's rows start and end in its state (the batch-of-one's offsets)."""
+        return np.array([0, len(self.state)], dtype=np.int64)
+
+    def _step_objects(self, proposed: np.ndarray, p: StepParameters, supervise: bool, shadow: bool) -> BatchStep:
+        """A step of highway-env's objects (:meth:`_simulate`), observed as the compiled step
+        observes its own (:func:`~sb3_marl.envs.batch_kernel.observe_copies`)."""
+        n, h = self.n_avs, self.horizon
+        acting, braking, intervened = proposed, np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
+        if supervise or shadow:
+            supervised, brake = supervise_road(self.state, n, proposed, p)
+            intervened = (supervised != proposed) | brake  # in shadow: where it would have
+            if supervise:
+                acting, braking = supervised, brake
+        speed_before, targets_before = self.state[:n, kernel.SPEED].copy(), self.state[:n, kernel.TARGET_LANE].copy()
+        self._simulate(acting, braking)
+        state = self.state
+        acceleration = (state[:n, kernel.SPEED] - speed_before) * self.config["policy_frequency"]
+        changed = lanes.lane_changes(h.lanes, targets_before, state)
+        result = observe_copies(state, self._rows(), np.array([0, n]), np.zeros(1, dtype=np.int64), acceleration, changed, p)
+        result.executed[:], result.braking[:], result.intervened[:] = acting, braking, intervened
+        result.terminated[0] = result.crashed.any()
+        result.truncated[0] = not result.terminated[0] and (self.steps_done >= self.max_steps or result.exited.all())
+        return result
 
     def _uses_objects(self) -> bool:
         """Whether highway-env's objects step the road frame by frame (drawn frames, or the stock reference)."""
         return self.simulator == STOCK or self.viewer is not None or bool(self.config["show_trajectories"])
 
     def _simulate(self, actions: np.ndarray, braking: np.ndarray) -> None:
-        """Apply the executed meta-actions (target speed 0 m/s for the AVs ``braking``) and simulate
-        the frames of one policy step: compiled on the state array, or with highway-env's
-        ``Road.act`` / ``Road.step`` frame by frame (the frames in between drawn), captured into the
-        state array after."""
+        """Apply the executed meta-actions (target speed 0 m/s for the AVs ``braking``) to
+        highway-env's objects and simulate the frames of one policy step with ``Road.act`` /
+        ``Road.step`` (the frames in between drawn), captured into the state array after."""
         h = self.horizon
-        frames, dt = h.frames_per_step, h.dt
-        if not self._uses_objects():
-            self.state = dynamics.policy_step(
-                self.state, actions, frames, dt, h.lanes, h.road_end, h.speed_limit, h.ladder, braking
-            )
-            self.steps += frames
-            return
         road = self.road
-        step_objects(road, [ACTIONS[int(a)] for a in actions], braking, frames, dt, h.road_end, self._frame)
+        step_objects(road, [ACTIONS[int(a)] for a in actions], braking, h.frames_per_step, h.dt, h.road_end, self._frame)
         self.enable_auto_render = False
         self.state = capture(road.vehicles, road.network, road.objects)
         self._road_current = True  # the objects stepped are the state
@@ -324,20 +382,16 @@ class LaneChangeEnv(AbstractEnv):
         )
 
     def _observe_start(self) -> tuple[np.ndarray, dict[str, Any]]:
-        """:meth:`_observe` of a new situation: no acceleration or lane change, no action yet (-1)."""
+        """The observation and info of a new situation: no acceleration or lane change, no action yet (-1)."""
         n = self.n_avs
-        return self._observe(np.zeros(n), np.zeros(n, dtype=bool), np.full(n, -1))
+        still, straight = np.zeros(n), np.zeros(n, dtype=bool)
+        p = self.step_parameters()
+        result = observe_copies(self.state, self._rows(), np.array([0, n]), np.zeros(1, dtype=np.int64), still, straight, p)
+        return self._report(result, np.full(n, -1, dtype=np.int64))
 
-    def _observe(
-        self,
-        acceleration: np.ndarray,
-        lane_change: np.ndarray,
-        proposed: np.ndarray,
-        executed: np.ndarray | None = None,
-        braking: np.ndarray | None = None,
-        intervened: np.ndarray | None = None,
-    ) -> tuple[np.ndarray, dict[str, Any]]:
-        """The observation of :attr:`state` and the step's info, per-AV arrays of shape (n_avs,) unless stated.
+    def _report(self, result: BatchStep, proposed: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
+        """The observation (n_avs, vehicles, features) and the step's info, per-AV arrays of shape
+        (n_avs,) unless stated.
 
         ``rewards`` (the weighted total), ``reward_terms`` (dict of unweighted terms, see
         :mod:`sb3_marl.envs.reward`), ``neighbours`` ((n_avs, n_avs) bool, the local reward's
@@ -350,51 +404,23 @@ class LaneChangeEnv(AbstractEnv):
         ``rule_action`` (the rule driver's meta-action in the new state, :meth:`rule_actions`),
         and the scalars ``n_avs``, ``n_hdvs``, ``step``.
         """
-        state, n = self.state, self.n_avs
-        snapshot = TrafficSnapshot.capture(state, n, self.horizon.road_end)
-        crashed = state[:n, kernel.CRASHED] > 0
-        terms = self._reward_terms(snapshot, crashed, acceleration, lane_change)
-        headway = terms.pop("headway_distance")
-        proposed = np.asarray(proposed, dtype=np.int64)
-        executed = proposed if executed is None else np.asarray(executed, dtype=np.int64)
-        braking = np.zeros(n, dtype=bool) if braking is None else np.asarray(braking, dtype=bool)
+        n = self.n_avs
+        arrays = step_report(result, proposed, self.config, self._merge_tables() is not None)
         info = {
-            "rewards": self._total_reward(terms),
-            "reward_terms": terms,
-            "neighbours": self._neighbour_sets(snapshot),
-            "crashed": crashed,
-            "speed": state[:n, kernel.SPEED].copy(),
-            "headway": headway,
-            "acceleration": acceleration,
-            "lane_change": lane_change,
-            "exited": state[:n, kernel.COLLIDABLE] == 0,
-            "action_mask": self.action_masks(),
-            "proposed_action": proposed,
-            "executed_action": executed,
-            "emergency_brake": braking,
-            "intervened": np.zeros(n, dtype=bool) if intervened is None else np.asarray(intervened, dtype=bool),
-            "rule_action": self.rule_actions(),
+            "rewards": arrays.pop("reward"),
+            "reward_terms": arrays.pop("reward_terms"),
+            "neighbours": result.neighbours[:, :n],
+            **{key: arrays[key] for key in ("crashed", "speed", "headway", "acceleration", "lane_change", "exited")},
+            **{key: arrays[key] for key in ("action_mask", "proposed_action", "executed_action")},
+            "emergency_brake": result.braking,
+            "intervened": arrays["intervened"],
+            "rule_action": arrays["rule_action"],
             "n_avs": n,
             "n_hdvs": self.n_hdvs,
             "step": self.steps_done,
         }
         self._scenario_info(info)
-        target_speeds = state[:n, kernel.TARGET_SPEED].copy() if self.config["obs_target_speed"] else None
-        return observe(snapshot, self.config, self.road_length, target_speeds), info
+        return result.obs, info
 
     def _scenario_info(self, info: dict[str, Any]) -> None:
         """Add the scenario's own entries to a step's ``info`` (none on the lane change)."""
-
-    def _reward_terms(
-        self, snapshot: TrafficSnapshot, crashed: np.ndarray, acceleration: np.ndarray, lane_change: np.ndarray
-    ) -> dict[str, np.ndarray]:
-        """Unweighted reward terms per AV (:func:`~sb3_marl.envs.reward.reward_terms`)."""
-        return reward_terms(snapshot, crashed, acceleration, lane_change, self.config)
-
-    def _total_reward(self, terms: dict[str, np.ndarray]) -> np.ndarray:
-        """(n_avs,) the weighted reward of each AV."""
-        return total_reward(terms, self.config)
-
-    def _neighbour_sets(self, snapshot: TrafficSnapshot) -> np.ndarray:
-        """(n_avs, n_avs) bool: the local reward's neighbour sets (:func:`~sb3_marl.envs.reward.neighbour_matrix`)."""
-        return neighbour_matrix(snapshot)
