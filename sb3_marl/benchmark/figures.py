@@ -224,7 +224,7 @@ def plot_interpretation(trials: list[TrialLog], log_folder: str | Path, out_dir:
     """``cooperative_lane_change.json`` and, if an AV yielded, ``.png`` (see module doc); nothing
     without a finished MA2C trial at density 2 or 3."""
     from sb3_marl.algos.common.policies import model_policy
-    from sb3_marl.benchmark.trial import FINAL_EVAL_EPISODES
+    from sb3_marl.benchmark.trial_files import FINAL_EVAL_EPISODES
     from sb3_marl.evaluation.interpretation import describe, find_cooperative_lane_change, plot_cooperative_lane_change
     from sb3_marl.runs.folders import find_run
 

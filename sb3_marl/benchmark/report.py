@@ -22,7 +22,8 @@
   lane change an AV yielded to with the largest speed drop (:mod:`sb3_marl.evaluation.interpretation`),
   as road snapshots and speed traces; the json says which, or that no AV yielded.
 
-Only finished trials (with ``result.json``) enter the table; curves also show unfinished ones.
+Only finished trials (with ``result.json``) enter the table; curves also show unfinished ones. A
+trial with a damaged file, and one not evaluated yet, is left out, and the report says which and why.
 The output folder is one the report creates, an empty one, or one an earlier report wrote (its
 :data:`MANIFEST` lists the files it wrote); the files of an earlier report that this one does not
 write again (a figure whose trials are gone) are deleted, so the folder shows one report. Nothing
@@ -54,8 +55,8 @@ def write_report(log_folder: str | Path, out_dir: str | Path = "results", seed: 
     """
     problems: list[str] = []
     trials = load_trials(log_folder, problems)
-    for problem in problems:
-        print(f"left out of the report (unreadable): {problem}")
+    for problem in problems:  # each trial left out and why (a damaged file: the next run of the grid repairs it)
+        print(f"left out of the report: {problem}")
     if not trials:
         raise FileNotFoundError(
             f"No evaluated benchmark trial under {Path(log_folder) / 'trials'}/ "

@@ -6,7 +6,8 @@ Layout of the log folder (default ``logs/benchmark``)::
     trials/<trial id>/        one rl-zoo log folder per trial (see :mod:`sb3_marl.benchmark.trial`)
     ray/<grid>-<time>/        Ray Tune's experiment state and checkpoints
 
-Finished trials (with ``result.json``) are skipped; unfinished ones continue from their checkpoint.
+Finished trials (with ``result.json``, their files read back: :mod:`~sb3_marl.benchmark.repair`) are
+skipped; unfinished ones continue from their checkpoint; damaged ones are repaired and run again.
 On a multi-node cluster either the log folder is on a file system every node sees, or the grid
 lives in a storage URI (``storage``: :mod:`~sb3_marl.benchmark.storage`) and the log folder is the
 launcher's local copy.
@@ -36,8 +37,19 @@ from sb3_marl.benchmark.grid import (
     check_budget,
     make_grid,
 )
+from sb3_marl.benchmark.repair import checkpoint_damage, repair_trial, trial_damage
 from sb3_marl.benchmark.storage import GridStorage
-from sb3_marl.benchmark.trial import CHECKPOINT, RESULT, checked_result, checkpoint_timesteps, run_trial, trial_folder
+from sb3_marl.benchmark.trial import run_trial
+from sb3_marl.benchmark.trial_files import (
+    CHECKPOINT,
+    RESULT,
+    TRIAL,
+    checked_result,
+    checkpoint_timesteps,
+    read_trial_info,
+    total_wall_time,
+    trial_folder,
+)
 from sb3_marl.common.checks import check_integer, check_number
 from sb3_marl.common.files import read_json_object, write_text
 from sb3_marl.envs import DENSITIES
@@ -50,10 +62,12 @@ LOCK_FILE, HOLDER_FILE = ".benchmark.lock", ".benchmark.holder.json"
 
 @dataclass
 class BenchmarkRun:
-    """What one invocation did: trials skipped (finished before), completed, failed for good (with
-    the error), and left unfinished (the run was stopped)."""
+    """What one invocation did: trials skipped (finished before), repaired before they ran (what was
+    found and done, one line each), completed, failed for good (with the error), and left unfinished
+    (the run was stopped)."""
 
     skipped: list[str] = field(default_factory=list)
+    repaired: dict[str, str] = field(default_factory=dict)
     completed: list[str] = field(default_factory=list)
     failed: dict[str, str] = field(default_factory=dict)
     unfinished: list[str] = field(default_factory=list)
@@ -181,6 +195,11 @@ def _run_waves(ray: Any, launch: Launch, todo: list[TrialSpec], outcome: Benchma
     """Run ``todo`` on Ray (the launcher holding the folder's lock) and fill ``outcome``."""
     log_folder, place, settings = launch.log_folder, launch.storage, launch.settings
     todo = [spec for spec in todo if not _finished(log_folder, spec, place)]  # another launcher may have run some
+    for spec in todo if place is None else []:  # a storage grid's trials check their checkpoint where they run
+        line = repair_trial(log_folder, spec)
+        if line is not None:  # said whatever the verbosity: files were moved
+            outcome.repaired[spec.trial_id] = line
+            print(line)
     if place is not None:
         place.write_text(SETTINGS_FILE, json.dumps(settings, indent=2) + "\n")
     else:
@@ -225,10 +244,12 @@ def failure_reason(error: BaseException) -> str:
 
 
 def _finished(log_folder: Path, spec: TrialSpec, storage: GridStorage | None = None) -> bool:
-    """Whether the trial ``spec`` has finished in ``log_folder`` or ``storage`` (its ``result.json``)."""
+    """Whether the trial ``spec`` has finished in ``log_folder`` (its ``result.json``, and every file
+    it needs reads back: :func:`~sb3_marl.benchmark.repair.trial_damage`) or in ``storage`` (its
+    ``result.json``)."""
     if storage is not None:
         return storage.exists(f"trials/{spec.trial_id}/{RESULT}")
-    return (trial_folder(log_folder, spec) / RESULT).is_file()
+    return (trial_folder(log_folder, spec) / RESULT).is_file() and not trial_damage(log_folder, spec)
 
 
 def _ready(log_folder: Path, spec: TrialSpec, storage: GridStorage | None = None) -> bool:
@@ -252,11 +273,14 @@ def _import_ray() -> Any:
 
 
 def _start_ray(ray: Any, address: str | None, verbose: int) -> bool:
-    """Start (or attach to ``address``) Ray unless it runs already; returns whether it was started here."""
+    """Start (or attach to ``address``, else to ``RAY_ADDRESS``) Ray unless it runs already; returns
+    whether it was started here. Without either, a new local cluster of this machine's cores, even
+    where another one runs (``ray start``, another launcher): Ray would join that one otherwise."""
     started = not ray.is_initialized()
     if started:
+        address = address or os.environ.get("RAY_ADDRESS") or None
         ray.init(
-            address=address,
+            address=address or "local",
             num_cpus=None if address else os.cpu_count(),
             include_dashboard=False,
             configure_logging=verbose > 0,
@@ -293,9 +317,11 @@ def _tuner(launch: Launch, wave: int, todo: list[TrialSpec]) -> Any:
 
 @dataclass
 class TrialStatus:
-    """Where one trial of a grid stands in a log folder: ``finished`` (``result.json``),
-    ``unfinished`` (a checkpoint to continue from) or ``not started``; AV-steps done of the budget's
-    ``n_timesteps``; the final evaluation's mean return and wall time once finished."""
+    """Where one trial of a grid stands in a log folder: ``finished`` (``result.json``, every file
+    read back), ``unfinished`` (a checkpoint to continue from), ``not started``, or ``unreadable``
+    (``problems``: each damaged file and why; the next run repairs it); AV-steps done of the
+    budget's ``n_timesteps``; the final evaluation's mean return once finished; its training time
+    over all attempts [s] (:func:`~sb3_marl.benchmark.trial_files.total_wall_time`)."""
 
     trial_id: str
     state: str
@@ -303,13 +329,19 @@ class TrialStatus:
     n_timesteps: int
     return_mean: float | None = None
     wall_time_s: float | None = None
-    problem: str | None = None  # why an "unreadable" trial's result could not be read
+    problems: list[str] = field(default_factory=list)  # "<file>: <why>", one per damaged file
 
 
 def grid_status(
-    grid: str, log_folder: str | Path, seeds: int = GRID_SEEDS, densities: tuple[int, ...] = tuple(DENSITIES)
+    grid: str,
+    log_folder: str | Path,
+    seeds: int = GRID_SEEDS,
+    densities: tuple[int, ...] = tuple(DENSITIES),
+    checkpoints: bool = True,
 ) -> list[TrialStatus]:
-    """Each trial of ``grid`` (as :func:`run_benchmark` would run it into ``log_folder``), in order.
+    """Each trial of ``grid`` (as :func:`run_benchmark` would run it into ``log_folder``), in order;
+    ``checkpoints`` False: of an unfinished trial's checkpoint only its ``state.json`` is read (a
+    storage grid's local copy has no other checkpoint file).
 
     :raises FileNotFoundError: if ``log_folder`` holds no benchmark (no ``benchmark.json``)
     :raises ValueError: naming a bad grid, density or seed count
@@ -328,24 +360,35 @@ def grid_status(
         check_budget(budget)
     except ValueError:
         raise ValueError(f"{settings_path}: 'budget' is {budget!r}, expected a fraction in (0, 1].") from None
-    statuses = []
-    for spec in trials:
-        folder = trial_folder(log_folder, spec)
-        status = TrialStatus(spec.trial_id, "not started", 0, spec.n_timesteps(budget))
-        if (folder / RESULT).is_file():
-            try:
-                result = read_json_object(folder / RESULT)
-                final = checked_result(result)
-                status.state, status.timesteps = "finished", int(result["num_timesteps"])
-                status.return_mean, status.wall_time_s = float(final["return_mean"]), result.get("wall_time_s")
-            except (ValueError, KeyError, TypeError, AttributeError) as error:  # a truncated or edited file: this trial only
-                status.state = "unreadable"
-                status.problem = f"{folder / RESULT}: {type(error).__name__}: {error}"
-        elif (folder / CHECKPOINT / "state.json").is_file():
-            status.state = "unfinished"
-            status.timesteps = checkpoint_timesteps(folder / CHECKPOINT)
-        statuses.append(status)
-    return statuses
+    return [_trial_status(Path(log_folder), spec, spec.n_timesteps(budget), checkpoints) for spec in trials]
+
+
+def _trial_status(log_folder: Path, spec: TrialSpec, n_timesteps: int, checkpoints: bool) -> TrialStatus:
+    """Where ``spec``'s trial stands in ``log_folder`` (see :func:`grid_status`)."""
+    folder = trial_folder(log_folder, spec)
+    status = TrialStatus(spec.trial_id, "not started", 0, n_timesteps)
+    damage = trial_damage(log_folder, spec)
+    finished = (folder / RESULT).is_file() and not damage
+    if not finished and (folder / CHECKPOINT).is_dir():
+        damage.update(checkpoint_damage(folder / CHECKPOINT, log_folder, whole=checkpoints))
+    status.problems = [f"{path}: {why}" for path, why in damage.items()]
+    if finished:
+        result = read_json_object(folder / RESULT)
+        final = checked_result(result)
+        status.state, status.timesteps, status.wall_time_s = (
+            "finished",
+            int(result["num_timesteps"]),
+            result.get("wall_time_s"),
+        )
+        status.return_mean = float(final["return_mean"])
+    elif (folder / CHECKPOINT / "state.json").is_file() and folder / CHECKPOINT / "state.json" not in damage:
+        status.state, status.timesteps = "unfinished", checkpoint_timesteps(folder / CHECKPOINT)
+    if damage:
+        status.state = "unreadable"
+    if (folder / TRIAL).is_file() and folder / TRIAL not in damage:  # every attempt's (older results: the last one's)
+        total = total_wall_time(read_trial_info(folder / TRIAL)["attempts"])
+        status.wall_time_s = status.wall_time_s if total is None else total
+    return status
 
 
 def _trial_id(trial: Any) -> str:

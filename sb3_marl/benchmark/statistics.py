@@ -13,8 +13,8 @@ from typing import Any
 import numpy as np
 
 from sb3_marl.benchmark.grid import EPISODE_STEPS, EXPERIMENTS, TrialSpec
-from sb3_marl.benchmark.trial import RESULT, TRIAL, checked_result, final_evaluation
-from sb3_marl.common.files import inside, read_evaluations, read_json_object
+from sb3_marl.benchmark.trial_files import RESULT, TRIAL, checked_evaluations, final_evaluation, read_trial_info
+from sb3_marl.common.files import inside, read_json_object
 from sb3_marl.envs import DENSITIES
 
 #: Driving metrics of the final evaluation, averaged over seeds in the table.
@@ -48,36 +48,31 @@ class TrialLog:
 
 def load_trials(log_folder: str | Path, problems: list[str] | None = None) -> list[TrialLog]:
     """Every trial under ``<log_folder>/trials/`` that has evaluated at least once. A trial whose
-    files cannot be read (truncated, edited) is left out, its file and error appended to ``problems``."""
+    files cannot be read (truncated, edited: :func:`~sb3_marl.benchmark.repair.trial_damage`) is
+    left out, each damaged file and its error appended to ``problems`` (raised without it), and so
+    is a trial folder without ``trial.json`` or not evaluated yet, saying so."""
+    from sb3_marl.benchmark.repair import trial_damage
+
     trials = []
-    for info_path in sorted(Path(log_folder).glob(f"trials/*/{TRIAL}")):
+    for folder in sorted(path for path in Path(log_folder).glob("trials/*") if path.is_dir()):
         try:
-            spec = TrialSpec(**read_json_object(inside(info_path, log_folder))["trial"])
-            npz = sorted(info_path.parent.glob(f"{spec.algo}/*_1/evaluations.npz"))
+            spec = TrialSpec(**read_trial_info(inside(folder / TRIAL, log_folder))["trial"])
+            if spec.trial_id != folder.name:
+                raise ValueError(f"{folder / TRIAL} names the trial {spec.trial_id}, not {folder.name}")
+            damage = trial_damage(Path(log_folder), spec)
+            if damage:
+                raise ValueError("; ".join(f"{path}: {why}" for path, why in damage.items()))
+            npz = sorted(folder.glob(f"{spec.algo}/*_1/evaluations.npz"))
             if not npz:
+                if problems is not None:
+                    problems.append(f"{folder.name}: not evaluated yet (no {spec.algo}/*_1/evaluations.npz)")
                 continue
-            evaluations = read_evaluations(npz[0])
-            timesteps, results = evaluations.get("timesteps"), evaluations.get("results")
-            if (
-                timesteps is None
-                or results is None
-                or timesteps.ndim != 1
-                or results.ndim != 2
-                or len(results) != len(timesteps)
-                or not np.issubdtype(timesteps.dtype, np.number)
-                or not np.issubdtype(results.dtype, np.number)
-            ):
-                raise ValueError(
-                    f"{npz[0]}: expected numeric 'timesteps' (evaluations,) and 'results' (evaluations, episodes)"
-                )
-            result_path = info_path.parent / RESULT
-            result = read_json_object(result_path) if result_path.is_file() else None
-            if result is not None:
-                checked_result(result)  # a result without its evaluation is unreadable: KeyError
+            evaluations = checked_evaluations(npz[0])
+            result = read_json_object(folder / RESULT) if (folder / RESULT).is_file() else None
         except (ValueError, KeyError, TypeError) as error:
             if problems is None:
                 raise
-            problems.append(f"{info_path.parent.name}: {error}")
+            problems.append(f"{folder.name}: {error}")
             continue
         trials.append(TrialLog(spec, evaluations, result))
     return trials
@@ -192,7 +187,7 @@ def reference_summaries(trials: list[TrialLog], log_folder: str | Path, seed: in
 
     The IQM's confidence interval resamples the 30 episodes (a fixed policy: its only randomness
     is the episodes'), where the learners' resamples seeds."""
-    from sb3_marl.benchmark.trial import FINAL_EVAL_EPISODES
+    from sb3_marl.benchmark.trial_files import FINAL_EVAL_EPISODES
     from sb3_marl.evaluation import evaluate_protocols
     from sb3_marl.evaluation.baselines import BASELINES
 

@@ -54,7 +54,7 @@ def human_references(trials: list[TrialLog], log_folder: str | Path, seed: int) 
     """The all-human reference's traffic metrics, keyed by (road, density), on the final evaluation's
     episodes (seeds ``seed ..``) where the road's MA2C has a finished trial, in its scenario config
     (:func:`~sb3_marl.benchmark.statistics.reference_configs`)."""
-    from sb3_marl.benchmark.trial import FINAL_EVAL_EPISODES
+    from sb3_marl.benchmark.trial_files import FINAL_EVAL_EPISODES
     from sb3_marl.evaluation.traffic import human_reference
 
     return {

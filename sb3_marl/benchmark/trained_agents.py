@@ -16,7 +16,7 @@ from typing import Any
 
 from sb3_marl.benchmark.grid import TrialSpec
 from sb3_marl.benchmark.statistics import final_over_seeds, load_trials
-from sb3_marl.benchmark.trial import RESULT, TRIAL
+from sb3_marl.benchmark.trial_files import RESULT, TRIAL
 from sb3_marl.common.files import inside, read_json_object
 from sb3_marl.envs import ENV_IDS, MERGE_ENV_IDS, scenario_of
 from sb3_marl.envs.config import LANE_CHANGE, MERGE

@@ -10,11 +10,12 @@ on it. Beside them:
   someone else resumes without running anything of theirs), ``evaluations.npz`` and ``state.json``;
   the same files are reported to Ray Tune as the trial's checkpoint, from which Ray restarts a
   trial whose worker died;
-- ``trial.json``: the trial and its settings, with one entry per attempt (start, host, pid);
+- ``trial.json``: the trial and its settings, with one entry per attempt (start, host, pid, and
+  ``wall_time_s``: its training time up to its latest checkpoint [s]);
 - ``result.json`` (written last): the last periodic evaluation and the paper's final evaluation
   of the trained model (``paper_evaluation``, :data:`FINAL_EVAL_EPISODES` seeded episodes).
-  A trial with it is finished and skipped
-  when the benchmark runs again; one without it continues from ``checkpoint/``.
+  A trial with it, whose files all read back (:mod:`~sb3_marl.benchmark.repair`), is finished and
+  skipped when the benchmark runs again; one without it continues from ``checkpoint/``.
 """
 
 from __future__ import annotations
@@ -26,7 +27,6 @@ import shutil
 import socket
 import tempfile
 import time
-from numbers import Real
 from pathlib import Path
 from typing import Any
 
@@ -34,67 +34,25 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_marl.benchmark.grid import TrialSpec
 from sb3_marl.benchmark.storage import GridStorage
-from sb3_marl.common.checks import is_integer
-from sb3_marl.common.files import REPLAY_BUFFER_FILE, read_json_object, write_replay_buffer, write_text
-
-RUN_ID = 1
-CHECKPOINT = "checkpoint"
-PREVIOUS_CHECKPOINT = f".{CHECKPOINT}.previous"
-#: Benchmark settings every trial of a log folder shares (``benchmark.json``).
-SETTINGS = ("budget", "eval_every_episodes", "eval_episodes")
-RESULT = "result.json"
-#: The paper's final evaluation of a trained model: 30 seeded episodes (seeds 10000..10029, the
-#: same for every trial and for ``sb3-marl evaluate``), actions sampled, the trial's scenario.
-FINAL_EVAL_EPISODES = 30
-TRIAL = "trial.json"
-
-
-def trial_folder(log_folder: str | Path, spec: TrialSpec) -> Path:
-    return Path(log_folder) / "trials" / spec.trial_id
-
-
-def checkpoint_timesteps(checkpoint: Path) -> int:
-    """AV-steps the trial had trained when it wrote ``checkpoint`` (its ``state.json``)."""
-    return read_json_object(checkpoint / "state.json")["num_timesteps"]
-
-
-#: The most episode returns a final evaluation may list (the paper's has 30).
-MAX_EVALUATION_EPISODES = 100_000
-
-
-def final_evaluation(result: dict[str, Any]) -> dict[str, Any]:
-    """A finished trial's final evaluation: the paper's (30 seeded episodes of the trained model,
-    ``paper_evaluation``) where ``result`` has it, else its last periodic evaluation."""
-    return result.get("paper_evaluation") or result["final_evaluation"]
-
-
-def checked_result(result: dict[str, Any]) -> dict[str, Any]:
-    """A finished trial's ``result.json`` as data, checked where it is read: its ``num_timesteps``
-    an integer, its ``wall_time_s`` seconds or absent, its final evaluation's (and its
-    ``supervisor_off``'s) summary values numbers and its ``returns`` at most
-    :data:`MAX_EVALUATION_EPISODES` numbers; a ValueError (KeyError when missing) otherwise.
-    Returns the final evaluation (:func:`final_evaluation`)."""
-    if not is_integer(result.get("num_timesteps")):
-        raise ValueError(f"'num_timesteps' is {str(result.get('num_timesteps'))[:40]!r}, expected an integer")
-    wall_time = result.get("wall_time_s")
-    if wall_time is not None and not _real(wall_time):
-        raise ValueError(f"'wall_time_s' is {str(wall_time)[:40]!r}, expected seconds")
-    final = final_evaluation(result)
-    for summary in (final, *([final["supervisor_off"]] if isinstance(final, dict) and "supervisor_off" in final else [])):
-        if not isinstance(summary, dict):
-            raise ValueError(f"the final evaluation is {str(summary)[:80]!r}, expected an object")
-        numbers = {key: value for key, value in summary.items() if key.endswith(("_mean", "_std", "_rate", "_episode"))}
-        returns = summary.get("returns", [])
-        if not all(map(_real, numbers.values())) or not (
-            isinstance(returns, list) and len(returns) <= MAX_EVALUATION_EPISODES and all(map(_real, returns))
-        ):
-            raise ValueError("the final evaluation's summary values and 'returns' must be numbers")
-    return final
-
-
-def _real(value: Any) -> bool:
-    """A real number, NaN included (an evaluation's mean of nothing), not a bool."""
-    return isinstance(value, Real) and not isinstance(value, bool)
+from sb3_marl.benchmark.trial_files import (  # the trial folder's layout and readers, re-exported
+    CHECKPOINT,
+    FINAL_EVAL_EPISODES,
+    PREVIOUS_CHECKPOINT,
+    RESULT,
+    RUN_ID,
+    SETTINGS,
+    TRIAL,
+    read_trial_info,
+    total_wall_time,
+    trial_folder,
+)
+from sb3_marl.common.files import (
+    REPLAY_BUFFER_FILE,
+    read_json_object,
+    replaced_atomically,
+    write_replay_buffer,
+    write_text,
+)
 
 
 def write_json(path: Path, data: dict[str, Any]) -> None:
@@ -110,12 +68,14 @@ class CheckpointAndReport(BaseCallback):
     def __init__(self, folder: Path, spec: TrialSpec, storage: GridStorage | None = None) -> None:
         super().__init__()
         self.folder, self.spec, self.storage = folder, spec, storage
+        self.started = time.perf_counter()  # when this attempt's training began [s, perf_counter]
 
     def _on_step(self) -> bool:
         from ray import tune
 
         evaluation: Any = self.parent  # the ScenarioEvalCallback that calls this one after each evaluation
         checkpoint = write_checkpoint(self.model, self.folder, evaluation.log_path / "evaluations.npz")
+        record_wall_time(self.folder, time.perf_counter() - self.started)
         metrics = trial_metrics(self.spec, self.model.num_timesteps, evaluation.last_summary)
         if self.storage is not None:  # the checkpoint, then the trial folder, to the grid's storage
             self.storage.upload_checkpoint(checkpoint, self.spec.trial_id, int(self.model.num_timesteps))
@@ -145,6 +105,14 @@ def write_checkpoint(model: Any, folder: Path, evaluations: Path) -> Path:
     staging.rename(final)
     shutil.rmtree(previous, ignore_errors=True)
     return final
+
+
+def record_wall_time(folder: Path, seconds: float) -> dict[str, Any]:
+    """Set the current (last) attempt's ``wall_time_s`` in ``<folder>/trial.json`` to ``seconds``; the file's data."""
+    info = read_trial_info(folder / TRIAL)
+    info["attempts"][-1]["wall_time_s"] = round(seconds, 1)
+    write_json(folder / TRIAL, info)
+    return info
 
 
 def trial_metrics(spec: TrialSpec, num_timesteps: int, summary: dict[str, float]) -> dict[str, Any]:
@@ -184,7 +152,7 @@ def run_trial(config: dict[str, Any]) -> None:
         storage.download_checkpoint(spec.trial_id, checkpoint)
     folder.mkdir(parents=True, exist_ok=True)
     resumed_at = _restore_checkpoint(folder, tune.get_checkpoint())
-    info = _record_attempt(folder, spec, config, resumed_at)
+    _record_attempt(folder, spec, config, resumed_at)
     run = RunSpec(
         algo=spec.algo,
         env=spec.env_id,
@@ -202,19 +170,23 @@ def run_trial(config: dict[str, Any]) -> None:
         monitor_file="monitor.csv" if not resumed_at else f"resumed_at_{resumed_at}.monitor.csv",
         evaluate_at_end=True,
     )
-    manager = MARLExperimentManager(run, callback_after_eval=CheckpointAndReport(folder, spec, storage))
+    reporter = CheckpointAndReport(folder, spec, storage)
+    manager = MARLExperimentManager(run, callback_after_eval=reporter)
     model, _ = manager.setup_experiment()  # type: ignore[misc]
     if spec.starts_from is not None and not resumed_at:  # a curriculum: the easier density's final weights
         model.set_parameters(str(start_model(log_folder, spec.starts_from)), device="cpu")
     evaluation = next(c for c in manager.callbacks if isinstance(c, ScenarioEvalCallback))
-    if resumed_at:
+    if resumed_at:  # the run's evaluations are the checkpoint's until the next one (none, resumed at its budget)
         evaluation.load_history(checkpoint / "evaluations.npz", resumed_at)
-    start = time.perf_counter()
+        assert evaluation.log_path is not None  # the experiment manager gives its evaluation the run folder
+        with replaced_atomically(evaluation.log_path / "evaluations.npz") as temporary:
+            shutil.copyfile(checkpoint / "evaluations.npz", temporary)
+    reporter.started = time.perf_counter()
     manager.learn(model)
     if manager.interrupted:
         raise KeyboardInterrupt(f"trial {spec.trial_id} interrupted")
     manager.save_trained_model(model)
-    wall_time = round(time.perf_counter() - start, 1)
+    info = record_wall_time(folder, time.perf_counter() - reporter.started)
     result = {
         **info,
         "num_timesteps": int(model.num_timesteps),
@@ -222,7 +194,7 @@ def run_trial(config: dict[str, Any]) -> None:
         "final_evaluation": evaluation.final_summary(),
         "final_returns": [float(r) for r in evaluation.evaluations["results"][-1]],
         "paper_evaluation": paper_evaluation(model, spec.env_id, manager.scenario.get("env_config")),
-        "wall_time_s": wall_time,
+        "wall_time_s": total_wall_time(info["attempts"]),  # every attempt's
         "machine": f"{platform.node()} ({os.cpu_count()} cores)",
     }
     if storage is not None:  # the transfers so far (all but the last upload): the storage's cost
@@ -245,25 +217,36 @@ def start_model(log_folder: str | Path, start: TrialSpec) -> Path:
 
 
 def _restore_checkpoint(folder: Path, ray_checkpoint: Any) -> int:
-    """Put the trial's latest checkpoint in ``<folder>/checkpoint`` (Ray's, when Ray restarted the
-    trial; the previous one, when a kill came between its two renames); its AV-steps (0: none)."""
+    """Put the trial's newest checkpoint that loads in ``<folder>/checkpoint`` (Ray's, when Ray
+    restarted the trial; the previous one, when a kill came between its two renames; a damaged one
+    is moved aside: :func:`~sb3_marl.benchmark.repair.restore_checkpoint`); its AV-steps (0: none)."""
+    from sb3_marl.benchmark.repair import restore_checkpoint
+
     checkpoint = folder / CHECKPOINT
     if ray_checkpoint is not None:
         with ray_checkpoint.as_directory() as directory:
             if Path(directory).resolve() != checkpoint.resolve():
                 shutil.rmtree(checkpoint, ignore_errors=True)
                 shutil.copytree(directory, checkpoint)
-    if not checkpoint.is_dir() and (folder / PREVIOUS_CHECKPOINT).is_dir():
-        (folder / PREVIOUS_CHECKPOINT).rename(checkpoint)
-    return checkpoint_timesteps(checkpoint) if checkpoint.is_dir() else 0
+    restored = restore_checkpoint(folder)
+    if restored.damaged:  # the launcher repairs a local grid before it starts; Ray's restarts and storage grids here
+        print(f"trial {folder.name}: {restored.summary()}")
+    return restored.timesteps
 
 
 def _record_attempt(folder: Path, spec: TrialSpec, config: dict[str, Any], resumed_at: int) -> dict[str, Any]:
-    """``trial.json`` with this attempt (time, host, Ray node, process, AV-steps it resumes at) added; returned."""
-    info = (
-        read_json_object(folder / TRIAL)
-        if (folder / TRIAL).is_file()
-        else {
+    """``trial.json`` with this attempt (time, host, Ray node, process, AV-steps it resumes at) added
+    (a new one where it is unreadable, that one moved aside); returned."""
+    from sb3_marl.benchmark.repair import move_aside
+
+    info = None
+    if (folder / TRIAL).is_file():
+        try:
+            info = read_trial_info(folder / TRIAL)
+        except ValueError as error:
+            print(f"trial {spec.trial_id}: {error}: moved aside to {move_aside(folder / TRIAL).name}")
+    if info is None:
+        info = {
             "trial": spec.to_dict(),
             "trial_id": spec.trial_id,
             "env_id": spec.env_id,
@@ -271,7 +254,6 @@ def _record_attempt(folder: Path, spec: TrialSpec, config: dict[str, Any], resum
             **{key: config[key] for key in SETTINGS},
             "attempts": [],
         }
-    )
     import ray
 
     attempt = {"started": time.strftime("%Y-%m-%dT%H:%M:%S"), "host": socket.gethostname(), "pid": os.getpid()}

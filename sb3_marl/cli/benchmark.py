@@ -195,7 +195,8 @@ def _benchmark_evaluate(args: argparse.Namespace, storage: GridStorage | None = 
     upload the re-evaluated trials' folders there."""
     from tqdm import tqdm
 
-    from sb3_marl.benchmark.trial import RESULT, reevaluate_trial
+    from sb3_marl.benchmark.trial import reevaluate_trial
+    from sb3_marl.benchmark.trial_files import RESULT
     from sb3_marl.common.files import inside
 
     results = sorted(Path(args.log_folder).glob(f"trials/*/{RESULT}"))
@@ -227,8 +228,8 @@ def _benchmark_status(args: argparse.Namespace) -> int:
     """Print each trial of ``--grid`` in ``-f``: state, AV-steps of the budget, final return, wall time."""
     from sb3_marl.benchmark.runner import grid_status
 
-    try:
-        statuses = grid_status(args.grid, args.log_folder, args.seeds, tuple(args.densities))
+    try:  # a storage grid's local copy keeps only its checkpoints' state.json
+        statuses = grid_status(args.grid, args.log_folder, args.seeds, tuple(args.densities), args.storage is None)
     except (FileNotFoundError, ValueError) as error:
         raise UsageError(str(error)) from None
     counts = {
@@ -237,7 +238,7 @@ def _benchmark_status(args: argparse.Namespace) -> int:
     print(
         f"Benchmark grid {args.grid!r} in {args.log_folder}: {counts['finished']} of {len(statuses)} trials finished, "
         f"{counts['unfinished']} unfinished (continue from their checkpoint), {counts['not started']} not started"
-        + (f", {counts['unreadable']} with an unreadable result" if counts["unreadable"] else "")
+        + (f", {counts['unreadable']} with an unreadable result or other file (named below)" if counts["unreadable"] else "")
         + "\n"
     )
     width = max(len(s.trial_id) for s in statuses)
@@ -248,6 +249,6 @@ def _benchmark_status(args: argparse.Namespace) -> int:
         wall = f"{s.wall_time_s:.0f} s" if s.wall_time_s is not None else "-"
         print(f"{s.trial_id:<{width}}  {s.state:<11}  {done:>25}  {returns:>7}  {wall:>9}")
     for s in statuses:
-        if s.problem:
-            print(f"unreadable: {s.problem}", file=sys.stderr)
+        for problem in s.problems:
+            print(f"unreadable: {problem}", file=sys.stderr)
     return 1 if counts["unreadable"] else 0

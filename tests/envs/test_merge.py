@@ -234,7 +234,7 @@ def test_the_joint_search_checks_every_room_under_the_actions_the_passes_end_wit
     against its proposal, so the follower's room is stale and, served one at a time, it drives into
     the AV at step 95. The joint search takes every AV's room under the final actions and brakes it."""
     from sb3_marl.algos.common.policies import model_policy
-    from sb3_marl.benchmark.trial import RUN_ID
+    from sb3_marl.benchmark.trial_files import RUN_ID
     from sb3_marl.evaluation import run_episodes
     from sb3_marl.runs.folders import find_run
 
