@@ -15,6 +15,8 @@ $(RUNTIME): setup.py pyproject.toml
 	$(PIP) --upgrade pip
 	$(PIP) torch==2.13.0
 	$(PIP) -e .
+	@echo "filling the compiled road kernel's cache once (the first command then starts at once)"
+	$(VENV)/bin/sb3-marl baselines --eval-episodes 1 -o $(VENV)/compiled/baselines.md > /dev/null
 	touch $(RUNTIME)
 
 $(DEV): $(RUNTIME)

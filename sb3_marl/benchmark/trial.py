@@ -34,7 +34,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_marl.benchmark.grid import TrialSpec
 from sb3_marl.benchmark.storage import GridStorage
-from sb3_marl.benchmark.trial_files import (  # the trial folder's layout and readers, re-exported
+from sb3_marl.benchmark.trial_files import (
     CHECKPOINT,
     FINAL_EVAL_EPISODES,
     PREVIOUS_CHECKPOINT,
@@ -46,6 +46,7 @@ from sb3_marl.benchmark.trial_files import (  # the trial folder's layout and re
     total_wall_time,
     trial_folder,
 )
+from sb3_marl.common.compiled import compiling
 from sb3_marl.common.files import (
     REPLAY_BUFFER_FILE,
     read_json_object,
@@ -182,7 +183,10 @@ def run_trial(config: dict[str, Any]) -> None:
         with replaced_atomically(evaluation.log_path / "evaluations.npz") as temporary:
             shutil.copyfile(checkpoint / "evaluations.npz", temporary)
     reporter.started = time.perf_counter()
-    manager.learn(model)
+    with compiling() as compile_time:
+        manager.learn(model)
+    if compile_time.seconds >= 1:  # the trial's log (Ray's worker output): a node's first trial compiles
+        print(f"trial {spec.trial_id}: {compile_time.seconds:.1f} s of its training compiled the road kernel (first run here)")
     if manager.interrupted:
         raise KeyboardInterrupt(f"trial {spec.trial_id} interrupted")
     manager.save_trained_model(model)
