@@ -46,8 +46,8 @@ from sb3_marl.envs.config import LANE_CHANGE, MERGE, scenario_default_config, su
 from sb3_marl.evaluation import evaluate_protocols
 from sb3_marl.evaluation.baselines import IDMMobilPolicy
 from sb3_marl.evaluation.episodes import run_episodes
-from sb3_marl.evaluation.traffic import human_reference, traffic_table, trips_csv
 from sb3_marl.evaluation.traffic_plots import PositionTrace, plot_encounters, plot_time_space
+from sb3_marl.evaluation.trips import human_reference, traffic_table, trips_csv
 from sb3_marl.runs.folders import find_run
 
 

@@ -33,7 +33,7 @@ from sb3_marl.algos.common.policies import model_policy
 from sb3_marl.common.files import write_text
 from sb3_marl.envs import scenario_of
 from sb3_marl.envs.config import LANE_CHANGE, MERGE
-from sb3_marl.evaluation.traffic import traffic_table, trips_csv
+from sb3_marl.evaluation.trips import traffic_table, trips_csv
 from sb3_marl.evaluation.video import record_video
 from sb3_marl.runs.folders import Run
 

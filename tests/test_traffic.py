@@ -1,4 +1,4 @@
-"""The traffic view (sb3_marl.evaluation.traffic): trip records and metrics on scenes whose answers
+"""The traffic view (sb3_marl.evaluation.trips): trip records and metrics on scenes whose answers
 are known by hand, and on real episodes of both roads."""
 
 import io
@@ -15,7 +15,7 @@ from documents import commands
 from sb3_marl.envs import av_counts, make_scenario
 from sb3_marl.evaluation import evaluate_protocols
 from sb3_marl.evaluation.baselines import IDMMobilPolicy
-from sb3_marl.evaluation.traffic import TRIP_COLUMNS, TripRecorder, human_reference, trips_csv
+from sb3_marl.evaluation.trips import TRIP_COLUMNS, TripRecorder, human_reference, trips_csv
 from sb3_marl.sim import kernel
 
 DT = 0.2  # [s] the policy step at 5 Hz

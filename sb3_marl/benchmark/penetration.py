@@ -1,7 +1,7 @@
 """The penetration-rate sweep: a fixed number of vehicles on the road with a growing share of AVs
 (0 % is the all-human reference), driven by a trained agent and by the rule driver (IDM/MOBIL
 as meta-actions), each share on the same held-out episodes under both supervisor protocols; the
-traffic metrics (:mod:`~sb3_marl.evaluation.traffic`) and the collision rate against the share."""
+traffic metrics (:mod:`~sb3_marl.evaluation.trips`) and the collision rate against the share."""
 
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ from sb3_marl.envs.config import SCENARIO_DENSITIES
 from sb3_marl.evaluation import evaluate_protocols
 from sb3_marl.evaluation.episodes import Policy
 from sb3_marl.evaluation.plotting import with_default_style
-from sb3_marl.evaluation.traffic import human_reference, traffic_table
+from sb3_marl.evaluation.trips import human_reference, traffic_table
 
 #: AV shares [%] of the sweep.
 SHARES = (0, 25, 50, 75, 100)

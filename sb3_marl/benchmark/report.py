@@ -39,7 +39,7 @@ from sb3_marl.benchmark.figures import plot_comfort, plot_final_returns, plot_in
 from sb3_marl.benchmark.runner import SETTINGS_FILE
 from sb3_marl.benchmark.statistics import curve_summaries, load_trials, reference_summaries
 from sb3_marl.benchmark.tables import headline_table, paper_table
-from sb3_marl.benchmark.traffic import write_traffic
+from sb3_marl.benchmark.traffic_view import write_traffic
 from sb3_marl.common.files import inside, read_json_object, write_text
 
 #: The report's manifest in its output folder: the names of the files it wrote there last time,

@@ -172,8 +172,8 @@ def evaluate_command(args: argparse.Namespace) -> int:
     from sb3_marl.algos.common.policies import model_policy
     from sb3_marl.common.compiled import announce_compiling
     from sb3_marl.evaluation import evaluate_protocols, markdown_table, protocol_rows
-    from sb3_marl.evaluation.traffic import human_reference, traffic_table, trips_csv
     from sb3_marl.evaluation.traffic_plots import time_space_diagram
+    from sb3_marl.evaluation.trips import human_reference, traffic_table, trips_csv
     from sb3_marl.runs.experiment import EVAL_SEED_OFFSET
     from sb3_marl.runs.folders import run_conf_name
 

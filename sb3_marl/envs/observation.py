@@ -25,7 +25,7 @@ import numpy as np
 from gymnasium import spaces
 
 from sb3_marl.sim.kernel import clip
-from sb3_marl.sim.traffic import TrafficSnapshot
+from sb3_marl.sim.snapshot import TrafficSnapshot
 
 FEATURES = ("presence", "x", "y", "vx", "vy")
 TARGET_SPEED_FEATURE = "target_speed"

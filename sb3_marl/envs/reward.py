@@ -22,7 +22,7 @@ from typing import Any
 import numba
 import numpy as np
 
-from sb3_marl.sim.traffic import TrafficSnapshot
+from sb3_marl.sim.snapshot import TrafficSnapshot
 
 REWARD_TERMS = ("safety", "headway", "speed", "comfort", "harsh_acceleration", "lane_change")
 

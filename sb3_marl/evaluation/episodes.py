@@ -20,7 +20,7 @@ from sb3_marl.envs import av_counts, make_scenario
 from sb3_marl.envs.config import SUPERVISOR_PROTOCOLS, with_supervisor
 from sb3_marl.envs.lane_change_env import LaneChangeEnv
 from sb3_marl.evaluation.metrics import EpisodeRecord, EpisodeTrace, summarize
-from sb3_marl.evaluation.traffic import TripRecorder
+from sb3_marl.evaluation.trips import TripRecorder
 
 Policy = Callable[[LaneChangeEnv, np.ndarray], np.ndarray]
 
@@ -160,7 +160,7 @@ def evaluate_protocols(
     """The summary with the supervisor (the authors' protocol) at the top level, each episode's
     return in ``returns``, and the same under ``supervisor_off`` for the policy alone; with
     ``traffic``, each also has the traffic metrics (``traffic``) and every vehicle's trip record
-    (``trips``; :mod:`~sb3_marl.evaluation.traffic`)."""
+    (``trips``; :mod:`~sb3_marl.evaluation.trips`)."""
     recorders = {name: TripRecorder() for name in SUPERVISOR_PROTOCOLS} if traffic else {}
     records = protocol_records(policy, env_id, n_episodes, seed, config, progress, on_step=dict(recorders))
     results = {name: protocol_result(records[name]) for name in SUPERVISOR_PROTOCOLS}

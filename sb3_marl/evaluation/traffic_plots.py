@@ -12,7 +12,7 @@ from matplotlib.figure import Figure
 
 from sb3_marl.common.files import save_figure
 from sb3_marl.evaluation.plotting import with_default_style
-from sb3_marl.evaluation.traffic import section_end
+from sb3_marl.evaluation.trips import section_end
 from sb3_marl.sim import kernel
 
 #: Width [m] of a lateral band of the time–space diagram (the lanes' width): one panel per band.
@@ -23,7 +23,7 @@ SPEED_RANGE = (0.0, 30.0)
 
 class PositionTrace:
     """Every vehicle's position and speed on the road at each policy step of one episode: a step
-    hook (``trace(env, info)``) or, like :class:`~sb3_marl.evaluation.traffic.TripRecorder`, fed
+    hook (``trace(env, info)``) or, like :class:`~sb3_marl.evaluation.trips.TripRecorder`, fed
     with ``start`` / ``step``; ``rows``: (time [s], id, x [m], y [m], speed [m/s], is AV)."""
 
     def __init__(self) -> None:
@@ -129,7 +129,7 @@ def time_space_diagram(policy: Any, env_id: str, seed: int, config: dict[str, An
     from sb3_marl.envs import av_counts, make_scenario
     from sb3_marl.envs.config import with_supervisor
     from sb3_marl.evaluation.episodes import run_episodes
-    from sb3_marl.evaluation.traffic import human_reference
+    from sb3_marl.evaluation.trips import human_reference
 
     policy_trace, human_trace = PositionTrace(), PositionTrace()
     env = make_scenario(env_id, with_supervisor({**config, "n_avs": av_counts(env_id, config)[0]}, "on"))

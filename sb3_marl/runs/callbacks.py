@@ -19,7 +19,7 @@ from sb3_marl.algos.common.policies import model_policy, non_finite_weights
 from sb3_marl.common.files import read_evaluations, replaced_atomically
 from sb3_marl.envs.lane_change_env import ACTIONS
 from sb3_marl.evaluation import EpisodeRecord, protocol_records, summarize
-from sb3_marl.evaluation.traffic import TripRecorder
+from sb3_marl.evaluation.trips import TripRecorder
 from wrappers.step_arrays import step_arrays_of
 
 #: Per-AV-step driving samples of the step arrays, averaged (speed, headway) or spread (acceleration).

@@ -9,7 +9,7 @@ from helpers import make
 from sb3_marl.envs import default_config
 from sb3_marl.envs.lane_change_env import ACTION_INDEX
 from sb3_marl.envs.reward import neighbour_matrix, reward_terms, total_reward
-from sb3_marl.sim.traffic import TrafficSnapshot
+from sb3_marl.sim.snapshot import TrafficSnapshot
 
 CONFIG = default_config()
 

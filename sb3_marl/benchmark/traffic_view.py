@@ -3,7 +3,7 @@ holds the traffic metrics (:func:`~sb3_marl.benchmark.trial.paper_evaluation`):
 
 - ``traffic.md``: per road and density, the all-human reference, the hand-written policies and each
   learned curve (mean over seeds) on the final evaluation's episodes, under both supervisor
-  protocols (:func:`~sb3_marl.evaluation.traffic.traffic_table`'s columns);
+  protocols (:func:`~sb3_marl.evaluation.trips.traffic_table`'s columns);
 - ``traffic.png``: flow, HDV time loss, the share of vehicle-time with TTC below 3 s and the hard
   braking imposed on HDVs against density, one row per road (supervisor on);
 - ``time_space_<road>.png``: the first final-evaluation episode of the road's MA2C (the first
@@ -22,7 +22,7 @@ from sb3_marl.benchmark.statistics import REFERENCE_VARIANTS, TrialLog, referenc
 from sb3_marl.common.files import save_figure, write_text
 from sb3_marl.envs import DENSITIES
 from sb3_marl.evaluation.plotting import with_default_style
-from sb3_marl.evaluation.traffic import traffic_table
+from sb3_marl.evaluation.trips import traffic_table
 
 #: The figure's metrics and axis titles.
 FIGURE_METRICS = {
@@ -55,7 +55,7 @@ def human_references(trials: list[TrialLog], log_folder: str | Path, seed: int) 
     episodes (seeds ``seed ..``) where the road's MA2C has a finished trial, in its scenario config
     (:func:`~sb3_marl.benchmark.statistics.reference_configs`)."""
     from sb3_marl.benchmark.trial_files import FINAL_EVAL_EPISODES
-    from sb3_marl.evaluation.traffic import human_reference
+    from sb3_marl.evaluation.trips import human_reference
 
     return {
         (road, density): human_reference(env_id, FINAL_EVAL_EPISODES, seed, config).metrics()
