@@ -58,6 +58,10 @@ class StepArrays:
     def join(cls, parts: Sequence[dict[str, Any]], copy: np.ndarray, agent: np.ndarray) -> StepArrays:
         """The arrays of several copies' :func:`copy_arrays`, copy after copy (reward terms: those
         every copy reports)."""
+        if len(parts) == 1:  # the batched step's arrays, one row per slot already
+            part = parts[0]
+            values = {key: part[key] for key in (*PER_AGENT_INFO, "reward", "global_reward")}
+            return cls(**values, reward_terms=dict(part["reward_terms"]), copy=copy, agent=agent)
         joined = {key: np.concatenate([part[key] for part in parts]) for key in (*PER_AGENT_INFO, "reward", "global_reward")}
         terms = [part["reward_terms"] for part in parts]
         shared = [name for name in terms[0] if all(name in t for t in terms)]

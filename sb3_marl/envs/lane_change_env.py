@@ -93,10 +93,12 @@ class LaneChangeEnv(AbstractEnv):
         self._derive()
 
     def _derive(self) -> None:
-        """What the steps read from the config: the road and time grid, the safety supervisor."""
+        """What the steps read from the config: the road and time grid, the safety supervisor, the
+        compiled step's parameters (the supervisor's switches are read at each step)."""
         self.supervisor = Supervisor.from_config(self.config, *self._road_data())
         self.horizon = self.supervisor.horizon
         self._n_avs = cfg.resolved_n_avs(self.config, self.scenario)
+        self._parameters = self.step_parameters()
 
     def _road_data(self) -> tuple[np.ndarray, float]:
         """The road as the kernel reads it: (lane table, road end [m])."""
@@ -274,7 +276,7 @@ class LaneChangeEnv(AbstractEnv):
             raise RuntimeError("The episode is over (terminated or truncated): call reset() before step().")
         n = self.n_avs
         proposed = meta_actions.check_actions(action, n)
-        p = self.step_parameters()
+        p = self._parameters
         supervise = np.array([bool(self.config["safety_supervisor"])])
         shadow = np.array([bool(self.config["supervisor_shadow"])])
         if self._uses_objects():
@@ -385,7 +387,7 @@ class LaneChangeEnv(AbstractEnv):
         """The observation and info of a new situation: no acceleration or lane change, no action yet (-1)."""
         n = self.n_avs
         still, straight = np.zeros(n), np.zeros(n, dtype=bool)
-        p = self.step_parameters()
+        p = self._parameters
         result = observe_copies(self.state, self._rows(), np.array([0, n]), np.zeros(1, dtype=np.int64), still, straight, p)
         return self._report(result, np.full(n, -1, dtype=np.int64))
 

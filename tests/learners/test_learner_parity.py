@@ -9,7 +9,8 @@ two ways against ``learner_parameters.json``:
    time to grow: on the development VM, four such perturbations (MKL's AVX-512, AVX2 and SSE2
    kernels, torch's AVX2 kernels, 2 threads) moved no value by more than 2.6e-4 relative; a change
    in what is learned moves them by percent.
-2. **On the machine that wrote the reference** (same CPU, library versions and ``MKL_CBWR``):
+2. **On the machine that wrote the reference** (same CPU, library versions, ``MKL_CBWR`` and
+   ``OMP_NUM_THREADS``):
    every learner's parameters after 3,000 AV-steps (one torch thread) equal the reference's
    fingerprint exactly. Training is chaotic: elsewhere the same code ends up to ~30 % away, so
    elsewhere this part is skipped with the two machines named.
@@ -130,6 +131,9 @@ def machine() -> dict[str, str]:
         "numpy": np.__version__,
         "numba": numba.__version__,
         "MKL_CBWR": os.environ.get("MKL_CBWR", ""),
+        # the process's threads: torch's and MKL's pools are set up with them before the test's
+        # fingerprint runs on one (under OMP_NUM_THREADS=2 every fingerprint ends elsewhere)
+        "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS", ""),
     }
 
 
@@ -158,7 +162,7 @@ def test_on_the_reference_machine_the_learners_learn_what_they_learned_before(ca
     here = machine()
     if here != written["machine"]:
         differing = {key: (written["machine"][key], value) for key, value in here.items() if written["machine"][key] != value}
-        pytest.skip(f"the fingerprints were written on another machine (reference, here: {differing})")
+        pytest.skip(f"the fingerprints were written on another machine or with other threads (reference, here: {differing})")
     found = fingerprint(case)
     assert found == written["cases"][case], case
 
