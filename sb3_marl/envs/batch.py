@@ -94,7 +94,8 @@ class RoadBatch:
     def start(self, copies: np.ndarray) -> tuple[BatchStep, dict[str, Any]]:
         """The first observations of the new episodes of ``copies`` (each :meth:`load`-ed) and
         their per-slot arrays; the other slots are empty."""
-        still, straight = np.zeros(len(self.ramp_av)), np.zeros(len(self.ramp_av), dtype=np.bool_)  # a first observation
+        slots = int(self.slot_starts[-1])
+        still, straight = np.zeros(slots), np.zeros(slots, dtype=np.bool_)  # a first observation: no motion yet
         copies = np.asarray(copies, dtype=np.int64)
         result = observe_copies(self.states, self.offsets, self.slot_starts, copies, still, straight, self.parameters)
         return result, self.slot_arrays(result, result.executed)

@@ -3,7 +3,7 @@
 Every policy step, before the AVs act, the supervisor serves the AVs on the road one by one in
 priority order: the smallest headway margin first (gap to the leader in the AV's lane [m] minus
 speed [m/s] × ``headway_time`` [s]; :func:`headway_margins`; the merge serves its merging lane
-first, :class:`Supervisor`'s ``priorities``; equal priorities: the lower AV index first, so runs
+first, the merge's own order in the scenario's compiled step; equal priorities: the lower AV index first, so runs
 stay reproducible without drawing random numbers). For the AV being served it predicts the next
 ``supervisor_horizon`` s of the whole road, frame by frame at ``simulation_frequency`` Hz
 (:mod:`sb3_marl.safety.rooms`):
@@ -60,7 +60,6 @@ pays the compile time only once.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -308,8 +307,6 @@ class Supervisor:
     :param joint_search: search the actions of AVs left short of room in pairs (``supervisor_joint_search``)
     :param brake_keeps_lane: an AV braked to a stop starts no lane change (``supervisor_version`` 5)
     :param mobil_safety: hold the AVs' lane changes to MOBIL's safety check (``supervisor_mobil_safety``)
-    :param priorities: (state, n_avs, supervisor) -> (n_avs,) the order of service, the smallest
-        first; by default the headway margin (:func:`headway_margins`)
     """
 
     horizon: Horizon
@@ -321,7 +318,6 @@ class Supervisor:
     joint_search: bool = False
     brake_keeps_lane: bool = False
     mobil_safety: bool = False
-    priorities: Callable[[np.ndarray, int, Supervisor], np.ndarray] | None = None
 
     @classmethod
     def from_config(
@@ -329,7 +325,6 @@ class Supervisor:
         config: dict[str, Any],
         lanes: np.ndarray | None = None,
         road_end: float | None = None,
-        priorities: Callable[[np.ndarray, int, Supervisor], np.ndarray] | None = None,
     ) -> Supervisor:
         """The supervisor of ``config`` on the road ``lanes`` (see :meth:`Horizon.from_config`)."""
         return cls(
@@ -340,7 +335,6 @@ class Supervisor:
             bool(config["supervisor_rear_avs"]),
             *supervisor_switches(config),
             bool(config["supervisor_mobil_safety"]),
-            priorities,
         )
 
     def choices(self, state: np.ndarray, n_avs: int, available: np.ndarray) -> np.ndarray:
@@ -366,10 +360,7 @@ class Supervisor:
         """
         horizon = self.horizon
         candidate_lane, candidate_speed = meta_action_targets(state, n_avs, horizon.lanes, horizon.ladder)
-        if self.priorities is None:
-            priority = headway_margins(state, n_avs, horizon.lanes, self.headway_time)
-        else:
-            priority = self.priorities(state, n_avs, self)
+        priority = headway_margins(state, n_avs, horizon.lanes, self.headway_time)
         return supervise_arrays(
             state,
             candidate_lane,
