@@ -38,7 +38,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 
 from sb3_marl.envs import ENV_IDS
-from sb3_marl.envs.batch_kernel import step_copies
+from sb3_marl.envs.batch_kernel import CopyState, step_copies
 from wrappers import ParameterSharingVecEnv
 
 
@@ -79,11 +79,11 @@ def compiled_round(venv: ParameterSharingVecEnv, steps: int, rng: np.random.Gene
     for _ in range(steps):
         masks = venv.action_masks()
         actions = np.where(masks, rng.random(masks.shape), -1.0).argmax(axis=1)
-        inputs.append((batch.states, batch.offsets.copy(), actions, batch.steps.copy()))
+        inputs.append((batch.states, batch.offsets.copy(), actions, CopyState(*(a.copy() for a in batch.copies))))
         venv.step(actions)  # batch.states is a new array after every step and reset
     start = time.perf_counter()
-    for states, offsets, actions, steps_done in inputs:
-        step_copies(states, offsets, batch.slot_starts, actions, batch.supervise, batch.shadow, steps_done, batch.parameters)
+    for states, offsets, actions, copies in inputs:
+        step_copies(states, offsets, batch.slot_starts, actions, copies, batch.parameters, respawn=True)
     return steps * len(venv.slices) / (time.perf_counter() - start)
 
 

@@ -31,8 +31,9 @@ from highway_env.envs.common.abstract import AbstractEnv
 import sb3_marl  # noqa: F401  (registers our ids)
 from sb3_marl.envs import MERGE_ENV_IDS
 from sb3_marl.envs.config import MERGE_DENSITIES, merge_default_config
-from sb3_marl.sim.merge_road import ENDS, make_merge_road, merge_spawn
+from sb3_marl.sim.merge_road import ENDS, make_merge_road
 from sb3_marl.sim.simulator import vehicle_objects
+from sb3_marl.sim.spawn import draw_episode, spawn_parameters
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from env_throughput import steps_per_second
@@ -59,7 +60,9 @@ class StockMergeEnv(AbstractEnv):
 
     def _reset(self) -> None:
         self.road = make_merge_road({**merge_default_config(), "show_trajectories": False}, self.np_random)
-        state = merge_spawn(merge_default_config(), self.config["n_avs"], self.config["n_hdvs"], self.np_random)
+        n_hdvs = self.config["n_hdvs"]
+        spawn = spawn_parameters(merge_default_config(), (n_hdvs, n_hdvs), merge=True)
+        _, state = draw_episode(self.np_random, self.config["n_avs"], spawn)
         self.road.vehicles = vehicle_objects(self.road, state, merge_default_config())
         self.controlled_vehicles = self.road.vehicles[: self.config["n_avs"]]
 

@@ -76,9 +76,10 @@ class CopyRunner:
         obs, info = self.env.reset(options=self._episode_options(None) or None)
         return obs, copy_arrays(info)
 
-    def begin_episode(self) -> None:
-        """:meth:`restart` without the first observation (the scenario's ``begin``: a batch observes)."""
-        self.env.unwrapped.begin(options=self._episode_options(None) or None)  # type: ignore[attr-defined]
+    def dropout(self) -> tuple[np.random.Generator | None, float]:
+        """The supervisor dropout's generator and probability where it applies (else None, 0): a
+        batch draws the next episodes' supervisor from it (:class:`~sb3_marl.envs.batch.RoadBatch`)."""
+        return (self._dropout_rng, self.supervisor_dropout) if self._supervised else (None, 0.0)
 
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool, dict[str, Any], Ending | None]:
         """Step with one action per AV: observations (the new episode's when done), rewards in

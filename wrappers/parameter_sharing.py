@@ -215,9 +215,7 @@ class ParameterSharingVecEnv(VecEnv):
         for k, (obs, _) in results.items():
             self._obs[self.slices[k]] = obs
         if self.batch is not None:
-            for k in range(self.n_copies):
-                self.batch.load(k)  # the copies were reset by their envs (reset options may reconfigure)
-            self._copies_touched = False
+            self._load_copies()  # the copies were reset by their envs (reset options may reconfigure)
         self.step_arrays = self._join([results[k][1] for k in range(self.n_copies)])
         self.reset_infos = [{} for _ in range(self.num_envs)]
         self._current = {method: getattr(self.step_arrays, key).copy() for method, key in CACHED_METHODS.items()}
@@ -261,29 +259,27 @@ class ParameterSharingVecEnv(VecEnv):
         return self._finish(rewards, self._join([results[k][3] for k in range(self.n_copies)]), endings)
 
     def _step_batch(self) -> VecEnvStepReturn:
-        """One compiled step of every copy (:class:`~sb3_marl.envs.batch.RoadBatch`); the copies
-        whose episode ended begin a new one (their envs draw it) and are observed in one call."""
+        """One compiled step of every copy (:class:`~sb3_marl.envs.batch.RoadBatch`), which begins
+        a new episode wherever one ended (as the copy's env would draw it) in the same call."""
         assert self.batch is not None
         if self._copies_touched:
-            for k in range(self.n_copies):
-                self.batch.load(k)
-            self._copies_touched = False
-        step, arrays, rewards = self.batch.step(self._actions)
+            self._load_copies()
+        step, starts, arrays, rewards = self.batch.step(self._actions)
         self._obs[:] = step.obs
-        ended = np.flatnonzero(step.terminated | step.truncated)
         endings: dict[int, Ending] = {}
-        if ended.size:
-            for k in ended.tolist():
-                self.copies.local_runners()[k].begin_episode()
-                self.batch.load(k, check=False)
-            start, start_arrays = self.batch.start(ended)
-            for k in ended.tolist():
-                sl = self.slices[k]
-                self._obs[sl] = start.obs[sl]
-                endings[k] = Ending(
-                    step.obs[sl], bool(step.truncated[k]), {key: start_arrays[key][sl] for key in CACHED_METHODS.values()}
-                )
+        for k in np.flatnonzero(starts.restarted).tolist():
+            sl = self.slices[k]
+            self._obs[sl] = starts.obs[sl]
+            first = {"action_mask": starts.action_mask[sl], "rule_action": starts.rule_action[sl]}
+            endings[k] = Ending(step.obs[sl], bool(step.truncated[k]), first)
         return self._finish(rewards, StepArrays.join([arrays], self.slot_copy, self.slot_agent), endings)
+
+    def _load_copies(self) -> None:
+        """The batch takes every copy's state, generators and dropout from its env and runner."""
+        assert self.batch is not None
+        for k, runner in enumerate(self.copies.local_runners()):
+            self.batch.load(k, *runner.dropout())
+        self._copies_touched = False
 
     def _join(self, parts: list[dict[str, Any]]) -> StepArrays:
         """The copies' per-AV arrays (:func:`~wrappers.step_arrays.copy_arrays`) over the slots."""

@@ -22,12 +22,13 @@ from sb3_marl.envs.observation import _observe
 from sb3_marl.envs.reward import REWARD_TERMS, _neighbour_matrix, _terms, _weighted, mode_rewards
 from sb3_marl.safety.rooms import SLOWER, Horizon
 from sb3_marl.safety.supervisor import headway_margins, supervise_arrays
-from sb3_marl.sim import kernel
+from sb3_marl.sim import kernel, pcg64
 from sb3_marl.sim.drivers import rule_actions
 from sb3_marl.sim.dynamics import policy_step
 from sb3_marl.sim.lanes import lane_changes
 from sb3_marl.sim.merge_road import ENDS, MERGE_END, MERGING_LANE
 from sb3_marl.sim.meta_actions import available_actions, meta_action_targets
+from sb3_marl.sim.spawn import SpawnParameters, new_episode
 
 
 class StepParameters(NamedTuple):
@@ -60,6 +61,7 @@ class StepParameters(NamedTuple):
     target_speed_column: bool
     merge: bool  # the merge's reward term and regional neighbour sets (sb3_marl.envs.merge_env)
     merging_priority: bool  # the merge's order of service of the supervisor
+    spawn: SpawnParameters  # a new episode's traffic
     route: np.ndarray  # the merge's lane tables (merge_rules.ROUTE, ACROSS, ACROSS_FROM, NEXT_ON_ROUTE)
     across: np.ndarray
     across_from: np.ndarray
@@ -121,44 +123,84 @@ def _allocate(states: np.ndarray, offsets: np.ndarray, slot_starts: np.ndarray, 
     )
 
 
+class CopyState(NamedTuple):
+    """Each copy's episode so far, arrays over the copies that a step changes in place."""
+
+    steps: np.ndarray  # int, the episode's policy steps
+    supervise: np.ndarray  # bool, the safety supervisor on (the episode's draw with a dropout)
+    shadow: np.ndarray  # bool, the supervisor only reports (supervisor_shadow)
+    n_hdvs: np.ndarray  # int, the episode's HDVs at its spawn
+    generators: np.ndarray  # (copies, 6) uint64, the spawn's generator (sb3_marl.sim.pcg64: the env's np_random)
+    dropout_generators: np.ndarray  # (copies, 6) uint64, the supervisor dropout's generator
+    dropout: np.ndarray  # float, probability that an episode runs without the supervisor (0: as configured)
+
+
+def one_copy(steps: int, supervise: bool, shadow: bool, n_hdvs: int) -> CopyState:
+    """The :class:`CopyState` of one road stepped without respawning (no generators)."""
+    none = np.zeros((1, 6), dtype=np.uint64)
+    return CopyState(np.array([steps]), np.array([supervise]), np.array([shadow]), np.array([n_hdvs]), none, none, np.zeros(1))
+
+
+class Starts(NamedTuple):
+    """The new episodes a step began (arrays over the AV slots, filled where ``restarted``)."""
+
+    obs: np.ndarray  # (slots, vehicles, features) float32, each new episode's first observation
+    action_mask: np.ndarray  # (slots, 5) bool
+    rule_action: np.ndarray  # int
+    lane: np.ndarray  # int, each AV's lane at the spawn
+    restarted: np.ndarray  # (copies,) bool: the copy's episode ended and a new one began
+
+
 @numba.njit(cache=True)
 def _step_copies(
     states: np.ndarray,
     offsets: np.ndarray,
     slot_starts: np.ndarray,
     actions: np.ndarray,
-    supervise: np.ndarray,
-    shadow: np.ndarray,
-    steps: np.ndarray,
+    c: CopyState,
     p: StepParameters,
+    respawn: bool,
 ) -> tuple:
     """:func:`step_copies`'s fields."""
     h = p.horizon
     n_copies = offsets.size - 1
-    r = _allocate(np.empty_like(states), np.zeros(n_copies + 1, dtype=np.int64), slot_starts, p)
+    rows = 0  # room for every copy's state, a new episode's as large as it may be
+    for k in range(n_copies):
+        spawned = slot_starts[k + 1] - slot_starts[k] + p.spawn.hdv_high + p.spawn.obstacles.shape[0]
+        rows += max(offsets[k + 1] - offsets[k], spawned)
+    r = _allocate(np.empty((rows, states.shape[1])), np.zeros(n_copies + 1, dtype=np.int64), slot_starts, p)
+    first = _allocate(r.states, r.offsets, slot_starts, p)
+    restarted = np.zeros(n_copies, dtype=np.bool_)
     for k in range(n_copies):
         a, b = slot_starts[k], slot_starts[k + 1]
         n = b - a
         before = states[offsets[k] : offsets[k + 1]]
         proposed = actions[a:b]
         acting, brake = proposed.copy(), np.zeros(n, dtype=np.bool_)
-        if supervise[k] or shadow[k]:
+        if c.supervise[k] or c.shadow[k]:
             supervised, brake_to_stop = supervise_road(before, n, proposed, p)
             r.intervened[a:b] = (supervised != proposed) | brake_to_stop
-            if supervise[k]:
+            if c.supervise[k]:
                 acting, brake = supervised, brake_to_stop
         r.executed[a:b], r.braking[a:b] = acting, brake
         speed_before, targets_before = before[:n, kernel.SPEED].copy(), before[:n, kernel.TARGET_LANE].copy()
         state = policy_step(before, acting, h.frames_per_step, h.dt, h.lanes, h.road_end, h.speed_limit, h.ladder, brake)
-        steps[k] += 1
-        r.offsets[k + 1] = r.offsets[k] + state.shape[0]
-        r.states[r.offsets[k] : r.offsets[k + 1]] = state
+        c.steps[k] += 1
         r.acceleration[a:b] = (state[:n, kernel.SPEED] - speed_before) * p.policy_frequency
         r.lane_change[a:b] = lane_changes(h.lanes, targets_before, state)
         _observe_into(r, state, a, b, p)
         r.terminated[k] = r.crashed[a:b].any()
-        r.truncated[k] = not r.terminated[k] and (steps[k] >= p.max_steps or r.exited[a:b].all())
-    return _fields(r)
+        r.truncated[k] = not r.terminated[k] and (c.steps[k] >= p.max_steps or r.exited[a:b].all())
+        if respawn and (r.terminated[k] or r.truncated[k]):  # as the env's reset, from its generator
+            if c.dropout[k] > 0:
+                c.supervise[k] = pcg64.random(c.dropout_generators[k]) >= c.dropout[k]
+            c.n_hdvs[k], state = new_episode(c.generators[k], n, p.spawn)
+            c.steps[k] = 0
+            restarted[k] = True
+            _observe_into(first, state, a, b, p)
+        r.offsets[k + 1] = r.offsets[k] + state.shape[0]
+        r.states[r.offsets[k] : r.offsets[k + 1]] = state
+    return _fields(r), (first.obs, first.action_mask, first.rule_action, first.lane, restarted)
 
 
 @numba.njit(cache=True)
@@ -212,14 +254,16 @@ def step_copies(
     offsets: np.ndarray,
     slot_starts: np.ndarray,
     actions: np.ndarray,
-    supervise: np.ndarray,
-    shadow: np.ndarray,
-    steps: np.ndarray,
+    copies: CopyState,
     p: StepParameters,
-) -> BatchStep:
-    """One policy step of every copy (see the module doc); ``steps`` (copies,) counts each copy's
-    policy steps so far and is advanced in place."""
-    return BatchStep(*_step_copies(states, offsets, slot_starts, actions, supervise, shadow, steps, p))
+    respawn: bool = False,
+) -> tuple[BatchStep, Starts]:
+    """One policy step of every copy (see the module doc), ``copies`` advanced in place. With
+    ``respawn``, a copy whose episode ended begins a new one in the same call, as its env's reset
+    would (its HDV count and spawn drawn from its generator, the supervisor's dropout from its
+    own): the step's ``states`` then hold the new episode, its observations the ended one's last."""
+    step, starts = _step_copies(states, offsets, slot_starts, actions, copies, p, respawn)
+    return BatchStep(*step), Starts(*starts)
 
 
 def observe_copies(

@@ -14,13 +14,22 @@ from highway_env.road.road import Road
 from highway_env.vehicle.controller import MDPVehicle
 
 from sb3_marl.envs import config as cfg
-from sb3_marl.envs.batch_kernel import BatchStep, StepParameters, observe_copies, step_copies, step_report, supervise_road
+from sb3_marl.envs.batch_kernel import (
+    BatchStep,
+    StepParameters,
+    observe_copies,
+    one_copy,
+    step_copies,
+    step_report,
+    supervise_road,
+)
 from sb3_marl.envs.observation import observation_space
 from sb3_marl.safety.supervisor import Supervisor
 from sb3_marl.sim import drivers, kernel, lanes, meta_actions
 from sb3_marl.sim.meta_actions import ACTION_INDEX, ACTIONS
-from sb3_marl.sim.road import highway_lanes, make_road, spawn, vehicle_state
+from sb3_marl.sim.road import highway_lanes, make_road, vehicle_state
 from sb3_marl.sim.simulator import COMPILED, SIMULATORS, STOCK, capture, step_objects, vehicle_objects
+from sb3_marl.sim.spawn import draw_episode, spawn_parameters
 
 __all__ = ["ACTIONS", "ACTION_INDEX", "LaneChangeEnv"]
 
@@ -108,14 +117,6 @@ class LaneChangeEnv(AbstractEnv):
         """highway-env's road of the config, without vehicles."""
         return make_road(self.config, self.np_random)
 
-    def _spawn(self) -> np.ndarray:
-        """The state array of a new episode of ``n_avs`` AVs and ``n_hdvs`` HDVs."""
-        return spawn(self.config, self.n_avs, self.n_hdvs, self.np_random)
-
-    def _obstacles(self) -> np.ndarray:
-        """The road's obstacle rows (none on the highway)."""
-        return np.zeros((0, kernel.COLUMNS))
-
     def _merge_tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
         """The merging road's lane tables (:mod:`~sb3_marl.envs.merge_rules`; None: not a merge)."""
         return None
@@ -158,6 +159,7 @@ class LaneChangeEnv(AbstractEnv):
             bool(c["obs_target_speed"]),
             tables is not None,
             tables is not None and c["supervisor_priority"] == "merging",
+            spawn_parameters(c, cfg.resolved_hdv_range(c, self.scenario), tables is not None),
             route,
             across,
             across_from,
@@ -188,15 +190,8 @@ class LaneChangeEnv(AbstractEnv):
             self._space_shape = shape
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
-        """Spawn a new episode; ``options={"config": {...}}`` reconfigures first, as in highway-env."""
-        self.begin(seed=seed, options=options)
-        obs, info = self._observe_start()
-        if self.render_mode == "human":
-            self.render()
-        return obs, info
-
-    def begin(self, *, seed: int | None = None, options: dict | None = None) -> None:
-        """:meth:`reset` without observing: the new episode's :attr:`state` (a RoadBatch observes)."""
+        """Spawn a new episode (:func:`~sb3_marl.sim.spawn.new_episode`, from :attr:`np_random`);
+        ``options={"config": {...}}`` reconfigures first, as in highway-env."""
         gym.Env.reset(self, seed=seed)
         if options and "config" in options:
             self.configure(options["config"])
@@ -207,10 +202,12 @@ class LaneChangeEnv(AbstractEnv):
         self.define_spaces()
         self.time = self.steps = 0
         self.done = False
-        lo, hi = cfg.resolved_hdv_range(self.config, self.scenario)
-        self.n_hdvs = int(self.np_random.integers(lo, hi + 1))
-        self.state = self._spawn()
+        self.n_hdvs, self.state = draw_episode(self.np_random, self.n_avs, self._parameters.spawn)
         self._road = None
+        obs, info = self._observe_start()
+        if self.render_mode == "human":
+            self.render()
+        return obs, info
 
     def place(
         self, avs: Sequence[tuple[float, int, float]], hdvs: Sequence[tuple[float, int, float]] = ()
@@ -226,7 +223,8 @@ class LaneChangeEnv(AbstractEnv):
             raise ValueError(f"Invalid lane in {lane.tolist()}: expected lane numbers 0..{len(self.horizon.lanes) - 1}.")
         y = lanes.centre_y(self.horizon.lanes, lane.astype(np.int64), x)
         self.n_hdvs = len(hdvs)
-        self.state = np.concatenate([vehicle_state(self.config, x, lane, speed, self.n_avs, y=y), self._obstacles()])
+        vehicles = vehicle_state(self.config, x, lane, speed, self.n_avs, y=y)
+        self.state = np.concatenate([vehicles, self._parameters.spawn.obstacles])
         return self._observe_start()
 
     @property
@@ -277,13 +275,12 @@ class LaneChangeEnv(AbstractEnv):
         n = self.n_avs
         proposed = meta_actions.check_actions(action, n)
         p = self._parameters
-        supervise = np.array([bool(self.config["safety_supervisor"])])
-        shadow = np.array([bool(self.config["supervisor_shadow"])])
+        supervise, shadow = bool(self.config["safety_supervisor"]), bool(self.config["supervisor_shadow"])
         if self._uses_objects():
-            result = self._step_objects(proposed, p, bool(supervise[0]), bool(shadow[0]))
+            result = self._step_objects(proposed, p, supervise, shadow)
         else:
-            steps = np.array([self.steps_done])
-            result = step_copies(self.state, self._rows(), np.array([0, n]), proposed, supervise, shadow, steps, p)
+            copy = one_copy(self.steps_done, supervise, shadow, self.n_hdvs)
+            result, _ = step_copies(self.state, self._rows(), np.array([0, n]), proposed, copy, p)
             self.state = result.states[: result.offsets[-1]]
             self.steps += self.horizon.frames_per_step
         self.time += 1.0 / self.config["policy_frequency"]

@@ -18,8 +18,6 @@ from sb3_marl.sim.merge_road import (
     ROAD_LENGTH,
     make_merge_road,
     merge_lanes,
-    merge_spawn,
-    obstacle_rows,
 )
 
 
@@ -29,7 +27,7 @@ class MergeEnv(LaneChangeEnv):
 
     Everything of :class:`~sb3_marl.envs.lane_change_env.LaneChangeEnv` holds (actions, masks,
     observation, supervisor, info, ``place`` with the road's lane numbers), with the merging
-    paper's differences: the spawn (:func:`~sb3_marl.sim.merge_road.merge_spawn`), its densities
+    paper's differences: the spawn (:func:`~sb3_marl.sim.spawn.new_episode`'s spawn points), its densities
     (:data:`~sb3_marl.envs.config.MERGE_DENSITIES`), no road end (vehicles drive on past the road,
     as in MARL_CAVs), the reward ``200·safety + 4·headway + 1·speed + 4·merging-lane cost`` (no
     comfort term by default) and the regional neighbour sets of MARL_CAVs' ``_regional_reward``.
@@ -46,12 +44,6 @@ class MergeEnv(LaneChangeEnv):
 
     def _make_road(self) -> Road:
         return make_merge_road(self.config, self.np_random)
-
-    def _spawn(self) -> np.ndarray:
-        return merge_spawn(self.config, self.n_avs, self.n_hdvs, self.np_random)
-
-    def _obstacles(self) -> np.ndarray:
-        return obstacle_rows()
 
     @property
     def road_length(self) -> float:

@@ -20,7 +20,6 @@ from highway_env.road.road import Road, RoadNetwork
 from highway_env.vehicle.objects import Obstacle
 
 from sb3_marl.sim.lanes import lane_table
-from sb3_marl.sim.road import vehicle_state
 from sb3_marl.sim.simulator import capture
 
 ENDS = (220.0, 100.0, 100.0, 100.0)  # [m] the four sections
@@ -103,31 +102,3 @@ def obstacle_rows() -> np.ndarray:
 def _obstacle_rows() -> np.ndarray:
     network = merge_network(30.0)  # the obstacle's place does not depend on the speed limit
     return capture([], network, [Obstacle(None, _obstacle_position(network))])
-
-
-def merge_spawn(config: dict[str, Any], n_avs: int, n_hdvs: int, np_random: np.random.Generator) -> np.ndarray:
-    """The state array of a new episode, as ``merge_env_v1._make_vehicles`` draws it: half the AVs
-    (rounded down) at distinct random spawn points of the main road, the others on the ramp, then
-    half the HDVs (rounded down) at the main road's remaining points and the others at the ramp's;
-    positions jittered by ``spawn_position_noise`` m, speeds uniform in ``spawn_speed_range``
-    [m/s]. Rows: the AVs, the HDVs, then the obstacle."""
-    main_avs = np_random.choice(len(MAIN_SPAWN), n_avs // 2, replace=False)
-    ramp_avs = np_random.choice(len(RAMP_SPAWN), n_avs - n_avs // 2, replace=False)
-    # the points left, in order (sets: np.setdiff1d, or `in` on the arrays, cost more than the rest)
-    main_taken, ramp_taken = set(main_avs.tolist()), set(ramp_avs.tolist())
-    main_left = np.array([k for k in range(len(MAIN_SPAWN)) if k not in main_taken], dtype=np.int64)
-    ramp_left = np.array([k for k in range(len(RAMP_SPAWN)) if k not in ramp_taken], dtype=np.int64)
-    main_hdvs = np_random.choice(main_left, n_hdvs // 2, replace=False)
-    ramp_hdvs = np_random.choice(ramp_left, n_hdvs - n_hdvs // 2, replace=False)
-    n = n_avs + n_hdvs
-    low, high = config["spawn_speed_range"]
-    speeds = np_random.uniform(low, high, size=n)
-    noise = np_random.uniform(-1.0, 1.0, size=n) * config["spawn_position_noise"]
-    main, ramp = np.asarray(MAIN_SPAWN), np.asarray(RAMP_SPAWN)
-    x = np.concatenate([main[main_avs], ramp[ramp_avs], main[main_hdvs], ramp[ramp_hdvs]]) + noise
-    on_ramp = np.concatenate(
-        [np.zeros(main_avs.size), np.ones(ramp_avs.size), np.zeros(main_hdvs.size), np.ones(ramp_hdvs.size)]
-    )
-    lane = np.where(on_ramp > 0, RAMP, MAIN_BEFORE)
-    y = np.where(on_ramp > 0, RAMP_Y, 0.0)
-    return np.concatenate([vehicle_state(config, x, lane, speeds, n_avs, y=y), obstacle_rows()])

@@ -74,23 +74,6 @@ def configure_hdv(vehicle: IDMVehicle, config: dict[str, Any]) -> None:
     vehicle.COMFORT_ACC_MAX, vehicle.COMFORT_ACC_MIN, vehicle.DISTANCE_WANTED, vehicle.TIME_WANTED = a, -b, s0, t
 
 
-def spawn(config: dict[str, Any], n_avs: int, n_hdvs: int, np_random: np.random.Generator) -> np.ndarray:
-    """The state array of a new episode: AVs and HDVs in distinct random slots of a grid along every lane.
-
-    Slots are ``spawn_spacing`` m apart from ``spawn_start`` on each lane, jittered by up to
-    ``spawn_position_noise`` m, so vehicles never overlap (validation guarantees the spacing
-    exceeds the 5 m vehicle length plus twice the noise). Initial speeds are uniform in
-    ``spawn_speed_range`` (m/s). The ``n_avs`` AVs are the first rows.
-    """
-    per_lane = config["spawn_slots_per_lane"]
-    slots = np_random.choice(config["lanes_count"] * per_lane, size=n_avs + n_hdvs, replace=False)
-    noise = np_random.uniform(-1.0, 1.0, size=slots.size) * config["spawn_position_noise"]
-    low, high = config["spawn_speed_range"]
-    speeds = np_random.uniform(low, high, size=slots.size)
-    x = config["spawn_start"] + (slots % per_lane) * config["spawn_spacing"] + noise
-    return vehicle_state(config, x, slots // per_lane, speeds, n_avs)
-
-
 def vehicle_state(
     config: dict[str, Any], x: np.ndarray, lane: np.ndarray, speed: np.ndarray, n_avs: int, y: np.ndarray | None = None
 ) -> np.ndarray:
@@ -102,7 +85,7 @@ def vehicle_state(
     ``(x + y) π mod LANE_CHANGE_DELAY``; the config's MOBIL parameters and IDM style,
     ``hdv_style``; an AV's IDM columns, used where an HDV's MOBIL rates it, are highway-env's)."""
     lane = np.asarray(lane, dtype=np.float64).reshape(-1)
-    return _vehicle_state(
+    return vehicle_rows(
         np.asarray(x, dtype=np.float64).reshape(-1),
         lane * float(config["lane_width"]) if y is None else np.asarray(y, dtype=np.float64).reshape(-1),
         lane,
@@ -117,7 +100,7 @@ def vehicle_state(
 
 
 @numba.njit(cache=True)
-def _vehicle_state(
+def vehicle_rows(
     x: np.ndarray,
     y: np.ndarray,
     lane: np.ndarray,

@@ -80,7 +80,7 @@ def test_the_copies_envs_follow_the_batch():
     for _ in range(3):
         venv.step(np.ones(venv.num_envs, dtype=np.int64))
     env = venv.copy_env(0)
-    assert env.steps_done == venv.batch.steps[0] and np.array_equal(env.state, venv.batch.states[: len(env.state)])
+    assert env.steps_done == venv.batch.copies.steps[0] and np.array_equal(env.state, venv.batch.states[: len(env.state)])
     env.place(avs=[(100.0 + 40 * i, 0, 25.0) for i in range(env.n_avs)])
     venv.step(np.ones(venv.num_envs, dtype=np.int64))
     x = venv.copy_env(0).state[: env.n_avs, 0]
@@ -107,3 +107,30 @@ def test_what_steps_one_by_one(options):
     venv = ParameterSharingVecEnv(ENV_IDS[1], n_copies=2, **options)
     assert venv.batch is None
     venv.close()
+
+
+def test_envs_after_batched_new_episodes_equal_one_by_one():
+    """Episodes begun inside the compiled step leave each copy's env (read between steps) as its
+    own resets would: the same generator states, HDV counts, clocks and supervisor draws."""
+    config, options = {"safety_supervisor": True}, {"n_copies": 3, "seed": 3, "supervisor_dropout": 0.5}
+    venvs = [ParameterSharingVecEnv(ENV_IDS[3], config=config, batched=flag, **options) for flag in (True, False)]
+    rng = np.random.default_rng(0)
+    ended = 0
+    for venv in venvs:
+        venv.reset()
+    for _ in range(40):
+        actions = rng.integers(0, 5, venvs[0].num_envs)
+        ended += int(venvs[0].step(actions)[2].sum())
+        venvs[1].step(actions)
+    assert ended > 0
+    for k in range(3):
+        batched, one_by_one = (venv.copy_env(k) for venv in venvs)
+        for name in ("n_hdvs", "time", "steps"):
+            assert getattr(batched, name) == getattr(one_by_one, name), name
+        assert batched.config["safety_supervisor"] == one_by_one.config["safety_supervisor"]
+        assert batched.np_random.bit_generator.state == one_by_one.np_random.bit_generator.state
+        runners = [venv.copies.local_runners()[k] for venv in venvs]
+        assert runners[0]._dropout_rng.bit_generator.state == runners[1]._dropout_rng.bit_generator.state
+        np.testing.assert_array_equal(batched.state, one_by_one.state)
+    for venv in venvs:
+        venv.close()
