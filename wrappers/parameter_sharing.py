@@ -355,11 +355,18 @@ class ParameterSharingVecEnv(VecEnv):
 
     def action_masks(self) -> np.ndarray:
         """(num_envs, 5) bool: available meta-actions of every slot (sb3-contrib's MaskablePPO API)."""
-        return np.stack(self.env_method("action_masks"))
+        return self._current_rows("action_masks").copy()
 
     def rule_actions(self) -> np.ndarray:
         """(num_envs,) int: the rule driver's meta-action for every slot's current observation."""
-        return np.array(self.env_method("rule_actions"), dtype=np.int64)
+        return self._current_rows("rule_actions").astype(np.int64)
+
+    def _current_rows(self, method: str) -> np.ndarray:
+        """Every slot's row of a per-AV method (:data:`CACHED_METHODS`) for the current observations."""
+        self._check_open()
+        if method not in self._current:
+            raise RuntimeError(f"{method}() needs the copies' current observations: call reset() first.")
+        return self._current[method]
 
     def env_is_wrapped(self, wrapper_class: type[gym.Wrapper], indices: VecEnvIndices = None) -> list[bool]:
         values = self._per_copy(indices, "env_is_wrapped", wrapper_class)
