@@ -69,6 +69,28 @@ class StepArrays:
         return cls(**joined, reward_terms=reward_terms, copy=copy, agent=agent)
 
 
+def current_action_masks(venv: Any) -> np.ndarray:
+    """(num_envs, actions) bool: every slot's action mask for the current observations, from the
+    parameter-sharing VecEnv under ``venv``'s wrappers (or any VecEnv's ``action_masks`` per env)."""
+    if hasattr(venv, "action_masks"):
+        return np.asarray(venv.action_masks(), dtype=bool)
+    return np.stack(venv.env_method("action_masks")).astype(bool)
+
+
+def current_rule_actions(venv: Any) -> np.ndarray:
+    """(num_envs,) int: the rule driver's action for every slot's current observation."""
+    if hasattr(venv, "rule_actions"):
+        return np.asarray(venv.rule_actions(), dtype=np.int64)
+    return np.asarray(venv.env_method("rule_actions"), dtype=np.int64)
+
+
+def stack_observations(observations: list[Any]) -> Any:
+    """Slots' observations (arrays, or dicts of arrays) as one batch."""
+    if isinstance(observations[0], dict):
+        return {key: np.stack([obs[key] for obs in observations]) for key in observations[0]}
+    return np.stack(observations)
+
+
 def step_arrays_of(venv: Any) -> StepArrays | None:
     """The last step's arrays of the parameter-sharing VecEnv under ``venv``'s VecEnvWrappers
     (None: another kind of VecEnv)."""

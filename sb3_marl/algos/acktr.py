@@ -232,7 +232,7 @@ class ACKTR(OnPolicyAlgorithm):
         )
 
 
-class MaskableACKTR(MaskableOnPolicy, ACKTR):  # type: ignore[misc]  # two OnPolicyAlgorithm hosts
+class MaskableACKTR(MaskableOnPolicy, ACKTR):
     """Our :class:`~sb3_marl.algos.acktr.ACKTR` on sb3-contrib's maskable policy, rollout buffer and
     masked rollouts (see the module doc); ACKTR's update evaluates the actions under their masks,
     and its loss takes the rule prior's term (:meth:`auxiliary_loss`)."""
@@ -255,7 +255,7 @@ class MaskableACKTR(MaskableOnPolicy, ACKTR):  # type: ignore[misc]  # two OnPol
             self.device
         )
         buffer_class = MaskableDictRolloutBuffer if isinstance(self.observation_space, spaces.Dict) else MaskableRolloutBuffer
-        self.rollout_buffer = buffer_class(  # type: ignore[assignment]  # the Dict one too
+        self.rollout_buffer = buffer_class(
             self.n_steps,
             self.observation_space,  # type: ignore[arg-type]
             self.action_space,

@@ -20,7 +20,7 @@ from sb3_marl.algos.common.base import ACTOR_CRITIC_POLICIES, MaskableOnPolicy
 from sb3_marl.algos.common.policies import clip_gradients
 
 
-class MaskableActorCritic(MaskableOnPolicy, MaskablePPO):
+class MaskableActorCritic(MaskableOnPolicy, MaskablePPO):  # type: ignore[misc]  # predict: sb3-contrib's, typed wider
     """sb3-contrib's ``MaskablePPO`` with the ``action_masking`` switch (see the module doc), whose
     update adds the rule prior's term to each minibatch's loss (same loss, same optimiser step),
     then takes the supervisor teacher's step; minibatches are one per AV slot with
@@ -103,8 +103,9 @@ class MaskableActorCritic(MaskableOnPolicy, MaskablePPO):
         self.logger.record("train/clip_range", clip_range)
         if clip_range_vf is not None:
             self.logger.record("train/clip_range_vf", clip_range_vf)
-        if self.safety_loss_coef > 0 and self._recorder is not None:  # the teacher's step
-            self.safety_step(self._recorder.executed)
+        executed = self.rollout_extras.executed
+        if self.safety_loss_coef > 0 and executed is not None:  # the teacher's step
+            self.safety_step(executed)
 
 
 class MaskedPPO(MaskableActorCritic):

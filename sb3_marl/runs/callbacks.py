@@ -122,12 +122,17 @@ class StoreExecutedActions(BaseCallback):
         if np.array_equal(executed, proposed):
             return True
         proposed[:] = executed  # a view: the array the algorithm stores
-        log_probs = self.locals.get("log_probs")
+        log_probs = self.locals.get("log_probs")  # an on-policy rollout's (a tensor, or our numpy rollout's array)
         if log_probs is not None:
+            policy: Any = self.model.policy
             with th.no_grad():
-                policy: Any = self.model.policy
-                distribution = policy.get_distribution(self.locals["obs_tensor"], action_masks=self.locals.get("action_masks"))
-                log_probs.copy_(distribution.log_prob(th.as_tensor(executed, device=log_probs.device)))
+                obs = policy.obs_to_tensor(self.model._last_obs)[0]  # the observations acted on
+                distribution = policy.get_distribution(obs, action_masks=self.locals.get("action_masks"))
+                replaced = distribution.log_prob(th.as_tensor(executed, device=policy.device))
+            if isinstance(log_probs, np.ndarray):
+                log_probs[:] = replaced.cpu().numpy()
+            else:
+                log_probs.copy_(replaced)
         return True
 
 

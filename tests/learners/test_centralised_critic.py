@@ -94,7 +94,7 @@ def test_the_supervisor_teacher_reads_dict_observations():
     hyperparams = ctde_hyperparams("ma2c", safety_loss_coef=1.0, env_config={"safety_supervisor": True})
     venv = make_venv(ENV_IDS[1], hyperparams, seed=0)
     model = make_model("ma2c", venv, hyperparams, seed=0).learn(20 * venv.num_envs)
-    assert (model._recorder.executed >= 0).any()
+    assert (model.rollout_extras.executed >= 0).any()
     assert model.logger.name_to_value["train/safety_loss"] > 0
     venv.close()
 

@@ -45,7 +45,7 @@ def teacher_model() -> tuple[MaskableA2C, InterventionCounter]:
 
 def test_the_recorder_labels_exactly_the_intervened_steps(teacher_model):
     model, counter = teacher_model
-    labels = model._recorder.executed
+    labels = model.rollout_extras.executed
     assert counter.count > 0 and (labels >= 0).sum() == counter.count
     assert set(np.unique(labels[labels >= 0])) <= set(range(5))
 
@@ -64,10 +64,10 @@ def _probabilities(model: MaskableA2C, labels: np.ndarray) -> np.ndarray:
 def test_the_loss_is_zero_without_interventions_and_raises_the_executed_actions_probability(teacher_model):
     model, _ = teacher_model
     before = [p.detach().clone() for p in model.policy.parameters()]
-    assert model.safety_step(np.full_like(model._recorder.executed, -1)) == 0.0
+    assert model.safety_step(np.full_like(model.rollout_extras.executed, -1)) == 0.0
     assert all(th.equal(a, b) for a, b in zip(before, model.policy.parameters()))  # no step at all
 
-    labels = model._recorder.executed.copy()
+    labels = model.rollout_extras.executed.copy()
     probability_before = _probabilities(model, labels)
     loss = model.safety_step(labels)
     assert loss == pytest.approx(-np.log(probability_before).mean(), rel=1e-5)

@@ -15,21 +15,21 @@ sb3-contrib's maskable algorithms do.
 from __future__ import annotations
 
 import inspect
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
+import torch as th
 from sb3_contrib import MaskablePPO
+from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.utils import obs_as_tensor
 
 from sb3_marl.algos.common.loading import safe_load
+from sb3_marl.algos.common.numpy_forward import NumpyActorCritic
 from sb3_marl.algos.common.policies import CentralisedCriticPolicy
-from sb3_marl.algos.common.rule_prior import RulePrior, dagger, labelled, prior_term
-from sb3_marl.algos.common.teacher import InterventionRecorder, check_safety_loss_coef, recording, safety_step
-
-if TYPE_CHECKING:  # the host the class is written for (at run time: the learner's own MRO)
-    _OnPolicyHost = MaskablePPO
-else:
-    _OnPolicyHost = object
+from sb3_marl.algos.common.rule_prior import RulePrior, dagger, prior_term
+from sb3_marl.algos.common.teacher import check_safety_loss_coef, executed_labels, safety_step
+from wrappers.step_arrays import current_action_masks, current_rule_actions, stack_observations, step_arrays_of
 
 #: Policies of the maskable actor-critic learners: sb3-contrib's, plus the centralised critic
 #: (``critic: centralised``, selected by the hyperparameters under this alias).
@@ -55,7 +55,15 @@ def hyperparameters(cls: type) -> dict[str, inspect.Parameter]:
     return {name: p for name, p in found.items() if name not in getattr(cls, "left_out", ())}
 
 
-class MaskableOnPolicy(_OnPolicyHost):
+class RolloutExtras(NamedTuple):
+    """What a rollout records beside SB3's buffer for the extra loss terms, (n_steps, n_envs) as
+    the buffer's arrays (None where the term is off)."""
+
+    rule_labels: np.ndarray | None  # the rule driver's action for each observation (the prior's labels)
+    executed: np.ndarray | None  # the supervisor's action where it replaced the policy's, -1 elsewhere (the teacher's)
+
+
+class MaskableOnPolicy(OnPolicyAlgorithm):
     """What the maskable on-policy learners (MA2C, MAPPO, MAACKTR) add to their base (sb3-contrib's
     ``MaskablePPO``, our ``ACKTR``), as switches and terms of one update:
 
@@ -86,8 +94,7 @@ class MaskableOnPolicy(_OnPolicyHost):
     prior_decay_steps: int
     prior_smoothing: float
     prior_form: str
-    _recorder: InterventionRecorder | None = None
-    _rule_labels: np.ndarray | None = None
+    rollout_extras: RolloutExtras = RolloutExtras(None, None)
 
     def __init__(
         self,
@@ -119,7 +126,7 @@ class MaskableOnPolicy(_OnPolicyHost):
         return RulePrior.from_kwargs({key: getattr(self, key) for key in RulePrior().as_kwargs()})
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_recorder", "_rule_labels"]
+        return [*super()._excluded_save_params(), "rollout_extras"]
 
     def _setup_learn(self, *args: Any, **kwargs: Any) -> Any:
         """SB3's set-up, then the DAgger warm start where the budget's first ``prior_warm_start``
@@ -141,16 +148,68 @@ class MaskableOnPolicy(_OnPolicyHost):
     def collect_rollouts(
         self, env: Any, callback: Any, rollout_buffer: Any, n_rollout_steps: int, use_masking: bool = True
     ) -> bool:
-        """sb3-contrib's masked rollout collection (``MaskablePPO.collect_rollouts``), recording the
-        supervisor's interventions for the teacher and the rule driver's labels for the prior."""
-        return MaskablePPO.collect_rollouts(
-            self,
-            labelled(self, env, n_rollout_steps),
-            recording(self, callback, n_rollout_steps, env.num_envs),
-            rollout_buffer,
-            n_rollout_steps,
-            use_masking=use_masking and self.action_masking,
+        """Fill ``rollout_buffer`` with ``n_rollout_steps`` steps of every slot, as sb3-contrib's
+        masked rollout does (masks of each observation, SB3's bootstrap of time-limit truncations
+        from the critic, callbacks after each step), with the policy's forward in numpy where it
+        has one (:class:`~sb3_marl.algos.common.numpy_forward.NumpyActorCritic`: sampling from a
+        generator seeded by the model's seed and timestep), and the rollout's extras for the loss
+        terms (:class:`RolloutExtras`: the rule driver's labels, the supervisor's interventions)."""
+        masked = use_masking and self.action_masking
+        forward = NumpyActorCritic.of(self.policy)
+        rng = np.random.default_rng(None if self.seed is None else [self.seed, self.num_timesteps])
+        n_envs = env.num_envs
+        labels = (
+            np.full((n_rollout_steps, n_envs), -1, dtype=np.int64) if self.rule_prior.weight(self.num_timesteps) > 0 else None
         )
+        executed = np.full((n_rollout_steps, n_envs), -1, dtype=np.int64) if self.safety_loss_coef > 0 else None
+        self.rollout_extras = RolloutExtras(labels, executed)
+        self.policy.set_training_mode(False)
+        rollout_buffer.reset()
+        callback.on_rollout_start()
+        for step in range(n_rollout_steps):
+            action_masks = current_action_masks(env) if masked else None
+            if labels is not None:
+                labels[step] = current_rule_actions(env)
+            if forward is not None:
+                actions, values, log_probs = forward(self._last_obs, action_masks, rng)
+            else:
+                with th.no_grad():
+                    tensors = obs_as_tensor(self._last_obs, self.device)  # type: ignore[arg-type]
+                    actions, values, log_probs = (x.cpu().numpy() for x in self.policy(tensors, action_masks=action_masks))
+            new_obs, rewards, dones, infos = env.step(actions)
+            self.num_timesteps += n_envs
+            callback.update_locals(locals())
+            if not callback.on_step():
+                return False
+            if executed is not None:
+                executed[step] = executed_labels(step_arrays_of(env), n_envs)
+            self._update_info_buffer(infos, dones)
+            truncated = [i for i in np.flatnonzero(dones) if infos[i].get("TimeLimit.truncated", False)]
+            if truncated:  # SB3's bootstrap of a time limit from the critic, all slots in one call
+                terminal = stack_observations([infos[i]["terminal_observation"] for i in truncated])
+                rewards[truncated] += self.gamma * self._values(forward, terminal)
+            rollout_buffer.add(
+                self._last_obs,
+                actions.reshape(-1, 1),
+                rewards,
+                self._last_episode_starts,
+                th.as_tensor(values, dtype=th.float32).reshape(-1, 1),
+                th.as_tensor(log_probs, dtype=th.float32),
+                action_masks=action_masks,
+            )
+            self._last_obs, self._last_episode_starts = new_obs, dones
+        last_values = th.as_tensor(self._values(forward, new_obs), dtype=th.float32).reshape(-1, 1)
+        rollout_buffer.compute_returns_and_advantage(last_values=last_values, dones=dones)
+        callback.update_locals(locals())
+        callback.on_rollout_end()
+        return True
+
+    def _values(self, forward: NumpyActorCritic | None, obs: Any) -> np.ndarray:
+        """(batch,) the critic's values of observations ``obs``."""
+        if forward is not None:
+            return forward.values(obs)
+        with th.no_grad():
+            return self.policy.predict_values(obs_as_tensor(obs, self.device)).cpu().numpy()[:, 0]
 
     def prior_term(self, observations: Any, action_masks: Any, indices: np.ndarray, logs: dict[str, list]) -> Any:
         """The rule prior's term of the update's loss (:func:`~sb3_marl.algos.common.rule_prior.prior_term`)."""
@@ -171,4 +230,4 @@ class MaskableOnPolicy(_OnPolicyHost):
         """The policy's action; ``action_masks`` (batch, 5) bool restricts it to available actions
         (ignored when the model was trained with ``action_masking=False``)."""
         masks = action_masks if self.action_masking else None
-        return self.policy.predict(observation, state, episode_start, deterministic, action_masks=masks)
+        return self.policy.predict(observation, state, episode_start, deterministic, action_masks=masks)  # type: ignore[call-arg]

@@ -42,7 +42,7 @@ from sb3_marl.algos.common.teacher import MAX_LOSS_WEIGHT, select_rows
 from sb3_marl.common.checks import check_integer, check_number, invalid
 from sb3_marl.envs.config import with_supervisor
 from sb3_marl.evaluation.episodes import evaluate_on_density
-from wrappers.step_arrays import step_arrays_of
+from wrappers.step_arrays import current_rule_actions, step_arrays_of
 
 #: Rule drivers a learner can start from: the scenario's IDM/MOBIL decision.
 PRIORS = ("idm-mobil",)
@@ -160,7 +160,7 @@ class RuleLabels(VecEnvWrapper):
         return self.venv.reset()
 
     def step_async(self, actions: np.ndarray) -> None:
-        labels = np.asarray(self.venv.env_method("rule_actions"), dtype=np.int64)
+        labels = current_rule_actions(self.venv)
         actions = np.asarray(actions).reshape(-1)
         if self.beta > 0:
             actions = np.where(self.rng.random(actions.size) < self.beta, labels, actions)
@@ -305,25 +305,15 @@ def _fit(
     return float(np.mean(prior_losses)), float(np.mean(value_losses))
 
 
-def labelled(model: Any, env: Any, n_rollout_steps: int) -> Any:
-    """``env`` recording the rule driver's labels of the rollout in ``model._rule_labels`` (when the
-    prior's weight is on; None otherwise)."""
-    if model.rule_prior.weight(model.num_timesteps) <= 0:
-        model._rule_labels = None
-        return env
-    recorder = RuleLabels(env, n_rollout_steps)
-    model._rule_labels = recorder.labels
-    return recorder
-
-
 def prior_term(model: Any, observations: Any, action_masks: Any, indices: np.ndarray, logs: dict[str, list]) -> Any:
     """``w · prior_loss`` of the rollout's samples at ``indices`` (of the flattened, slot-major
     buffer), 0 without labels; logs the loss, its KL and the weight."""
     weight = model.rule_prior.weight(model.num_timesteps)
-    if model._rule_labels is None or weight <= 0:
+    rule_labels = model.rollout_extras.rule_labels
+    if rule_labels is None or weight <= 0:
         return 0.0
     policy = model.policy
-    labels = th.as_tensor(model._rule_labels.swapaxes(0, 1).reshape(-1)[indices], device=policy.device)
+    labels = th.as_tensor(rule_labels.swapaxes(0, 1).reshape(-1)[indices], device=policy.device)
     logits = masked_logits(policy, observations, action_masks)
     loss, kl = prior_loss(logits, labels, model.prior_smoothing, action_masks, model.prior_form)
     logs["prior_loss"].append(loss.item())

@@ -7,11 +7,10 @@ from typing import Any
 
 import numpy as np
 import torch as th
-from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 
 from sb3_marl.algos.common.policies import clip_gradients
 from sb3_marl.common.checks import check_number
-from wrappers.step_arrays import StepArrays, step_arrays_of
+from wrappers.step_arrays import StepArrays
 
 
 def executed_labels(arrays: StepArrays | None, n_envs: int) -> np.ndarray:
@@ -21,47 +20,6 @@ def executed_labels(arrays: StepArrays | None, n_envs: int) -> np.ndarray:
     if arrays is None:
         return np.full(n_envs, -1, dtype=np.int64)
     return np.where(arrays.intervened & ~arrays.exited, arrays.executed_action, -1).astype(np.int64)
-
-
-class InterventionRecorder(BaseCallback):
-    """Records, per rollout step and VecEnv slot, the action the safety supervisor executed where
-    it replaced the policy's proposal (the VecEnv's ``step_arrays.intervened``), -1 elsewhere: the labels of
-    :func:`safety_step`. Arrays are ``(n_steps, n_envs)``, as the rollout buffer's."""
-
-    def __init__(self, n_steps: int, n_envs: int) -> None:
-        super().__init__()
-        self.executed = np.full((n_steps, n_envs), -1, dtype=np.int64)
-        self.position = 0
-
-    def _on_rollout_start(self) -> None:
-        self.executed[:] = -1
-        self.position = 0
-
-    def _on_step(self) -> bool:
-        if self.position < len(self.executed):
-            self.executed[self.position] = executed_labels(step_arrays_of(self.training_env), self.executed.shape[1])
-        self.position += 1
-        return True
-
-
-class _InitialisedCallbacks(CallbackList):
-    """A CallbackList of callbacks already initialised (initialising it does not redo theirs)."""
-
-    def _init_callback(self) -> None:
-        pass
-
-
-def recording(model: Any, callback: Any, n_rollout_steps: int, n_envs: int) -> Any:
-    """``callback`` plus ``model``'s intervention recorder when the teacher is on
-    (``safety_loss_coef`` > 0; the recorder is kept in ``model._recorder``)."""
-    if model.safety_loss_coef <= 0:
-        return callback
-    if model._recorder is None or model._recorder.executed.shape != (n_rollout_steps, n_envs):
-        model._recorder = InterventionRecorder(n_rollout_steps, n_envs)
-        model._recorder.init_callback(model)
-    together = _InitialisedCallbacks([callback, model._recorder])
-    together.init_callback(model)
-    return together
 
 
 def safety_loss(policy: Any, observations: Any, action_masks: np.ndarray | None, executed: th.Tensor) -> th.Tensor:
