@@ -266,14 +266,22 @@ class CopyGroups:
             worker = self.groups[group]
             code = worker.process.exitcode if isinstance(worker, WorkerCopies) else None
             raise RuntimeError(
-                f"Worker process {group} of scenario copies {self.group_copies[group]} died (exit code {code}); "
-                "see its traceback above."
+                f"Worker process {group} of scenario copies {self.group_copies[group]} died ({_exit_reason(code)})."
             ) from error
 
     def close(self) -> None:
         for group in self.groups:
             with contextlib.suppress(EOFError, BrokenPipeError, ConnectionResetError):
                 group.close()  # a dead worker has nothing left to close
+
+
+def _exit_reason(code: int | None) -> str:
+    """How a worker process ended, from its exit code (negative: the signal that killed it)."""
+    if code is None:
+        return "no exit code yet"
+    if code < 0:
+        return f"killed by {signal.Signals(-code).name}: out of memory, or stopped from outside"
+    return f"exit code {code}; a Python error in it printed its traceback above"
 
 
 def per_agent_spaces(copy_spaces: dict[int, tuple]) -> tuple[spaces.Box, spaces.Discrete, list[int]]:

@@ -147,6 +147,14 @@ def run_benchmark(
         return outcome
     ray = _import_ray()
     with grid_lock(log_folder, wait):
+        done = [spec for spec in todo if _finished(log_folder, spec, place)]  # by a launcher this one waited for
+        if done:
+            outcome.skipped += [spec.trial_id for spec in done]
+            todo = [spec for spec in todo if spec not in done]
+            if verbose:
+                print(f"{len(done)} of them finished by the launcher this one waited for; {len(todo)} left to run")
+            if not todo:
+                return outcome
         launch = Launch(grid, log_folder, settings, address, max_concurrent, max_failures, verbose, place)
         return _run_waves(ray, launch, todo, outcome)
 

@@ -271,7 +271,7 @@ def test_dead_worker_raises_naming_the_copy():
     worker = vec.copies.groups[1].process
     worker.kill()
     worker.join()
-    with pytest.raises(RuntimeError, match=r"Worker process 1 of scenario copies \[1\] died"):
+    with pytest.raises(RuntimeError, match=r"Worker process 1 of scenario copies \[1\] died \(killed by SIGKILL"):
         vec.step(np.full(vec.num_envs, IDLE))
     vec.close()
 
