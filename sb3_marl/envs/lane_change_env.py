@@ -38,7 +38,7 @@ class LaneChangeEnv(AbstractEnv):
     """One-way highway where ``n_avs`` AVs share the road with IDM/MOBIL human drivers.
 
     - ``reset`` spawns ``n_avs`` AVs and a number of HDVs sampled from the density's range in random
-      grid slots (:func:`~sb3_marl.sim.road.spawn`); observations are ``(n_avs, obs_vehicles_count, 5)``.
+      grid slots (:func:`~sb3_marl.sim.spawn.new_episode`); observations are ``(n_avs, obs_vehicles_count, 5)``.
     - ``step(actions)`` takes one meta-action per AV (0 LANE_LEFT, 1 IDLE, 2 LANE_RIGHT, 3 FASTER,
       4 SLOWER), simulates ``simulation_frequency / policy_frequency`` frames of 1 /
       simulation_frequency s and returns the observations, the mean AV reward (a scalar for

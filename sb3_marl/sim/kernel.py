@@ -11,7 +11,7 @@ seen as leaders and collide as highway-env's objects do. In highway-env's order 
 :mod:`sb3_marl.sim.drivers` (IDM, MOBIL, steering, every vehicle's decision; the rule driver),
 :mod:`sb3_marl.sim.collisions` (highway-env's collision test) and :mod:`sb3_marl.sim.meta_actions`
 (the AVs' meta-actions and their masks). The env keeps its road as this array (the spawn is
-:func:`sb3_marl.sim.road.spawn`), :mod:`sb3_marl.sim.simulator` builds highway-env objects from it
+:func:`sb3_marl.sim.spawn.new_episode`), :mod:`sb3_marl.sim.simulator` builds highway-env objects from it
 where they are needed, and the parity tests hold it to highway-env's own classes. Only MOBIL's
 politeness, safe braking and threshold are read per HDV (the scenario config sets them,
 :func:`sb3_marl.sim.road.vehicle_state`).

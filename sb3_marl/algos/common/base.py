@@ -3,8 +3,9 @@ ones (:class:`MaskableOnPolicy`) and the keyword arguments a learner takes (:fun
 
 The scenario env says which meta-actions each AV may take (``action_masks()``: FASTER only below
 the top target speed, a lane change only towards a reachable lane, ...); the parameter-sharing
-VecEnv passes those masks per AV slot; sb3-contrib's maskable policy, distribution and rollout
-buffer do the rest. The learners, one per module: MA2C (``a2c``: A2C's update on the maskable
+VecEnv passes those masks per AV slot; the rollout (:meth:`MaskableOnPolicy.collect_rollouts`, the
+policy's forward in numpy: :mod:`~sb3_marl.algos.common.numpy_forward`) and sb3-contrib's maskable
+policy, distribution and rollout buffer do the rest. The learners, one per module: MA2C (``a2c``: A2C's update on the maskable
 machinery), MAPPO (``ppo``), MAACKTR (``acktr``), MADQN (``dqn``: SB3's DQN with masked greedy
 actions, exploration and bootstrap targets), MATRPO (``trpo``). All maskable learners take
 ``action_masking`` (default True): False trains and acts without masks (the unmasked learner of
@@ -67,8 +68,8 @@ class MaskableOnPolicy(OnPolicyAlgorithm):
     """What the maskable on-policy learners (MA2C, MAPPO, MAACKTR) add to their base (sb3-contrib's
     ``MaskablePPO``, our ``ACKTR``), as switches and terms of one update:
 
-    - ``action_masking``: sb3-contrib's masked rollouts and ``predict(..., action_masks=...)``,
-      with masks only when it is True;
+    - ``action_masking``: masked rollouts (:meth:`collect_rollouts`) and
+      ``predict(..., action_masks=...)``, with masks only when it is True;
     - the rule prior (``prior``, ``prior_*``: :class:`~sb3_marl.algos.common.rule_prior.RulePrior`):
       the DAgger warm start when learning starts, the rule driver's labels of each rollout and the
       prior's term of the loss (:meth:`prior_term`);
