@@ -8,8 +8,12 @@ at once, nothing is copied); torch does the updates. The modules understood are 
 project's policies: the MA2C network (:class:`~sb3_marl.algos.common.policies.MA2CFeaturesExtractor`),
 SB3's flatten extractor, the centralised critic's extractors, and ``nn.Sequential`` stacks of
 ``Linear``, ``ReLU``, ``Tanh`` and ``Flatten``; :meth:`NumpyActorCritic.of` answers None for any
-other policy, which then keeps torch's forward. Probabilities and values equal torch's to float32
-rounding (tests/learners/test_numpy_forward.py).
+other policy, which then keeps torch's forward. Probabilities and values equal torch's to 1e-6
+(tests/learners/test_numpy_forward.py). The layers compute in float64 (numpy's BLAS, whose kernels
+differ by CPU in the last bits); the rollout stores values and log-probabilities as float32, as
+SB3's buffer does, so such differences reach training only where a value lies within a few float64
+ulps of a float32 rounding boundary (about 1e-8 of the values), and an action only where its draw
+lies within them of a cumulative probability.
 """
 
 from __future__ import annotations
