@@ -137,28 +137,34 @@ class NumpyActorCritic:
         available); the uniform draws come from ``rng`` (one per row)."""
         obs = _float64(obs)
         features = self._actor_features(obs)
-        critic_features = features if self._shared else self._critic_features(obs)
-        logits = self._actor(features)
-        if masks is not None:
-            logits = np.where(masks, logits, MASKED_LOGIT)
-        log_probs = logits - _logsumexp(logits)
+        log_probs = self._log_probs(features, masks)
         cumulative = np.cumsum(np.exp(log_probs), axis=1)
         cumulative /= cumulative[:, -1:]  # the last entry exactly 1: every draw below it
-        actions = (cumulative <= rng.random(len(logits))[:, None]).sum(axis=1)
+        actions = (cumulative <= rng.random(len(log_probs))[:, None]).sum(axis=1)
         rows = np.arange(len(actions))
-        return actions, self._critic(critic_features)[:, 0], log_probs[rows, actions]
+        return actions, self._values(obs, features), log_probs[rows, actions]
 
     def probabilities(self, obs: Any, masks: np.ndarray | None) -> np.ndarray:
         """(batch, actions) the masked policy's action probabilities (for tests and diagnostics)."""
-        logits = self._actor(self._actor_features(_float64(obs)))
-        if masks is not None:
-            logits = np.where(masks, logits, MASKED_LOGIT)
-        return np.exp(logits - _logsumexp(logits))
+        return np.exp(self._log_probs(self._actor_features(_float64(obs)), masks))
 
     def values(self, obs: Any) -> np.ndarray:
         """(batch,) float64 the critic's values of observations ``obs``."""
-        obs = _float64(obs)
-        return self._critic(self._actor_features(obs) if self._shared else self._critic_features(obs))[:, 0]
+        return self._values(_float64(obs), None)
+
+    def _log_probs(self, actor_features: np.ndarray, masks: np.ndarray | None) -> np.ndarray:
+        """(batch, actions) the masked policy's log-probabilities from the actor's features."""
+        logits = self._actor(actor_features)
+        if masks is not None:
+            logits = np.where(masks, logits, MASKED_LOGIT)
+        return logits - _logsumexp(logits)
+
+    def _values(self, obs: Any, actor_features: np.ndarray | None) -> np.ndarray:
+        """(batch,) the critic's values of float64 observations ``obs``; with a shared extractor it
+        reads ``actor_features`` where the caller has them already."""
+        if not self._shared:
+            return self._critic(self._critic_features(obs))[:, 0]
+        return self._critic(self._actor_features(obs) if actor_features is None else actor_features)[:, 0]
 
 
 def _logsumexp(logits: np.ndarray) -> np.ndarray:
