@@ -45,7 +45,7 @@ run: $(RUNTIME)
 test: $(DEV)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
-	$(VENV)/bin/mypy sb3_marl wrappers
+	$(VENV)/bin/mypy sb3_marl wrappers sb3_marl_launcher.py
 	$(PYTHON) -m pytest -q
 
 benchmark: $(RUNTIME)

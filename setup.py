@@ -28,6 +28,8 @@ setup(
     python_requires=">=3.10",
     # zoo_configs/ ships beside the packages, so sb3_marl finds it installed as in a checkout
     packages=[*find_packages(include=["sb3_marl", "sb3_marl.*", "wrappers", "wrappers.*"]), "zoo_configs"],
+    # the console script's entry point: takes signals before the package imports (its doc)
+    py_modules=["sb3_marl_launcher"],
     package_data={"zoo_configs": ["*.yml", "grids/*.yml"]},
     install_requires=[
         # any torch 2 release; the README installs the CPU build first (`pip install torch==2.13.0`)
@@ -80,7 +82,7 @@ setup(
             *DOCS,
         ],
     },
-    entry_points={"console_scripts": ["sb3-marl=sb3_marl.cli:main"]},
+    entry_points={"console_scripts": ["sb3-marl=sb3_marl_launcher:main"]},
     classifiers=[
         "Development Status :: 4 - Beta",
         "Intended Audience :: Science/Research",

@@ -38,6 +38,7 @@ def test_the_wheel_installs_and_runs_from_an_unrelated_folder(tmp_path):
         names = archive.getnames()
     assert any(name.endswith("/LICENSE") for name in names)
     assert any(name.endswith("/sb3_marl/cli/__init__.py") for name in names)
+    assert any(name.endswith("/sb3_marl_launcher.py") for name in names)  # the console script's entry point
     # no tests: they read results/ and other files of a clone, which the sdist does not ship
     assert not [name for name in names if "/tests/" in name or "/results/" in name or name.endswith("/pytest.ini")]
 
@@ -59,7 +60,7 @@ def test_the_wheel_installs_and_runs_from_an_unrelated_folder(tmp_path):
     python, cli = str(venv / "bin" / "python"), [str(venv / "bin" / "python"), "-m", "sb3_marl"]
     located = subprocess.run(
         # the benchmark reads its grids from zoo_configs/grids/ (package data)
-        [python, "-c", "import sb3_marl, zoo_configs, sb3_marl.benchmark.grid; print(sb3_marl.__file__)"],
+        [python, "-c", "import sb3_marl, sb3_marl_launcher, zoo_configs, sb3_marl.benchmark.grid; print(sb3_marl.__file__)"],
         cwd=elsewhere,
         check=True,
         capture_output=True,
