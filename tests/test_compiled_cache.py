@@ -1,4 +1,4 @@
-"""The compiled kernel's cache: a home that cannot be written still starts (the temporary folder,
+"""The compiled kernel's cache: a home (or a NUMBA_CACHE_DIR) that cannot be written still starts (the temporary folder,
 said in one line), ``NUMBA_CACHE_DIR`` wins, a cold cache is announced before compiling, and the
 time numba spends compiling is measured (real numba, real processes)."""
 
@@ -40,6 +40,22 @@ def test_numba_cache_dir_wins_and_a_writable_home_is_used_silently(tmp_path):
     assert done.stdout.strip() == str(tmp_path / "mine") and done.stderr == ""
     done = _python(SHOW_CACHE, XDG_CACHE_HOME=str(tmp_path / "home"))
     assert done.stdout.strip().startswith(str(tmp_path / "home" / "sb3-marl" / "numba")) and done.stderr == ""
+
+
+def test_a_numba_cache_dir_that_cannot_be_written_falls_back_in_one_line(tmp_path):
+    """Another user's cache folder passed on in the environment (``sudo -E``, a shared profile):
+    numba would stop with "no locator available"; the temporary folder is used and said."""
+    (tmp_path / "a-file").write_text("")
+    temporary = tmp_path / "tmp"
+    temporary.mkdir()
+    theirs = tmp_path / "a-file" / "numba"
+    done = _python(SHOW_CACHE, NUMBA_CACHE_DIR=str(theirs), TMPDIR=str(temporary))
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip().startswith(str(temporary / f"sb3-marl-{os.getuid()}" / "numba"))
+    assert done.stderr.splitlines() == [
+        f"sb3-marl: NUMBA_CACHE_DIR={theirs} cannot be written; the road kernel is cached in {done.stdout.strip()} "
+        "(NUMBA_CACHE_DIR chooses)"
+    ]
 
 
 def test_a_cold_cache_is_announced_and_a_filled_one_is_not(tmp_path, monkeypatch, capsys):

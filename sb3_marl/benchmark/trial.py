@@ -152,6 +152,8 @@ def run_trial(config: dict[str, Any]) -> None:
         storage.download_trials(log_folder, [spec.trial_id, *([spec.starts_from.trial_id] if spec.starts_from else [])])
         storage.download_checkpoint(spec.trial_id, checkpoint)
     folder.mkdir(parents=True, exist_ok=True)
+    for debris in folder.glob(f".{CHECKPOINT}.partial-*"):  # staged by a killed attempt (one attempt runs at a time)
+        shutil.rmtree(debris, ignore_errors=True)
     resumed_at = _restore_checkpoint(folder, tune.get_checkpoint())
     _record_attempt(folder, spec, config, resumed_at)
     run = RunSpec(

@@ -195,25 +195,42 @@ def _benchmark_evaluate(args: argparse.Namespace, storage: GridStorage | None = 
     upload the re-evaluated trials' folders there."""
     from tqdm import tqdm
 
+    from sb3_marl.benchmark.grid import TrialSpec
+    from sb3_marl.benchmark.repair import trial_damage
     from sb3_marl.benchmark.trial import reevaluate_trial
-    from sb3_marl.benchmark.trial_files import RESULT
+    from sb3_marl.benchmark.trial_files import RESULT, TRIAL, read_trial_info
     from sb3_marl.common.files import inside
 
     results = sorted(Path(args.log_folder).glob(f"trials/*/{RESULT}"))
     if not results:
         raise UsageError(f"-f/--log-folder: no finished trial (trials/*/{RESULT}) under {args.log_folder!r}.")
+
+    def damage(folder: Path) -> list[str]:
+        """Each damaged file of the trial in ``folder``, as ``status`` names it ([]: it reads back whole)."""
+        try:
+            spec = TrialSpec(**read_trial_info(folder / TRIAL)["trial"])
+        except ValueError as error:
+            return [str(error)]
+        return [f"{path}: {why}" for path, why in trial_damage(Path(args.log_folder), spec).items()]
+
     set_num_threads(1)
     try:
         trials = [inside(path.parent, args.log_folder) for path in results]  # no link out of the grid
-        done = [folder for folder in tqdm(trials, desc="trials", unit="trial") if reevaluate_trial(folder)]
-    except (ValueError, KeyError, TypeError) as error:  # an unreadable or edited result.json, named
+        damaged = {folder.name: problems for folder in trials if (problems := damage(folder))}
+        whole = [folder for folder in trials if folder.name not in damaged]
+        done = [folder for folder in tqdm(whole, desc="trials", unit="trial") if reevaluate_trial(folder)]
+    except (ValueError, KeyError, TypeError) as error:  # an edited result.json, named
         raise UsageError(f"-f/--log-folder: {error}") from None
     if storage is not None:
         for folder in done:
             storage.upload_trial(folder, last=RESULT)
-    print(
-        f"re-evaluated {len(done)} of {len(results)} finished trials under both supervisor protocols (the current supervisor)"
-    )
+    print(f"re-evaluated {len(done)} of {len(whole)} finished trials under both supervisor protocols (the current supervisor)")
+    if damaged:
+        named = "; ".join(f"{trial}: {', '.join(problems)}" for trial, problems in damaged.items())
+        raise CommandFailed(
+            f"{len(damaged)} trial(s) with damaged files not re-evaluated ({named}); the grid's next run "
+            "(`sb3-marl benchmark --grid ...` with the same -f) repairs and re-runs them."
+        )
     return 0
 
 

@@ -180,6 +180,9 @@ def evaluate_command(args: argparse.Namespace) -> int:
     check_file("-o/--output", args.output)
     run = _with_env_kwargs(find_run_of(args), args)
     model = load_model_of(run, args)
+    output = Path(args.output) if args.output else outputs_of(args, run) / "evaluation.json"
+    if not args.output:  # the evaluation's files go beside the model: known before the work
+        check_folder("-f/--log-folder", str(output.parent))
     announce_compiling()
     seed, episodes, progress = args.seed + EVAL_SEED_OFFSET, _episodes(args, run), args.verbose > 0
     start = time.perf_counter()
@@ -214,7 +217,6 @@ def evaluate_command(args: argparse.Namespace) -> int:
     )
     print(heading + "\n")
     print(table + "\n\n" + traffic)
-    output = Path(args.output) if args.output else outputs_of(args, run) / "evaluation.json"
     trips = output.with_name(output.stem + "_trips.csv")
     write_text(trips, trips_csv([{**label, **trip} for label, summary in rows for trip in summary.pop("trips")]))
     write_text(output, json.dumps(result, indent=2))

@@ -34,15 +34,17 @@ def _writable(folder: str) -> bool:
 
 
 def choose_cache_folder(digest: str) -> str | None:
-    """Set ``NUMBA_CACHE_DIR`` (unless it is set) to the user's cache folder for the sources of
-    ``digest``, or to the temporary folder where that cannot be written; returns a line for the
-    user when it had to fall back, None otherwise."""
-    if os.environ.get("NUMBA_CACHE_DIR"):
+    """Set ``NUMBA_CACHE_DIR`` (unless it is set to a folder that can be written) to the user's
+    cache folder for the sources of ``digest``, or to the temporary folder where that cannot be
+    written; returns a line for the user when it had to fall back, None otherwise."""
+    chosen = os.environ.get("NUMBA_CACHE_DIR")
+    if chosen and _writable(chosen):
         return None
     home = os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache")
-    preferred = os.path.join(home, "sb3-marl", "numba", digest)
+    preferred = chosen or os.path.join(home, "sb3-marl", "numba", digest)
     user = getattr(os, "getuid", lambda: "user")()
     fallback = os.path.join(tempfile.gettempdir(), f"sb3-marl-{user}", "numba", digest)
+    unwritable = f"NUMBA_CACHE_DIR={chosen}" if chosen else home
     for folder in (preferred, fallback):
         if _writable(folder):
             os.environ["NUMBA_CACHE_DIR"] = folder
@@ -50,7 +52,7 @@ def choose_cache_folder(digest: str) -> str | None:
                 return None
             # matplotlib (the figures, the renderer) caches beside it, and would say so in 3 lines
             os.environ.setdefault("MPLCONFIGDIR", os.path.join(os.path.dirname(os.path.dirname(fallback)), "matplotlib"))
-            return f"sb3-marl: {home} cannot be written; the road kernel is cached in {folder} (NUMBA_CACHE_DIR chooses)"
+            return f"sb3-marl: {unwritable} cannot be written; the road kernel is cached in {folder} (NUMBA_CACHE_DIR chooses)"
     os.environ["NUMBA_CACHE_DIR"] = fallback
     return f"sb3-marl: neither {preferred} nor {fallback} can be written: set NUMBA_CACHE_DIR to a writable folder"
 

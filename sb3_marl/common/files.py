@@ -42,8 +42,10 @@ def replaced_atomically(path: str | Path) -> Iterator[Path]:
     try:
         yield temporary
         os.replace(temporary, path)
-    except BaseException:
+    except BaseException as error:
         temporary.unlink(missing_ok=True)
+        if isinstance(error, OSError) and error.filename is None:  # a failed write or close names no file
+            error.filename = str(temporary)
         raise
 
 

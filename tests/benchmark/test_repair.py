@@ -138,6 +138,30 @@ def test_a_damaged_checkpoint_does_not_fail_the_trial(grid, capsys):
     assert [a["resumed_at_timesteps"] for a in attempts(grid)] == [0, 0]
 
 
+def test_benchmark_evaluate_names_a_damaged_trial_and_leaves_it(grid, capsys):
+    """`benchmark evaluate` re-evaluates only trials that read back whole: a damaged one is named
+    (exit 1), its files untouched, for the grid's next run to repair."""
+    folder = grid / "trials" / SPEC.trial_id
+    damage(folder / FILES["evaluations"])
+    result = (folder / "result.json").read_bytes()
+    assert main(["benchmark", "evaluate", "-f", str(grid)]) == 1
+    err = capsys.readouterr().err
+    assert f"1 trial(s) with damaged files not re-evaluated ({SPEC.trial_id}: {folder / FILES['evaluations']}: " in err
+    assert (folder / "result.json").read_bytes() == result
+
+
+def test_a_killed_attempts_half_written_checkpoint_is_swept(grid):
+    """A kill while a checkpoint was staged leaves ``.checkpoint.partial-<pid>/`` (a model's size);
+    the next attempt's first checkpoint removes it."""
+    folder = grid / "trials" / SPEC.trial_id
+    (folder / "result.json").unlink()
+    staged = folder / ".checkpoint.partial-4194304"
+    shutil.copytree(folder / "checkpoint", staged)
+    damage(staged / "model.zip")
+    run(grid)
+    assert trial_damage(grid, SPEC) == {} and not list(folder.glob(".checkpoint.partial-*"))
+
+
 def test_a_damaged_checkpoint_gives_way_to_an_older_one_that_loads(grid):
     """The launcher's repair of a damaged checkpoint: the newest of Ray's copies that loads, else
     the start; the previous checkpoint a kill left between two renames comes before those."""
