@@ -20,6 +20,7 @@ import json
 import os
 import re
 import socket
+import tempfile
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -252,11 +253,15 @@ def failure_reason(error: BaseException) -> str:
 
 
 def _finished(log_folder: Path, spec: TrialSpec, storage: GridStorage | None = None) -> bool:
-    """Whether the trial ``spec`` has finished in ``log_folder`` (its ``result.json``, and every file
-    it needs reads back: :func:`~sb3_marl.benchmark.repair.trial_damage`) or in ``storage`` (its
-    ``result.json``)."""
+    """Whether the trial ``spec`` has finished in ``log_folder`` or in ``storage``: its ``result.json``,
+    and every file it needs reads back (:func:`~sb3_marl.benchmark.repair.trial_damage`; a storage
+    grid's trial checked on a temporary copy: the launcher's folder keeps none of the trials)."""
     if storage is not None:
-        return storage.exists(f"trials/{spec.trial_id}/{RESULT}")
+        if not storage.exists(f"trials/{spec.trial_id}/{RESULT}"):
+            return False
+        with tempfile.TemporaryDirectory(prefix="sb3-marl-check-") as copy:
+            storage.download_trials(Path(copy), [spec.trial_id])
+            return not trial_damage(Path(copy), spec)
     return (trial_folder(log_folder, spec) / RESULT).is_file() and not trial_damage(log_folder, spec)
 
 

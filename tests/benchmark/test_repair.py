@@ -214,3 +214,24 @@ def test_the_launcher_repairs_a_grid_on_ray(tmp_path, capsys):
     assert outcome.repaired[default.name].endswith("re-run from its checkpoint at 600 AV-steps")
     assert outcome.repaired[global_reward.name].endswith("re-run from the start")
     assert main([*STATUS, "-f", str(tmp_path)]) == 0
+
+
+def test_a_storage_grid_reruns_a_trial_damaged_in_the_storage(finished, tmp_path):
+    """A storage grid's finished trial whose evaluations.npz was truncated in the storage: the
+    launcher does not count it finished; the trial runs again on Ray and its files read back."""
+    ray = pytest.importorskip("ray")
+    from sb3_marl.benchmark.runner import run_benchmark
+    from sb3_marl.benchmark.storage import GridStorage
+
+    uri = f"file://{tmp_path / 'storage'}"
+    GridStorage(uri).upload_trial(finished / "trials" / SPEC.trial_id)
+    stored = tmp_path / "storage" / "trials" / SPEC.trial_id / FILES["evaluations"]
+    damage(stored)
+    ray.init(address="local", num_cpus=2, include_dashboard=False, configure_logging=False, log_to_driver=False)
+    try:
+        launcher = tmp_path / "launcher"
+        outcome = run_benchmark("reward", launcher, 0.0003, 1, (1,), 1, 1, max_concurrent=1, verbose=0, storage=uri)
+    finally:
+        ray.shutdown()
+    assert SPEC.trial_id in outcome.completed and not outcome.skipped and not outcome.failed
+    assert np.load(stored)["timesteps"][-1] == 600
