@@ -81,10 +81,18 @@ class ProgressLinesCallback(BaseCallback):
 
 class FiniteWeightsCallback(BaseCallback):
     """Stops training with a :class:`DivergedError` when an update has left a policy weight NaN or
-    infinite (checked as each rollout starts, before the policy acts on them)."""
+    infinite: checked as a rollout starts, at most once per ``every`` AV-steps (an off-policy
+    learner's rollout is one VecEnv step, and the check reads every weight); every save checks
+    too (:func:`atomic_save`), so no diverged model is ever written."""
+
+    def __init__(self, every: int = 1000) -> None:
+        super().__init__()
+        self.every, self.checked_at = every, -every
 
     def _on_rollout_start(self) -> None:
-        check_finite(self.model)
+        if self.model.num_timesteps - self.checked_at >= self.every:
+            self.checked_at = self.model.num_timesteps
+            check_finite(self.model)
 
     def _on_step(self) -> bool:
         return True

@@ -273,7 +273,7 @@ def test_small_files_that_claim_large_sizes_are_refused_before_allocating(run, t
 
 
 def test_training_that_diverges_stops_with_a_message_and_saves_nothing_from_it(tmp_path, capsys):
-    """An update that makes the weights NaN (learning rate 1e6) stops training at the next rollout
+    """An update that makes the weights NaN (learning rate 1e6) stops training within 1,000 AV-steps
     with one message and exit 1; no model with NaN weights is written."""
     argv = ["train", "-n", "2000", "-f", str(tmp_path), "-params", "learning_rate:1e6", "n_steps:20", "--verbose", "0"]
     assert main(argv) == 1
