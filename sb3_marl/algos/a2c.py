@@ -1,19 +1,28 @@
-"""MA2C: A2C (SB3's arguments and defaults) on the maskable actor-critic update, as the authors'
-MA2C (see :class:`MaskableA2C`)."""
+"""MA2C: A2C (SB3's arguments, defaults and loss) with action masks, the authors' per-slot update
+cadence and the project's rollout (:class:`~sb3_marl.algos.common.base.MaskableOnPolicy`); its
+update (:meth:`MaskableA2C.train`) reads top to bottom here. The class builds on sb3-contrib's
+``MaskablePPO`` only for its masked policy and rollout buffer set-up, ``predict`` and saving."""
 
 from __future__ import annotations
 
 import math
+from collections import defaultdict
+from collections.abc import Iterator
 from typing import Any, ClassVar
 
+import numpy as np
 import torch as th
+import torch.nn.functional as F
 from gymnasium import spaces
+from sb3_contrib.common.maskable.buffers import MaskableDictRolloutBuffer, MaskableRolloutBuffer
 from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
+from stable_baselines3.common.utils import explained_variance
 
 from sb3_marl.algos.common.base import ACTOR_CRITIC_POLICIES
 from sb3_marl.algos.common.buffers import PerAgentDictRolloutBuffer, PerAgentRolloutBuffer
+from sb3_marl.algos.common.policies import clip_gradients
 from sb3_marl.algos.ppo import MaskableActorCritic
 
 
@@ -29,9 +38,8 @@ class MaskableA2C(MaskableActorCritic):
         (:mod:`sb3_marl.algos.common.rule_prior`, with ``prior_warm_start``, ``prior_coef``,
         ``prior_coef_final``, ``prior_decay_steps``, ``prior_smoothing``, ``prior_form``); None: off
     :param per_agent_updates: one optimiser step per AV slot on that slot's ``n_steps`` transitions
-        (the authors' cadence: as many steps per rollout as slots; each later step's loss is the
-        unclipped importance-weighted policy gradient, its ratio stays close to 1) instead of
-        one step on the whole rollout (SB3's A2C)
+        (the authors' cadence: as many A2C steps per rollout as slots, in a random order) instead
+        of one step on the whole rollout (SB3's A2C)
 
     Other parameters: as SB3's ``A2C``.
     """
@@ -80,11 +88,11 @@ class MaskableA2C(MaskableActorCritic):
             env,
             learning_rate=learning_rate,
             n_steps=n_steps,
-            batch_size=None,  # the whole rollout in one batch
-            n_epochs=1,  # one gradient step per rollout
+            batch_size=None,  # MaskablePPO's arguments, unused by A2C's update (train)
+            n_epochs=1,
             gamma=gamma,
             gae_lambda=gae_lambda,
-            clip_range=math.inf,  # no clipping: the ratio is 1 at the only step anyway
+            clip_range=math.inf,
             normalize_advantage=normalize_advantage,
             ent_coef=ent_coef,
             vf_coef=vf_coef,
@@ -134,9 +142,58 @@ class MaskableA2C(MaskableActorCritic):
             total_timesteps, callback, log_interval, tb_log_name, reset_num_timesteps, use_masking, progress_bar
         )
 
+    def _minibatches(self) -> Iterator[np.ndarray]:
+        """Indices of the flattened (slot-major) rollout buffer: one array per AV slot in a random
+        order (numpy's global generator) with ``per_agent_updates``, else the whole rollout."""
+        buffer = self.rollout_buffer
+        steps, n_envs = buffer.buffer_size, buffer.n_envs
+        if not buffer.generator_ready:  # sb3-contrib flattens the arrays slot-major on first use
+            flatten = MaskableDictRolloutBuffer if isinstance(buffer, MaskableDictRolloutBuffer) else MaskableRolloutBuffer
+            state = np.random.get_state()
+            next(flatten.get(buffer, None))
+            np.random.set_state(state)  # the flattening's own permutation is not one of ours
+        if not self.per_agent_updates:
+            yield np.arange(steps * n_envs)
+            return
+        for slot in np.random.permutation(n_envs):
+            yield np.arange(slot * steps, (slot + 1) * steps)
+
     def train(self) -> None:
-        """One A2C update; also logs the advantages' mean and std (learning diagnostics)."""
-        advantages = self.rollout_buffer.advantages
-        self.logger.record("train/advantage_mean", float(advantages.mean()))
-        self.logger.record("train/advantage_std", float(advantages.std()))
-        super().train()
+        """One A2C update (SB3's ``A2C.train``, with the action masks): for each minibatch of
+        :meth:`_minibatches` the loss ``-A log pi(a|s) + vf_coef (R - V(s))^2 - ent_coef H(pi(.|s))``
+        plus the rule prior's term (:meth:`prior_term`), and one optimiser step with the gradients'
+        norm clipped at ``max_grad_norm``; then the supervisor teacher's step."""
+        self.policy.set_training_mode(True)
+        self._update_learning_rate(self.policy.optimizer)
+        logs: dict[str, list] = defaultdict(list)
+        for indices in self._minibatches():
+            data = self.rollout_buffer._get_samples(indices)
+            values, log_prob, entropy = self.policy.evaluate_actions(
+                data.observations, data.actions.long().flatten(), action_masks=data.action_masks
+            )
+            advantages = data.advantages
+            if self.normalize_advantage:
+                advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
+            policy_loss = -(advantages * log_prob).mean()
+            value_loss = F.mse_loss(data.returns, values.flatten())
+            entropy_loss = -th.mean(-log_prob) if entropy is None else -th.mean(entropy)
+            loss = policy_loss + self.ent_coef * entropy_loss + self.vf_coef * value_loss
+            loss = loss + self.prior_term(data.observations, data.action_masks, indices, logs)
+            self.policy.optimizer.zero_grad()
+            loss.backward()
+            clip_gradients(self.policy.optimizer, self.max_grad_norm)
+            self.policy.optimizer.step()
+            logs["policy_loss"].append(policy_loss.item())
+            logs["value_loss"].append(value_loss.item())
+            logs["entropy_loss"].append(entropy_loss.item())
+        self._n_updates += 1
+        buffer = self.rollout_buffer
+        for key, entries in logs.items():
+            self.logger.record(f"train/{key}", float(np.mean(entries)))
+        self.logger.record("train/explained_variance", explained_variance(buffer.values.flatten(), buffer.returns.flatten()))
+        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+        self.logger.record("train/advantage_mean", float(buffer.advantages.mean()))
+        self.logger.record("train/advantage_std", float(buffer.advantages.std()))
+        executed = self.rollout_extras.executed
+        if self.safety_loss_coef > 0 and executed is not None:  # the teacher's step
+            self.safety_step(executed)

@@ -1,6 +1,6 @@
 """MAPPO: sb3-contrib's ``MaskablePPO`` with the ``action_masking`` switch, whose update (ours, the
 clipped surrogate of ``MaskablePPO.train``) also takes the rule prior's term and the supervisor
-teacher's step; MA2C (:mod:`sb3_marl.algos.a2c`) is its one-epoch special case."""
+teacher's step; MA2C (:mod:`sb3_marl.algos.a2c`) shares its set-up, with A2C's update."""
 
 from __future__ import annotations
 
@@ -23,10 +23,7 @@ from sb3_marl.algos.common.policies import clip_gradients
 class MaskableActorCritic(MaskableOnPolicy, MaskablePPO):  # type: ignore[misc]  # predict: sb3-contrib's, typed wider
     """sb3-contrib's ``MaskablePPO`` with the ``action_masking`` switch (see the module doc), whose
     update adds the rule prior's term to each minibatch's loss (same loss, same optimiser step),
-    then takes the supervisor teacher's step; minibatches are one per AV slot with
-    ``per_agent_updates`` (:class:`MaskableA2C`)."""
-
-    per_agent_updates: bool = False
+    then takes the supervisor teacher's step."""
 
     def _minibatches(self) -> Iterator[np.ndarray]:
         """Indices of the flattened (slot-major) rollout buffer, one array per minibatch, drawn from
@@ -35,12 +32,6 @@ class MaskableActorCritic(MaskableOnPolicy, MaskablePPO):  # type: ignore[misc] 
         buffer = self.rollout_buffer
         steps, n_envs = buffer.buffer_size, buffer.n_envs
         flatten = (MaskableDictRolloutBuffer if isinstance(buffer, MaskableDictRolloutBuffer) else MaskableRolloutBuffer).get
-        if self.per_agent_updates:
-            if not buffer.generator_ready:
-                next(flatten(buffer, None))  # sb3-contrib flattens the arrays slot-major on first use
-            for slot in np.random.permutation(n_envs):
-                yield np.arange(slot * steps, (slot + 1) * steps)
-            return
         order = np.random.permutation(steps * n_envs)
         if not buffer.generator_ready:
             state = np.random.get_state()
