@@ -17,6 +17,7 @@ from sb3_marl.cli.common import (
     MAX_EPISODES,
     CommandFailed,
     UsageError,
+    check_readable,
     positive,
     set_num_threads,
 )
@@ -121,6 +122,8 @@ def benchmark_command(args: argparse.Namespace) -> int:
     if storage is not None and args.action != "run":  # the grid's trial folders, into the local copy
         downloaded = storage.download_trials(Path(args.log_folder))
         print(f"downloaded {len(downloaded)} trial folders from {storage.uri} into {args.log_folder}")
+    if args.action in ("report", "status", "evaluate"):
+        check_readable("-f/--log-folder", args.log_folder)
     if args.seeds is None:
         args.seeds = max(GRID_SEEDS, _seeds_in(args.log_folder)) if args.action == "status" else GRID_SEEDS
     if args.action == "report":

@@ -228,6 +228,14 @@ def _check_folder(flag: str, path: str) -> None:
         ) from None
 
 
+def check_readable(flag: str, path: str | Path) -> None:
+    """A folder the command reads: a usage error naming it if the user may not list or enter it
+    (another user's private folder), where the command would find nothing in it and say so."""
+    if os.path.isdir(path) and not os.access(path, os.R_OK | os.X_OK):
+        error = PermissionError(errno.EACCES, os.strerror(errno.EACCES), str(path))
+        raise UsageError(f"{flag}: {str(path)!r} cannot be read: {os_error_text(error)}.")
+
+
 def check_file(flag: str, path: str | Path | None) -> None:
     """A file the command will write (atomically, through a temporary file beside it): not a folder
     or a device, and its folder writable (checked before the work)."""

@@ -24,6 +24,7 @@ from sb3_marl.cli.common import (
     add_run_selection,
     check_file,
     check_folder,
+    check_readable,
     find_run_of,
     load_model_of,
     outputs_of,
@@ -325,6 +326,7 @@ def summary_command(args: argparse.Namespace) -> int:
 
     if not os.path.isdir(args.folder):
         raise UsageError(f"-f/--folder: {args.folder!r} is not a folder.")
+    check_readable("-f/--folder", args.folder)
     try:
         table = summary_table(args.folder)
     except ValueError as error:  # an unreadable (or unsafe) evaluation.json / args.yml: named

@@ -178,10 +178,17 @@ def test_folders_of_another_user_are_one_line(run, tmp_path_factory):
         assert _lines(train.stderr) == [f"sb3-marl train: error: {expected}"]
         assert list(theirs.iterdir()) == []
         if os.geteuid() == 0:  # as the owner, the 0700 folder is readable: nothing to show
-            evaluate = sb3_marl("evaluate", "-f", str(private), "--eval-episodes", "1")
-            lines = _lines(evaluate.stderr)
-            assert evaluate.returncode in (1, 2) and "Traceback" not in evaluate.stderr and len(lines) == 1, evaluate.stderr
-            assert "permission" in lines[0] or "not readable" in lines[0], lines
+            readers = [
+                ["evaluate", "-f", str(private), "--eval-episodes", "1"],
+                ["plot", "-f", str(private)],
+                ["summary", "-f", str(private)],  # said "no evaluated run" before
+                ["benchmark", "report", "-f", str(private), "-o", str(shared / "report")],
+            ]
+            for argv in readers:
+                done = sb3_marl(*argv)
+                lines = _lines(done.stderr)
+                assert done.returncode in (1, 2) and "Traceback" not in done.stderr and len(lines) == 1, (argv, done.stderr)
+                assert f"no permission for '{private}" in lines[0], lines
     finally:
         shutil.rmtree(shared)
 
