@@ -184,7 +184,9 @@ def _check_train_args(args: argparse.Namespace) -> None:
     if args.save_replay_buffer and not is_q_learning(args.algo):
         raise UsageError(f"--save-replay-buffer: {args.algo} learns on-policy and has no replay buffer (madqn has one).")
     check_folder("-f/--log-folder", args.log_folder)
-    check_folder("-tb/--tensorboard-log", args.tensorboard_log)
+    # the default TensorBoard folder inside -f too (an existing one may belong to another user)
+    tensorboard = os.path.join(args.log_folder, "tensorboard") if args.tensorboard_log is None else args.tensorboard_log
+    check_folder("-tb/--tensorboard-log", tensorboard)
     check_device(args.device)
     if args.conf_file:
         try:

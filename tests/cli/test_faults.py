@@ -184,6 +184,13 @@ def test_folders_of_another_user_are_one_line(run, tmp_path_factory):
                 ["summary", "-f", str(private)],  # said "no evaluated run" before
                 ["benchmark", "report", "-f", str(private), "-o", str(shared / "report")],
             ]
+            mine = shared / "mine"  # the user's own log folder, with another user's TensorBoard folder in it
+            (mine / "tensorboard").mkdir(parents=True)
+            os.chown(mine, 65534, 65534)
+            train = sb3_marl("train", "-f", str(mine), *TINY)
+            board = mine / "tensorboard"
+            expected = f"-tb/--tensorboard-log: '{board}' cannot be written: '{board}' is not writable."
+            assert train.returncode == 2 and _lines(train.stderr) == [f"sb3-marl train: error: {expected}"], train.stderr
             for argv in readers:
                 done = sb3_marl(*argv)
                 lines = _lines(done.stderr)
