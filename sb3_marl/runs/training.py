@@ -49,7 +49,13 @@ def make_venv(
         venv = VecCentralisedState(venv, max(av_counts(env_id, hyperparams.get("env_config"))))
     if monitor_dir is not None:
         os.makedirs(monitor_dir, exist_ok=True)
-        venv = VecMonitor(venv, os.path.join(monitor_dir, monitor_file))
+        monitor = os.path.join(monitor_dir, monitor_file)
+        try:
+            venv = VecMonitor(venv, monitor)
+        except OSError as error:  # SB3's header write names no file (a full disk)
+            error.filename = error.filename or monitor
+            venv.close()
+            raise
     scale, penalty = hyperparams.get("reward_scale", 1.0), hyperparams.get("intervention_penalty", 0.0)
     if scale != 1.0 or penalty:
         venv = VecRewardScale(venv, scale, penalty)

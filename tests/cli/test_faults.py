@@ -109,6 +109,18 @@ def test_training_onto_a_disk_that_fills_names_the_last_whole_checkpoint(tmp_pat
 
 
 @needs_mounts
+def test_training_onto_a_full_disk_names_the_file_it_could_not_start(tmp_path):
+    """A disk already full: SB3's Monitor cannot write its header; the message names that file."""
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    fill = f"(cat /dev/zero > {shlex.quote(str(disk / 'filler'))} 2> /dev/null || true)"
+    completed = in_namespace(f"{tmpfs(disk, '64k')} && {fill}", [SB3_MARL, "train", "-f", str(disk / "logs"), *TINY])
+    lines = _lines(completed.stderr)
+    assert completed.returncode == 1 and "Traceback" not in completed.stderr and len(lines) == 1, completed.stderr
+    assert lines[0].startswith(f"sb3-marl train: error: no space left on the device of '{disk / 'logs' / RUN}/monitor.csv'")
+
+
+@needs_mounts
 @pytest.mark.parametrize("command", [["evaluate", "--eval-episodes", "2", "--verbose", "0"], ["plot"]])
 def test_evaluate_and_plot_onto_a_full_disk_end_in_one_line(run, tmp_path, command):
     """The run copied onto a tmpfs whose last bytes a file takes: the work is done, its writes fail."""
