@@ -221,20 +221,7 @@ def _no_large_files() -> None:
 
 def test_a_write_the_os_refuses_gives_one_message(tmp_path):
     completed = subprocess.run(
-        [
-            SB3_MARL,
-            "train",
-            "-f",
-            str(tmp_path / "logs"),
-            "-n",
-            "600",
-            "--eval-freq",
-            "-1",
-            "-params",
-            "n_steps:20",
-            "--verbose",
-            "0",
-        ],
+        [SB3_MARL, "train", "-f", str(tmp_path / "logs"), "-n", "600", "--eval-freq", "-1", "-params", "n_steps:20"],
         capture_output=True,
         text=True,
         preexec_fn=_no_large_files,
