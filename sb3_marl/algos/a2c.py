@@ -13,8 +13,6 @@ from typing import Any, ClassVar
 import numpy as np
 import torch as th
 import torch.nn.functional as F
-from gymnasium import spaces
-from sb3_contrib.common.maskable.buffers import MaskableDictRolloutBuffer, MaskableRolloutBuffer
 from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
@@ -118,13 +116,7 @@ class MaskableA2C(MaskableActorCritic):
         )
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = ACTOR_CRITIC_POLICIES
-    known_classes: ClassVar[tuple[type, ...]] = (PerAgentRolloutBuffer, PerAgentDictRolloutBuffer)
-
-    def _setup_model(self) -> None:
-        if self.per_agent_updates and self.rollout_buffer_class is None:
-            dict_obs = isinstance(self.observation_space, spaces.Dict)
-            self.rollout_buffer_class = PerAgentDictRolloutBuffer if dict_obs else PerAgentRolloutBuffer
-        super()._setup_model()
+    known_classes: ClassVar[tuple[type, ...]] = (PerAgentRolloutBuffer, PerAgentDictRolloutBuffer)  # older zips
 
     def learn(  # type: ignore[override]
         self,
@@ -148,9 +140,8 @@ class MaskableA2C(MaskableActorCritic):
         buffer = self.rollout_buffer
         steps, n_envs = buffer.buffer_size, buffer.n_envs
         if not buffer.generator_ready:  # sb3-contrib flattens the arrays slot-major on first use
-            flatten = MaskableDictRolloutBuffer if isinstance(buffer, MaskableDictRolloutBuffer) else MaskableRolloutBuffer
             state = np.random.get_state()
-            next(flatten.get(buffer, None))
+            next(buffer.get(None))
             np.random.set_state(state)  # the flattening's own permutation is not one of ours
         if not self.per_agent_updates:
             yield np.arange(steps * n_envs)

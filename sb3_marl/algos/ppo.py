@@ -12,7 +12,6 @@ import numpy as np
 import torch as th
 import torch.nn.functional as F
 from sb3_contrib import MaskablePPO
-from sb3_contrib.common.maskable.buffers import MaskableDictRolloutBuffer, MaskableRolloutBuffer
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.utils import explained_variance
 
@@ -31,11 +30,10 @@ class MaskableActorCritic(MaskableOnPolicy, MaskablePPO):  # type: ignore[misc] 
         those of the buffers' own generators)."""
         buffer = self.rollout_buffer
         steps, n_envs = buffer.buffer_size, buffer.n_envs
-        flatten = (MaskableDictRolloutBuffer if isinstance(buffer, MaskableDictRolloutBuffer) else MaskableRolloutBuffer).get
         order = np.random.permutation(steps * n_envs)
-        if not buffer.generator_ready:
+        if not buffer.generator_ready:  # sb3-contrib flattens the arrays slot-major on first use
             state = np.random.get_state()
-            next(flatten(buffer, None))
+            next(buffer.get(None))
             np.random.set_state(state)  # the flattening's own permutation is not one of ours
         size = self.batch_size or steps * n_envs
         for start in range(0, steps * n_envs, size):

@@ -80,25 +80,11 @@ class MaskedReplayBuffer(ReplayBuffer):
         return MaskedReplayBufferSamples(*tuple(map(self.to_torch, data)))
 
 
-def per_agent_batches(buffer: Any, parent_get: Any) -> Any:
-    """Minibatches of a maskable rollout buffer that are the VecEnv slots: each yields one AV slot's
-    ``n_steps`` consecutive transitions, the slots in random order (the authors' MA2C takes one
-    optimiser step per AV on that AV's transitions)."""
-    if not buffer.generator_ready:
-        next(parent_get(None))  # sb3-contrib flattens the arrays slot-major on first use
-    for slot in np.random.permutation(buffer.n_envs):
-        yield buffer._get_samples(np.arange(slot * buffer.buffer_size, (slot + 1) * buffer.buffer_size))
-
-
 class PerAgentRolloutBuffer(MaskableRolloutBuffer):
-    """sb3-contrib's maskable rollout buffer with one minibatch per AV slot (:func:`per_agent_batches`)."""
-
-    def get(self, batch_size: int | None = None) -> Any:
-        return per_agent_batches(self, super().get)
+    """sb3-contrib's maskable rollout buffer under the name MA2C models saved before 2026-12-06
+    give it (their per-slot minibatches are :meth:`~sb3_marl.algos.a2c.MaskableA2C._minibatches`
+    now); kept so those models load."""
 
 
 class PerAgentDictRolloutBuffer(MaskableDictRolloutBuffer):
     """The same on Dict observations (``critic: centralised``)."""
-
-    def get(self, batch_size: int | None = None) -> Any:
-        return per_agent_batches(self, super().get)
