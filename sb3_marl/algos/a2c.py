@@ -38,6 +38,11 @@ class MaskableA2C(MaskableActorCritic):
     :param per_agent_updates: one optimiser step per AV slot on that slot's ``n_steps`` transitions
         (the authors' cadence: as many A2C steps per rollout as slots, in a random order) instead
         of one step on the whole rollout (SB3's A2C)
+    :param importance_weights: weight each sample's policy gradient by ``pi(a|s) / pi_rollout(a|s)``,
+        the policy at the step over the one that sampled the rollout: 1 at a rollout's first step,
+        the off-policy correction of the later per-slot steps (each sees a policy the earlier slots'
+        steps moved). False: the plain A2C loss at every step (the authors' code, with one road and
+        4-6 slots; with 15 slots at density 3 it learned worse: ``results/a2c-update/``)
 
     Other parameters: as SB3's ``A2C``.
     """
@@ -59,6 +64,7 @@ class MaskableA2C(MaskableActorCritic):
         action_masking: bool = True,
         safety_loss_coef: float = 0.0,
         per_agent_updates: bool = False,
+        importance_weights: bool = True,
         prior: str | None = None,
         prior_warm_start: int = 0,
         prior_coef: float = 1.0,
@@ -81,6 +87,7 @@ class MaskableA2C(MaskableActorCritic):
             policy_kwargs["optimizer_class"] = th.optim.RMSprop
             policy_kwargs["optimizer_kwargs"] = dict(alpha=0.99, eps=rms_prop_eps, weight_decay=0)
         self.per_agent_updates = bool(per_agent_updates)
+        self.importance_weights = bool(importance_weights)
         super().__init__(
             policy,
             env,
@@ -136,24 +143,26 @@ class MaskableA2C(MaskableActorCritic):
 
     def _minibatches(self) -> Iterator[np.ndarray]:
         """Indices of the flattened (slot-major) rollout buffer: one array per AV slot in a random
-        order (numpy's global generator) with ``per_agent_updates``, else the whole rollout."""
+        order (numpy's global generator) with ``per_agent_updates``, else the whole rollout (in
+        the order of one permutation, as MAPPO's minibatches)."""
+        if not self.per_agent_updates:
+            yield from super()._minibatches()
+            return
         buffer = self.rollout_buffer
         steps, n_envs = buffer.buffer_size, buffer.n_envs
         if not buffer.generator_ready:  # sb3-contrib flattens the arrays slot-major on first use
-            state = np.random.get_state()
             next(buffer.get(None))
-            np.random.set_state(state)  # the flattening's own permutation is not one of ours
-        if not self.per_agent_updates:
-            yield np.arange(steps * n_envs)
-            return
         for slot in np.random.permutation(n_envs):
             yield np.arange(slot * steps, (slot + 1) * steps)
 
     def train(self) -> None:
         """One A2C update (SB3's ``A2C.train``, with the action masks): for each minibatch of
-        :meth:`_minibatches` the loss ``-A log pi(a|s) + vf_coef (R - V(s))^2 - ent_coef H(pi(.|s))``
-        plus the rule prior's term (:meth:`prior_term`), and one optimiser step with the gradients'
-        norm clipped at ``max_grad_norm``; then the supervisor teacher's step."""
+        :meth:`_minibatches` the loss ``-A w + vf_coef (R - V(s))^2 - ent_coef H(pi(.|s))`` with
+        ``w = pi(a|s) / pi_rollout(a|s)`` (``importance_weights``; its gradient ``-A w grad log pi``
+        is A2C's policy gradient, importance-weighted; ``w`` is 1 at a rollout's first step), or
+        ``-A log pi(a|s)`` without the weights, plus the rule prior's term (:meth:`prior_term`),
+        and one optimiser step with the gradients' norm clipped at ``max_grad_norm``; then the
+        supervisor teacher's step."""
         self.policy.set_training_mode(True)
         self._update_learning_rate(self.policy.optimizer)
         logs: dict[str, list] = defaultdict(list)
@@ -165,7 +174,10 @@ class MaskableA2C(MaskableActorCritic):
             advantages = data.advantages
             if self.normalize_advantage:
                 advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
-            policy_loss = -(advantages * log_prob).mean()
+            if self.importance_weights:
+                policy_loss = -(advantages * th.exp(log_prob - data.old_log_prob)).mean()
+            else:
+                policy_loss = -(advantages * log_prob).mean()
             value_loss = F.mse_loss(data.returns, values.flatten())
             entropy_loss = -th.mean(-log_prob) if entropy is None else -th.mean(entropy)
             loss = policy_loss + self.ent_coef * entropy_loss + self.vf_coef * value_loss
