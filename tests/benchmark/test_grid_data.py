@@ -151,6 +151,11 @@ def test_crafted_trial_files_are_named_and_links_out_of_the_grid_not_followed(tm
     problems: list[str] = []
     assert load_trials(grid, problems) == [] and "Invalid algo='../../..'" in problems[0]
 
+    # `benchmark evaluate` names a trial whose files do not read back (exit 1) and evaluates nothing of it
+    assert main(["benchmark", "evaluate", "-f", str(grid)]) == 1
+    err = capsys.readouterr().err
+    assert f"{trial_json}: 'trial' ValueError: Invalid algo='../../..'" in err and "Traceback" not in err
+    trial_json.write_text(json.dumps(info))
     result_json = grid / "trials" / source.name / "result.json"
     result = json.loads(result_json.read_text())
     result_json.write_text(json.dumps({**result, "trial": {**result["trial"], "density": 9}}))
