@@ -172,7 +172,7 @@ def _check_train_args(args: argparse.Namespace) -> None:
     """Everything about ``train``'s flags that can be checked before any work or folder."""
     from sb3_marl.algos import get_algo
     from sb3_marl.algos.common.loading import safe_custom_objects
-    from sb3_marl.runs.folders import check_model_file
+    from sb3_marl.runs.folders import RunSpec, check_model_file
     from sb3_marl.runs.hyperparams import conf_file_path, is_q_learning
 
     check_seed(args.seed)
@@ -184,9 +184,8 @@ def _check_train_args(args: argparse.Namespace) -> None:
     if args.save_replay_buffer and not is_q_learning(args.algo):
         raise UsageError(f"--save-replay-buffer: {args.algo} learns on-policy and has no replay buffer (madqn has one).")
     check_folder("-f/--log-folder", args.log_folder)
-    # the default TensorBoard folder inside -f too (an existing one may belong to another user)
-    tensorboard = os.path.join(args.log_folder, "tensorboard") if args.tensorboard_log is None else args.tensorboard_log
-    check_folder("-tb/--tensorboard-log", tensorboard)
+    # the TensorBoard folder the run will use, the default one inside -f too (it may belong to another user)
+    check_folder("-tb/--tensorboard-log", RunSpec.from_args(args).tensorboard_folder)
     check_device(args.device)
     if args.conf_file:
         try:
