@@ -257,11 +257,16 @@ def _finished(log_folder: Path, spec: TrialSpec, storage: GridStorage | None = N
     and every file it needs reads back (:func:`~sb3_marl.benchmark.repair.trial_damage`; a storage
     grid's trial checked on a temporary copy: the launcher's folder keeps none of the trials)."""
     if storage is not None:
-        if not storage.exists(f"trials/{spec.trial_id}/{RESULT}"):
+        stamp = storage.stamp(f"trials/{spec.trial_id}/{RESULT}")
+        if stamp is None:
             return False
-        with tempfile.TemporaryDirectory(prefix="sb3-marl-check-") as copy:
-            storage.download_trials(Path(copy), [spec.trial_id])
-            return not trial_damage(Path(copy), spec)
+        if storage.found_whole.get(spec.trial_id) != stamp:  # not checked since its result.json was written
+            with tempfile.TemporaryDirectory(prefix="sb3-marl-check-") as copy:
+                storage.download_trials(Path(copy), [spec.trial_id])
+                if trial_damage(Path(copy), spec):
+                    return False
+            storage.found_whole[spec.trial_id] = stamp
+        return True
     return (trial_folder(log_folder, spec) / RESULT).is_file() and not trial_damage(log_folder, spec)
 
 

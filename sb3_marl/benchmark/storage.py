@@ -53,6 +53,9 @@ class GridStorage:
         self.root = PurePosixPath(root)
         self.sync_s, self.bytes = 0.0, 0  # [s] spent in and bytes moved by uploads and downloads
         self._sent: dict[Path, tuple[int, int]] = {}  # local file -> (size, mtime) at its last upload
+        #: trial id -> its result.json's :meth:`stamp` when its files last read back whole (the
+        #: launcher's check, :func:`~sb3_marl.benchmark.runner._finished`, downloads a trial once)
+        self.found_whole: dict[str, tuple[int, int | None]] = {}
 
     @property
     def ray_path(self) -> str:
@@ -67,6 +70,14 @@ class GridStorage:
         from pyarrow import fs
 
         return self.fs.get_file_info(self._path(relative)).type == fs.FileType.File
+
+    def stamp(self, relative: str) -> tuple[int, int | None] | None:
+        """(size [bytes], modification time [ns] where the file system keeps one) of the file
+        ``relative``, None if it is not in the storage."""
+        from pyarrow import fs
+
+        info = self.fs.get_file_info(self._path(relative))
+        return (info.size, info.mtime_ns) if info.type == fs.FileType.File else None
 
     def read_json_object(self, relative: str) -> dict[str, Any] | None:
         """The JSON object in the file ``relative`` (at most :data:`MAX_JSON_BYTES`), None if absent;
