@@ -14,7 +14,6 @@ from __future__ import annotations
 
 from typing import Any, NamedTuple
 
-import numba
 import numpy as np
 
 from sb3_marl.envs.merge_rules import _merge_priorities, _regional_neighbours
@@ -25,6 +24,7 @@ from sb3_marl.safety.supervisor import headway_margins, supervise_arrays
 from sb3_marl.sim import kernel, pcg64
 from sb3_marl.sim.drivers import rule_actions
 from sb3_marl.sim.dynamics import policy_step
+from sb3_marl.sim.kernel import jit
 from sb3_marl.sim.lanes import lane_changes
 from sb3_marl.sim.merge_road import ENDS, MERGE_END, MERGING_LANE
 from sb3_marl.sim.meta_actions import available_actions, meta_action_targets
@@ -92,7 +92,7 @@ class BatchStep(NamedTuple):
     truncated: np.ndarray  # (copies,) bool: the time limit, or every AV past the road end
 
 
-@numba.njit(cache=True)
+@jit
 def _allocate(states: np.ndarray, offsets: np.ndarray, slot_starts: np.ndarray, p: StepParameters) -> BatchStep:
     """A :class:`BatchStep` of the copies' slots: no action yet (-1), nothing moved or crashed."""
     n_copies, slots = offsets.size - 1, slot_starts[-1]
@@ -151,7 +151,7 @@ class Starts(NamedTuple):
     restarted: np.ndarray  # (copies,) bool: the copy's episode ended and a new one began
 
 
-@numba.njit(cache=True)
+@jit
 def _step_copies(
     states: np.ndarray,
     offsets: np.ndarray,
@@ -203,7 +203,7 @@ def _step_copies(
     return _fields(r), (first.obs, first.action_mask, first.rule_action, first.lane, restarted)
 
 
-@numba.njit(cache=True)
+@jit
 def _observe_copies(
     states: np.ndarray,
     offsets: np.ndarray,
@@ -222,7 +222,7 @@ def _observe_copies(
     return _fields(r)
 
 
-@numba.njit(cache=True)
+@jit
 def _fields(r: BatchStep) -> tuple:
     """``r``'s fields as a plain tuple: returning a named tuple to Python runs its constructor in
     Python, where a signal's KeyboardInterrupt would land inside numba's boxing and crash it."""
@@ -282,7 +282,7 @@ def observe_copies(
     return BatchStep(*_observe_copies(states, offsets, slot_starts, copies, acceleration, lane_change, p))
 
 
-@numba.njit(cache=True)
+@jit
 def _observe_into(r: BatchStep, state: np.ndarray, a: int, b: int, p: StepParameters) -> None:
     """Write the observation of one copy's ``state`` (its AVs at slots ``a:b``) into ``r``, with its
     reward terms, neighbour sets, action masks and the rule driver's actions (``r``'s acceleration
@@ -335,7 +335,7 @@ def _observe_into(r: BatchStep, state: np.ndarray, a: int, b: int, p: StepParame
     )
 
 
-@numba.njit(cache=True)
+@jit
 def supervise_road(state: np.ndarray, n: int, proposed: np.ndarray, p: StepParameters) -> tuple[np.ndarray, np.ndarray]:
     """:class:`~sb3_marl.safety.supervisor.Supervisor` of a copy (priority: the headway margin, or
     the merge's): the executed meta-actions and which AVs brake to a stop."""
@@ -368,7 +368,7 @@ def supervise_road(state: np.ndarray, n: int, proposed: np.ndarray, p: StepParam
     return executed, brake
 
 
-@numba.njit(cache=True)
+@jit
 def copy_rewards(own: np.ndarray, neighbours: np.ndarray, slot_starts: np.ndarray, mode: int) -> np.ndarray:
     """Every slot's reward in a reward mode (:data:`~sb3_marl.envs.reward.REWARD_MODES` index), copy by copy."""
     rewards = np.empty(own.size)

@@ -5,11 +5,11 @@ reward's neighbour sets. The merge env (:mod:`sb3_marl.envs.merge_env`) and the 
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
 from sb3_marl.sim import kernel
 from sb3_marl.sim.drivers import nearer
+from sb3_marl.sim.kernel import jit
 from sb3_marl.sim.merge_road import (
     CONVERGING,
     ENDS,
@@ -48,7 +48,7 @@ NEXT_ON_ROUTE = np.array([MAIN_BESIDE, MAIN_AFTER, -1, -1, CONVERGING, MERGING_L
 HEADWAY_CAP = 60.0  # [m] MARL_CAVs' headway without a leader
 
 
-@numba.njit(cache=True)
+@jit
 def _merge_priorities(state: np.ndarray, n_avs: int, headway_time: float, next_on_route: np.ndarray) -> np.ndarray:
     """(n_avs,) MARL_CAVs' order of service of the safety supervisor on the merging road, the smallest
     first: the AVs on the merging lane first, the nearer its end the earlier
@@ -73,12 +73,12 @@ def _merge_priorities(state: np.ndarray, n_avs: int, headway_time: float, next_o
     return priority
 
 
-@numba.njit(cache=True)
+@jit
 def _surrounding(state: np.ndarray, k: int, lane: int, route: np.ndarray) -> tuple[int, int]:
     """MARL_CAVs' ``Road.surrounding_vehicles``: (front, rear) of vehicle k among the vehicles on
     ``lane``'s route, by x (-1: none; obstacles left out)."""
     s = state[k, kernel.X]
-    front = rear = -1
+    front = rear = kernel.NONE
     s_front = s_rear = 0.0
     for j in range(state.shape[0]):
         if j == k or state[j, kernel.IS_OBSTACLE] or not route[lane, int(state[j, kernel.LANE])]:
@@ -87,7 +87,7 @@ def _surrounding(state: np.ndarray, k: int, lane: int, route: np.ndarray) -> tup
     return front, rear
 
 
-@numba.njit(cache=True)
+@jit
 def _regional_neighbours(
     state: np.ndarray, n_avs: int, route: np.ndarray, across: np.ndarray, across_from: np.ndarray
 ) -> np.ndarray:

@@ -20,11 +20,10 @@ from __future__ import annotations
 
 from typing import Any
 
-import numba
 import numpy as np
 from gymnasium import spaces
 
-from sb3_marl.sim.kernel import clip
+from sb3_marl.sim.kernel import argsort, clip, jit
 from sb3_marl.sim.snapshot import TrafficSnapshot
 
 FEATURES = ("presence", "x", "y", "vx", "vy")
@@ -70,7 +69,7 @@ def observe(
     return np.concatenate([obs, column], axis=2)
 
 
-@numba.njit(cache=True)
+@jit
 def _observe(
     x: np.ndarray,
     y: np.ndarray,
@@ -92,9 +91,9 @@ def _observe(
         obs[i, 0] = (
             1.0,
             clip(x[i] / road_length, 0.0, 1.0),
-            clip(y[i] / y_range),
-            clip(vx[i] / v_range),
-            clip(vy[i] / v_range),
+            clip(y[i] / y_range, -1.0, 1.0),
+            clip(vx[i] / v_range, -1.0, 1.0),
+            clip(vy[i] / v_range, -1.0, 1.0),
         )
         count = 0
         for j in range(x.size):
@@ -103,14 +102,15 @@ def _observe(
                 count += 1
             else:
                 distance[j] = np.inf
-        nearest = np.argsort(distance, kind="mergesort")[: min(count, rows - 1)]  # stable: ties by index
-        for row, j in enumerate(nearest):
+        order = argsort(distance)  # stable: ties by index
+        for row in range(min(count, rows - 1)):
+            j = order[row]
             obs[i, row + 1] = (
                 1.0,
-                clip((x[j] - x[i]) / x_range),
-                clip((y[j] - y[i]) / y_range),
-                clip((vx[j] - vx[i]) / v_range),
-                clip((vy[j] - vy[i]) / v_range),
+                clip((x[j] - x[i]) / x_range, -1.0, 1.0),
+                clip((y[j] - y[i]) / y_range, -1.0, 1.0),
+                clip((vx[j] - vx[i]) / v_range, -1.0, 1.0),
+                clip((vy[j] - vy[i]) / v_range, -1.0, 1.0),
             )
     return obs
 

@@ -19,9 +19,9 @@ from __future__ import annotations
 
 from typing import Any
 
-import numba
 import numpy as np
 
+from sb3_marl.sim.kernel import jit
 from sb3_marl.sim.snapshot import TrafficSnapshot
 
 REWARD_TERMS = ("safety", "headway", "speed", "comfort", "harsh_acceleration", "lane_change")
@@ -62,7 +62,7 @@ def reward_terms(
     return dict(zip((*REWARD_TERMS, "headway_distance"), terms))
 
 
-@numba.njit(cache=True)
+@jit
 def _terms(
     x: np.ndarray,
     lane: np.ndarray,
@@ -112,7 +112,7 @@ def total_reward(terms: dict[str, np.ndarray], config: dict[str, Any]) -> np.nda
     )
 
 
-@numba.njit(cache=True)
+@jit
 def _weighted(
     safety: np.ndarray,
     headway: np.ndarray,
@@ -141,7 +141,7 @@ def neighbour_matrix(snapshot: TrafficSnapshot) -> np.ndarray:
     return _neighbour_matrix(snapshot.x, snapshot.lane, snapshot.visible, snapshot.n_avs)
 
 
-@numba.njit(cache=True)
+@jit
 def _neighbour_matrix(x: np.ndarray, lane: np.ndarray, visible: np.ndarray, n: int) -> np.ndarray:
     neighbours = np.eye(n, dtype=np.bool_)
     nearest = np.empty((3, 2), dtype=np.int64)  # (lane offset + 1, ahead) -> AV, -1: none
@@ -177,7 +177,7 @@ def apply_reward_mode(info: dict[str, Any], reward_mode: str) -> np.ndarray:
     return mode_rewards(own, neighbours, REWARD_MODES.index(reward_mode))
 
 
-@numba.njit(cache=True)
+@jit
 def mode_rewards(own: np.ndarray, neighbours: np.ndarray, mode: int) -> np.ndarray:
     """:func:`apply_reward_mode` on arrays: ``own`` (n,) rewards, ``neighbours`` (n, n) bool sets,
     ``mode`` an index of :data:`REWARD_MODES`."""

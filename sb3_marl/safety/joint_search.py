@@ -4,7 +4,6 @@ for each pair (:func:`search_pairs`). Units: m, s."""
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
 from sb3_marl.safety.rooms import (
@@ -20,13 +19,13 @@ from sb3_marl.safety.rooms import (
     set_action,
     set_brake,
 )
-from sb3_marl.sim.kernel import COLLIDABLE
+from sb3_marl.sim.kernel import COLLIDABLE, NONE, jit
 
 #: The emergency brake as an option of the joint search (after the five meta-actions).
 BRAKE = 5
 
 
-@numba.njit(cache=True)
+@jit
 def keep_lanes_together(
     state0: np.ndarray,
     state: np.ndarray,
@@ -57,7 +56,7 @@ def keep_lanes_together(
         for i in range(n_avs):
             if stuck[i]:
                 set_action(trial, i, IDLE, trial_step, candidate_lane, candidate_speed, repeat_actions)
-        trial_path = predict(trial, horizon, trial_step, -1, collidable, -np.inf)[0]
+        trial_path = predict(trial, horizon, trial_step, NONE, collidable, -np.inf)[0]
         trial_rooms = av_rooms(trial_path, counted_by_all(state0, n_avs, collidable, rear_avs), collidable, dt)
         before, after = np.inf, np.inf
         for i in range(n_avs):
@@ -71,7 +70,7 @@ def keep_lanes_together(
     return rooms, state, speed_step
 
 
-@numba.njit(cache=True)
+@jit
 def _set_option(
     state: np.ndarray,
     i: int,
@@ -88,7 +87,7 @@ def _set_option(
         set_action(state, i, option, speed_step, candidate_lane, candidate_speed, repeat_actions)
 
 
-@numba.njit(cache=True)
+@jit
 def _joint_score(
     state: np.ndarray,
     speed_step: np.ndarray,
@@ -101,7 +100,7 @@ def _joint_score(
 ) -> tuple[float, float, float, np.ndarray]:
     """(worst room shortfall, worst dead-end shortfall, summed room shortfall) [m] of the AVs' set
     actions (each 0 when every AV has room / a way off), and the AVs' rooms [m]."""
-    path = predict(state, horizon, speed_step, -1, collidable, -np.inf)[0]
+    path = predict(state, horizon, speed_step, NONE, collidable, -np.inf)[0]
     rooms = av_rooms(path, counted, collidable, horizon.dt)
     worst, dead, total = 0.0, 0.0, 0.0
     for i in range(n_avs):
@@ -112,7 +111,7 @@ def _joint_score(
     return worst, dead, total, rooms
 
 
-@numba.njit(cache=True)
+@jit
 def search_pairs(
     state0: np.ndarray,
     state: np.ndarray,
@@ -162,7 +161,7 @@ def search_pairs(
         for i in order:
             if not collidable[i] or rooms[i] >= min_gap:
                 continue
-            best_pair = (-1, -1, -1, -1)
+            best_pair = (NONE, NONE, NONE, NONE)
             for j in order:
                 if not collidable[j]:
                     continue

@@ -8,9 +8,8 @@ and MOBIL's safety check of a cut-in (:func:`unsafe_cut_ins`). Units: m, m/s, ra
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, cast
 
-import numba
 import numpy as np
 
 from sb3_marl.sim.drivers import idm
@@ -21,6 +20,7 @@ from sb3_marl.sim.kernel import (
     LANE,
     LENGTH,
     MAX_BRAKING_IMPOSED,
+    NONE,
     OBSTACLE_LENGTH,
     PRESENT,
     SPEED,
@@ -30,6 +30,7 @@ from sb3_marl.sim.kernel import (
     X,
     Y,
     cos,
+    jit,
     sin,
 )
 from sb3_marl.sim.lanes import NEXT_COUNT, NEXT_FIRST, closest_lane, follow, local_coordinates, on_lane
@@ -72,7 +73,7 @@ class Horizon(NamedTuple):
         )
 
 
-@numba.njit(cache=True)
+@jit
 def predict(
     state0: np.ndarray, horizon: Horizon, speed_step: np.ndarray, ego: int, collidable: np.ndarray, floor: float
 ) -> tuple[np.ndarray, float]:
@@ -105,7 +106,7 @@ def predict(
     return path, room
 
 
-@numba.njit(cache=True)
+@jit
 def _record(frame: np.ndarray, state: np.ndarray) -> None:
     """One frame of a path (:data:`PATH_ROWS`, n) from the state array: the trigonometry of every
     vehicle's heading is taken once per frame, not once per pair of vehicles."""
@@ -120,7 +121,7 @@ def _record(frame: np.ndarray, state: np.ndarray) -> None:
         frame[HALF_Y, k] = LENGTH / 2 * abs(s) + WIDTH / 2 * abs(c)
 
 
-@numba.njit(cache=True)
+@jit
 def path_room(ego: int, path: np.ndarray, collidable: np.ndarray, dt: float) -> float:
     """Smallest bumper-to-bumper gap [m] along a predicted ``path`` (see :func:`predict`) between
     vehicle ``ego`` and any collidable vehicle overlapping it laterally (negative: a collision)."""
@@ -130,7 +131,7 @@ def path_room(ego: int, path: np.ndarray, collidable: np.ndarray, dt: float) -> 
     return room
 
 
-@numba.njit(cache=True)
+@jit
 def frame_room(ego: int, frame: np.ndarray, collidable: np.ndarray, dt: float) -> float:
     """:func:`path_room` of one frame of a path."""
     room = np.inf
@@ -147,7 +148,7 @@ def frame_room(ego: int, frame: np.ndarray, collidable: np.ndarray, dt: float) -
     return room
 
 
-@numba.njit(cache=True)
+@jit
 def dead_end_margin(state: np.ndarray, ego: int, path: np.ndarray, lanes: np.ndarray, obstacles: np.ndarray) -> float:
     """[m] How much room AV ``ego`` has left, at the end of the predicted ``path``, to leave a lane
     that an obstacle ends (the merging lane): the gap to the obstacle ahead on the lane it keeps,
@@ -176,10 +177,13 @@ def dead_end_margin(state: np.ndarray, ego: int, path: np.ndarray, lanes: np.nda
 PREFERENCE = np.array([1, 4, 3, 0, 2], dtype=np.int64)
 #: Speed-index change of each meta-action (FASTER +1, SLOWER -1) when actions repeat over the horizon.
 SPEED_STEP = np.array([0, 0, 0, 1, -1], dtype=np.int64)
-LANE_LEFT, IDLE, LANE_RIGHT, SLOWER = 0, 1, 2, 4
+#: highway-env's meta-action indices as int64 (see :data:`~sb3_marl.sim.kernel.NONE`)
+LANE_LEFT, IDLE, LANE_RIGHT, SLOWER = (cast(int, np.int64(action)) for action in (0, 1, 2, 4))
+#: :func:`counted_by`'s ``rear_avs`` off, as a typed bool (a literal False compiles it again)
+AHEAD_ONLY = cast(bool, np.bool_(False))
 
 
-@numba.njit(cache=True)
+@jit
 def set_action(
     state: np.ndarray,
     i: int,
@@ -195,14 +199,14 @@ def set_action(
     speed_step[i] = SPEED_STEP[action] if repeat_actions else 0
 
 
-@numba.njit(cache=True)
+@jit
 def set_brake(state: np.ndarray, i: int, speed_step: np.ndarray, candidate_lane: np.ndarray) -> None:
     """Predict AV ``i`` under the emergency brake: IDLE's target lane, target speed 0 m/s."""
     state[i, TARGET_LANE], state[i, TARGET_SPEED] = candidate_lane[i, IDLE], 0.0
     speed_step[i] = 0
 
 
-@numba.njit(cache=True)
+@jit
 def counted_by(state0: np.ndarray, ego: int, n_avs: int, collidable: np.ndarray, rear_avs: bool) -> np.ndarray:
     """The vehicles the room of AV ``ego`` counts: the collidable ones, without (unless
     ``rear_avs``) the AVs behind it in its own lane, which are served themselves and may brake
@@ -215,7 +219,7 @@ def counted_by(state0: np.ndarray, ego: int, n_avs: int, collidable: np.ndarray,
     return counted
 
 
-@numba.njit(cache=True)
+@jit
 def counted_by_all(state0: np.ndarray, n_avs: int, collidable: np.ndarray, rear_avs: bool) -> np.ndarray:
     """(n_avs, n_vehicles): row ``i`` the vehicles the room of AV ``i`` counts (:func:`counted_by`)."""
     counted = np.zeros((n_avs, collidable.size), dtype=np.bool_)
@@ -224,7 +228,7 @@ def counted_by_all(state0: np.ndarray, n_avs: int, collidable: np.ndarray, rear_
     return counted
 
 
-@numba.njit(cache=True)
+@jit
 def av_rooms(path: np.ndarray, counted: np.ndarray, collidable: np.ndarray, dt: float) -> np.ndarray:
     """(n_avs,) each collidable AV's room [m] along the predicted road ``path`` (NaN for the others),
     counting the vehicles of its row of ``counted`` (:func:`counted_by_all`)."""
@@ -235,7 +239,7 @@ def av_rooms(path: np.ndarray, counted: np.ndarray, collidable: np.ndarray, dt: 
     return rooms
 
 
-@numba.njit(cache=True)
+@jit
 def unsafe_cut_ins(
     state: np.ndarray, n_avs: int, lanes: np.ndarray, candidate_lane: np.ndarray, speed_limit: float
 ) -> np.ndarray:
@@ -250,7 +254,7 @@ def unsafe_cut_ins(
             if lane == int(state[i, LANE]):
                 continue
             s_i = local_coordinates(lanes, lane, state[i, X], state[i, Y])[0]
-            follower, s_follower = -1, -np.inf
+            follower, s_follower = NONE, -np.inf
             for j in range(n_avs, state.shape[0]):
                 if state[j, IS_HDV] <= 0 or state[j, PRESENT] <= 0:
                     continue

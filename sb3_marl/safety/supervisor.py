@@ -63,11 +63,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-import numba
 import numpy as np
 
 from sb3_marl.safety.joint_search import keep_lanes_together, search_pairs
 from sb3_marl.safety.rooms import (
+    AHEAD_ONLY,
     IDLE,
     LANE_LEFT,
     LANE_RIGHT,
@@ -86,9 +86,12 @@ from sb3_marl.sim.drivers import lane_distance, lane_order, leader
 from sb3_marl.sim.kernel import (
     COLLIDABLE,
     IS_OBSTACLE,
+    NONE,
     SPEED,
     TARGET_LANE,
     TARGET_SPEED,
+    argsort,
+    jit,
 )
 from sb3_marl.sim.meta_actions import meta_action_targets
 
@@ -111,7 +114,7 @@ NO_LEADER_GAP = 1e6  # [m], headway of an AV without leader (priority only)
 PASSES = 2
 
 
-@numba.njit(cache=True)
+@jit
 def supervise_arrays(
     state0: np.ndarray,
     candidate_lane: np.ndarray,
@@ -159,7 +162,7 @@ def supervise_arrays(
     speed_step = np.zeros(n_avs, dtype=np.int64)
     for i in range(n_avs):
         set_action(state, i, proposed[i], speed_step, candidate_lane, candidate_speed, repeat_actions)
-    order = np.argsort(priority, kind="mergesort")
+    order = argsort(priority)
     unsafe = np.zeros(candidate_lane.shape, dtype=np.bool_)
     if mobil_safety:
         unsafe = unsafe_cut_ins(state0, n_avs, horizon.lanes, candidate_lane, horizon.speed_limit)
@@ -170,7 +173,7 @@ def supervise_arrays(
                     unsafe[i, a] |= candidate_lane[i, a] != state0[i, TARGET_LANE]
     short = min_gap - 1e-6  # [m] the room an unsafe cut-in (or a braked AV's lane change) counts at most
     # the road predicted under the AVs' current actions, shared by every AV's room until one changes
-    path = predict(state, horizon, speed_step, -1, collidable, -np.inf)[0]
+    path = predict(state, horizon, speed_step, NONE, collidable, -np.inf)[0]
     obstacles = np.flatnonzero(state0[:, IS_OBSTACLE] > 0)
     settled = False  # whether the last pass changed nothing (every room then under the final actions)
     for _ in range(PASSES):
@@ -203,7 +206,7 @@ def supervise_arrays(
                     # chosen (with a dead end ahead, every candidate is predicted in full)
                     floor = best_room if obstacles.size == 0 else -np.inf
                     # braking counts no AV behind in the lane: they are served after and may brake too
-                    seen = counted_by(state0, i, n_avs, collidable, False) if brake else counted
+                    seen = counted_by(state0, i, n_avs, collidable, AHEAD_ONLY) if brake else counted
                     candidate_path, candidate_room = predict(state, horizon, speed_step, i, seen, floor)
                     candidate_dead_end = dead_end_margin(state, i, candidate_path, horizon.lanes, obstacles)
                     if unsafe[i, a]:
@@ -259,7 +262,7 @@ def supervise_arrays(
     return executed, rooms, braking
 
 
-@numba.njit(cache=True)
+@jit
 def _better(room: float, dead_end: float, best_room: float, best_dead_end: float, min_gap: float) -> bool:
     """Whether a candidate action beats the best so far: first the actions with room and a way off
     a dead-end lane (the larger room first), then those with room (the larger dead-end margin
@@ -271,7 +274,7 @@ def _better(room: float, dead_end: float, best_room: float, best_dead_end: float
     return dead_end > best_dead_end if tier == 1 else room > best_room
 
 
-@numba.njit(cache=True)
+@jit
 def headway_margins(state: np.ndarray, n_avs: int, lanes: np.ndarray, headway_time: float) -> np.ndarray:
     """(n_avs,) each AV's headway margin [m]: the gap to its leader in its lane (:data:`NO_LEADER_GAP`
     without one) minus its speed [m/s] × ``headway_time`` [s] (the lane change's priority)."""

@@ -4,7 +4,6 @@ separating-axis test with the displacement of the next frame (``RoadObject.handl
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
 from sb3_marl.sim.kernel import (
@@ -25,7 +24,9 @@ from sb3_marl.sim.kernel import (
     WIDTH,
     X,
     Y,
+    argsort,
     cos,
+    jit,
     sin,
 )
 
@@ -33,7 +34,7 @@ from sb3_marl.sim.kernel import (
 SWEPT = 32
 
 
-@numba.njit(cache=True)
+@jit
 def _polygon(state: np.ndarray, k: int) -> np.ndarray:
     """``RoadObject.polygon``: (5, 2) corners [m], the first repeated."""
     c, s = cos(state[k, HEADING]), sin(state[k, HEADING])
@@ -49,7 +50,7 @@ def _polygon(state: np.ndarray, k: int) -> np.ndarray:
     return points
 
 
-@numba.njit(cache=True)
+@jit
 def _project(polygon: np.ndarray, ax: float, ay: float) -> tuple[float, float]:
     low, high = np.inf, -np.inf
     for p in range(polygon.shape[0]):
@@ -58,12 +59,12 @@ def _project(polygon: np.ndarray, ax: float, ay: float) -> tuple[float, float]:
     return low, high
 
 
-@numba.njit(cache=True)
+@jit
 def _interval_distance(min_a: float, max_a: float, min_b: float, max_b: float) -> float:
     return min_b - max_a if min_a < min_b else min_a - max_b
 
 
-@numba.njit(cache=True)
+@jit
 def handle_collision(state: np.ndarray, i: int, j: int, dt: float) -> None:
     """``RoadObject.handle_collisions(i, j)``: crash flags and the impact of the next frame (an
     obstacle takes no impact: the vehicle takes all of it). Obstacles do not collide with each other."""
@@ -122,7 +123,7 @@ def handle_collision(state: np.ndarray, i: int, j: int, dt: float) -> None:
         state[i, CRASHED] = state[j, CRASHED] = 1.0
 
 
-@numba.njit(cache=True)
+@jit
 def handle_collisions(state: np.ndarray, dt: float) -> None:
     """:func:`handle_collision` of every pair of present rows (i < j, highway-env's order), without
     the call where the two centres are so far apart along x that its pre-check would return at
@@ -141,7 +142,7 @@ def handle_collisions(state: np.ndarray, dt: float) -> None:
         return
     present = np.flatnonzero(state[:, PRESENT] > 0)
     x = state[:, X]
-    by_x = present[np.argsort(x[present], kind="mergesort")]
+    by_x = present[argsort(x[present])]
     widest = reach  # the largest bound [m]
     for a in range(present.size):
         widest = max(widest, reach + abs(state[present[a], SPEED]) * dt)
@@ -157,5 +158,5 @@ def handle_collisions(state: np.ndarray, dt: float) -> None:
                     pairs = np.concatenate((pairs, np.empty(pairs.size, dtype=np.int64)))
                 pairs[found] = i * n + j
                 found += 1
-    for pair in np.sort(pairs[:found]):
+    for pair in pairs[:found][argsort(pairs[:found])]:
         handle_collision(state, pair // n, pair % n, dt)

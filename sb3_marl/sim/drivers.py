@@ -8,7 +8,6 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-import numba
 import numpy as np
 
 from sb3_marl.sim.kernel import (
@@ -32,6 +31,7 @@ from sb3_marl.sim.kernel import (
     MAX_BRAKING_IMPOSED,
     MAX_STEERING_ANGLE,
     MIN_ACC_GAIN,
+    NONE,
     ON_LANE_MARGIN,
     POLITENESS,
     PRESENT,
@@ -45,8 +45,10 @@ from sb3_marl.sim.kernel import (
     Y,
     arcsin,
     arctan,
+    argsort,
     clip,
     cos,
+    jit,
     not_zero,
     sin,
     tan,
@@ -70,7 +72,7 @@ class LaneOrder(NamedTuple):
     sizes: np.ndarray  # (lanes,) int: vehicles on each lane
 
 
-@numba.njit(cache=True)
+@jit
 def lane_order(state: np.ndarray, lanes: np.ndarray) -> LaneOrder:
     """Which vehicles and obstacles are on each lane (highway-env's ``lane.on_lane`` with its 1 m
     margin: the membership ``Road.neighbour_vehicles`` searches), sorted along the lane."""
@@ -86,11 +88,11 @@ def lane_order(state: np.ndarray, lanes: np.ndarray) -> LaneOrder:
                 sizes[lane] += 1
         if sizes[lane] > SCANNED:
             rows = members[lane, : sizes[lane]]
-            rows[:] = rows[np.argsort(s[lane][rows], kind="mergesort")]
+            rows[:] = rows[argsort(s[lane][rows])]
     return LaneOrder(s, members, sizes)
 
 
-@numba.njit(cache=True)
+@jit
 def _neighbours(state: np.ndarray, lanes: np.ndarray, order: LaneOrder, k: int, lane: int) -> tuple[int, int]:
     """``Road.neighbour_vehicles``: (front, rear) of vehicle k on ``lane`` (-1: none), vehicles
     and obstacles, by their longitudinal coordinate on ``lane``: the front is the nearest at or
@@ -99,7 +101,7 @@ def _neighbours(state: np.ndarray, lanes: np.ndarray, order: LaneOrder, k: int, 
     s, rows, count = order.s, order.members, order.sizes[lane]
     s_k = s[lane, k]
     if count <= SCANNED:  # a few rows, in row order: one pass
-        front = rear = -1
+        front = rear = NONE
         s_front = s_rear = 0.0
         for i in range(count):
             if rows[lane, i] != k:
@@ -112,13 +114,13 @@ def _neighbours(state: np.ndarray, lanes: np.ndarray, order: LaneOrder, k: int, 
             low = middle + 1
         else:
             high = middle
-    rear = -1
+    rear = NONE
     if low > 0:
         first = low - 1
         while first > 0 and s[lane, rows[lane, first - 1]] == s[lane, rows[lane, first]]:
             first -= 1
         rear = rows[lane, first]
-    front, i = -1, low
+    front, i = NONE, low
     while i < count and rows[lane, i] == k:
         i += 1
     if i < count:
@@ -130,7 +132,7 @@ def _neighbours(state: np.ndarray, lanes: np.ndarray, order: LaneOrder, k: int, 
     return front, rear
 
 
-@numba.njit(cache=True)
+@jit
 def nearer(
     s: float, j: int, s_v: float, front: int, rear: int, s_front: float, s_rear: float
 ) -> tuple[int, int, float, float]:
@@ -144,7 +146,7 @@ def nearer(
     return front, rear, s_front, s_rear
 
 
-@numba.njit(cache=True)
+@jit
 def _desired_gap(state: np.ndarray, ego: int, front: int) -> float:
     """``IDMVehicle.desired_gap`` [m], projected on the ego's direction."""
     cos_e, sin_e = cos(state[ego, HEADING]), sin(state[ego, HEADING])
@@ -155,7 +157,7 @@ def _desired_gap(state: np.ndarray, ego: int, front: int) -> float:
     return state[ego, IDM_DISTANCE] + v_e * state[ego, IDM_TIME] + v_e * dv / (2 * np.sqrt(ab))
 
 
-@numba.njit(cache=True)
+@jit
 def lane_distance(state: np.ndarray, lanes: np.ndarray, k: int, other: int) -> float:
     """``lane_distance_to``: how far ``other`` is ahead of vehicle k along k's lane [m]."""
     lane = int(state[k, LANE])
@@ -165,7 +167,7 @@ def lane_distance(state: np.ndarray, lanes: np.ndarray, k: int, other: int) -> f
     )
 
 
-@numba.njit(cache=True)
+@jit
 def idm(state: np.ndarray, lanes: np.ndarray, ego: int, front: int, speed_limit: float) -> float:
     """``IDMVehicle.acceleration`` [m/s²] of ``ego`` behind ``front`` (-1: free road; ego -1 or an
     obstacle: 0)."""
@@ -180,7 +182,7 @@ def idm(state: np.ndarray, lanes: np.ndarray, ego: int, front: int, speed_limit:
     return acceleration
 
 
-@numba.njit(cache=True)
+@jit
 def _steering(state: np.ndarray, lanes: np.ndarray, k: int, lane: int) -> float:
     """``ControlledVehicle.steering_control`` [rad] towards the centre of ``lane``."""
     longitudinal, lateral = local_coordinates(lanes, lane, state[k, X], state[k, Y])
@@ -195,7 +197,7 @@ def _steering(state: np.ndarray, lanes: np.ndarray, k: int, lane: int) -> float:
     return clip(steering_angle, -MAX_STEERING_ANGLE, MAX_STEERING_ANGLE)
 
 
-@numba.njit(cache=True)
+@jit
 def mobil(state: np.ndarray, lanes: np.ndarray, order: LaneOrder, k: int, lane: int, speed_limit: float) -> bool:
     """``IDMVehicle.mobil``: should HDV k move to ``lane``? (no planned route)."""
     new_preceding, new_following = _neighbours(state, lanes, order, k, lane)
@@ -216,7 +218,7 @@ def mobil(state: np.ndarray, lanes: np.ndarray, order: LaneOrder, k: int, lane: 
     return not jerk < state[k, MIN_ACC_GAIN]
 
 
-@numba.njit(cache=True)
+@jit
 def _change_lane_policy(state: np.ndarray, lanes: np.ndarray, order: LaneOrder, k: int, speed_limit: float) -> None:
     """``IDMVehicle.change_lane_policy`` of HDV k (sets its target lane and timer)."""
     lane, target = int(state[k, LANE]), int(state[k, TARGET_LANE])
@@ -243,14 +245,14 @@ def _change_lane_policy(state: np.ndarray, lanes: np.ndarray, order: LaneOrder, 
             state[k, TARGET_LANE] = side
 
 
-@numba.njit(cache=True)
+@jit
 def leader(state: np.ndarray, lanes: np.ndarray, order: LaneOrder, k: int) -> int:
     """The vehicle (or obstacle) ahead of vehicle k on its own lane (``Road.neighbour_vehicles``'
     front; -1: none)."""
     return _neighbours(state, lanes, order, k, int(state[k, LANE]))[0]
 
 
-@numba.njit(cache=True)
+@jit
 def act(state: np.ndarray, lanes: np.ndarray, speed_limit: float) -> None:
     """``Road.act``: every vehicle, in road order, follows its road past a lane's end, then decides
     steering and acceleration (obstacles do nothing)."""
@@ -277,7 +279,7 @@ def act(state: np.ndarray, lanes: np.ndarray, speed_limit: float) -> None:
         state[k, ACCELERATION] = clip(acceleration, -ACC_MAX, ACC_MAX)
 
 
-@numba.njit(cache=True)
+@jit
 def rule_actions(
     state: np.ndarray,
     n_avs: int,

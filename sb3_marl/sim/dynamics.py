@@ -6,7 +6,6 @@ road-end rule. Units: m, m/s, rad, s."""
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
 from sb3_marl.sim.collisions import handle_collisions
@@ -35,6 +34,7 @@ from sb3_marl.sim.kernel import (
     Y,
     arctan,
     cos,
+    jit,
     sin,
     tan,
 )
@@ -42,7 +42,7 @@ from sb3_marl.sim.lanes import closest_lane
 from sb3_marl.sim.meta_actions import meta_action_targets
 
 
-@numba.njit(cache=True)
+@jit
 def _move(state: np.ndarray, dt: float, lanes: np.ndarray) -> None:
     """``Vehicle.step`` of every vehicle (``IDMVehicle`` also advances its timer); obstacles stay."""
     for k in range(state.shape[0]):
@@ -71,7 +71,7 @@ def _move(state: np.ndarray, dt: float, lanes: np.ndarray) -> None:
         state[k, LANE] = closest_lane(lanes, state[k, X], state[k, Y], state[k, HEADING])
 
 
-@numba.njit(cache=True)
+@jit
 def drive(state: np.ndarray, dt: float, lanes: np.ndarray, speed_limit: float) -> None:
     """One frame of the road's driving (``Road.act``, then ``Vehicle.step`` of every vehicle) on
     ``state`` in place, without the collision test and the road end: the safety supervisor's
@@ -80,7 +80,7 @@ def drive(state: np.ndarray, dt: float, lanes: np.ndarray, speed_limit: float) -
     _move(state, dt, lanes)
 
 
-@numba.njit(cache=True)
+@jit
 def policy_step(
     state: np.ndarray,
     actions: np.ndarray,

@@ -12,12 +12,11 @@ ramp). Units: m, rad.
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 from highway_env.road.lane import SineLane, StraightLane
 from highway_env.road.road import RoadNetwork
 
-from sb3_marl.sim.kernel import LANE_VEHICLE_LENGTH, TARGET_LANE, X, Y, wrap_to_pi
+from sb3_marl.sim.kernel import LANE_VEHICLE_LENGTH, TARGET_LANE, X, Y, jit, wrap_to_pi
 
 #: Columns of the lane table.
 (
@@ -91,7 +90,7 @@ def lane_table(network: RoadNetwork) -> np.ndarray:
     return table
 
 
-@numba.njit(cache=True)
+@jit
 def local_coordinates(lanes: np.ndarray, lane: int, x: float, y: float) -> tuple[float, float]:
     """``lane.local_coordinates((x, y))``: (longitudinal, lateral) [m] of a point in the lane's frame."""
     dx, dy = x - lanes[lane, START_X], y - lanes[lane, START_Y]
@@ -103,7 +102,7 @@ def local_coordinates(lanes: np.ndarray, lane: int, x: float, y: float) -> tuple
     return longitudinal, lateral
 
 
-@numba.njit(cache=True)
+@jit
 def heading_at(lanes: np.ndarray, lane: int, longitudinal: float) -> float:
     """``lane.heading_at(longitudinal)`` [rad]."""
     heading = lanes[lane, HEADING]
@@ -113,7 +112,7 @@ def heading_at(lanes: np.ndarray, lane: int, longitudinal: float) -> float:
     return heading
 
 
-@numba.njit(cache=True)
+@jit
 def position(lanes: np.ndarray, lane: int, longitudinal: float, lateral: float) -> tuple[float, float]:
     """``lane.position(longitudinal, lateral)``: the world point [m]."""
     if lanes[lane, SINE]:
@@ -125,14 +124,14 @@ def position(lanes: np.ndarray, lane: int, longitudinal: float, lateral: float) 
     )
 
 
-@numba.njit(cache=True)
+@jit
 def on_lane(lanes: np.ndarray, lane: int, x: float, y: float, margin: float) -> bool:
     """``lane.on_lane((x, y), margin=margin)``."""
     longitudinal, lateral = local_coordinates(lanes, lane, x, y)
     return on_lane_at(lanes, lane, longitudinal, lateral, margin)
 
 
-@numba.njit(cache=True)
+@jit
 def on_lane_at(lanes: np.ndarray, lane: int, longitudinal: float, lateral: float, margin: float) -> bool:
     """:func:`on_lane` of a point at local coordinates (longitudinal, lateral) [m] of ``lane``."""
     return abs(lateral) <= lanes[lane, WIDTH] / 2 + margin and (
@@ -140,7 +139,7 @@ def on_lane_at(lanes: np.ndarray, lane: int, longitudinal: float, lateral: float
     )
 
 
-@numba.njit(cache=True)
+@jit
 def reachable_from(lanes: np.ndarray, lane: int, x: float, y: float) -> bool:
     """``lane.is_reachable_from((x, y))``: not forbidden, within two widths laterally, not behind its
     start nor past its end (``lane`` -1: False)."""
@@ -150,14 +149,14 @@ def reachable_from(lanes: np.ndarray, lane: int, x: float, y: float) -> bool:
     return abs(lateral) <= 2 * lanes[lane, WIDTH] and 0 <= longitudinal < lanes[lane, LENGTH] + LANE_VEHICLE_LENGTH
 
 
-@numba.njit(cache=True)
+@jit
 def _distance(lanes: np.ndarray, lane: int, x: float, y: float) -> float:
     """``lane.distance((x, y))`` [m]: lateral offset plus how far the point is before or past the lane."""
     longitudinal, lateral = local_coordinates(lanes, lane, x, y)
     return abs(lateral) + max(longitudinal - lanes[lane, LENGTH], 0.0) + max(0 - longitudinal, 0.0)
 
 
-@numba.njit(cache=True)
+@jit
 def closest_lane(lanes: np.ndarray, x: float, y: float, heading: float) -> int:
     """``RoadNetwork.get_closest_lane_index``: the first lane of least ``distance_with_heading``
     (heading weight 1 m/rad)."""
@@ -171,7 +170,7 @@ def closest_lane(lanes: np.ndarray, x: float, y: float, heading: float) -> int:
     return best
 
 
-@numba.njit(cache=True)
+@jit
 def follow(lanes: np.ndarray, lane: int, x: float, y: float) -> int:
     """``ControlledVehicle.follow_road``: the target lane of a vehicle at (x, y) [m] aiming at
     ``lane``; past the lane's end (``after_end``) the next road's lane (``RoadNetwork.next_lane``
@@ -193,7 +192,7 @@ def follow(lanes: np.ndarray, lane: int, x: float, y: float) -> int:
     return best
 
 
-@numba.njit(cache=True)
+@jit
 def centre_y(lanes: np.ndarray, lane: np.ndarray, x: np.ndarray) -> np.ndarray:
     """y [m] of the centre of each ``lane`` where its base line is at each ``x`` [m] (a lane along +x)."""
     y = np.empty(x.size)
@@ -202,7 +201,7 @@ def centre_y(lanes: np.ndarray, lane: np.ndarray, x: np.ndarray) -> np.ndarray:
     return y
 
 
-@numba.njit(cache=True)
+@jit
 def lane_changes(lanes: np.ndarray, before: np.ndarray, state: np.ndarray) -> np.ndarray:
     """(n,) bool: which of the first ``before.size`` vehicles of ``state`` started a lane change since
     their target lanes were ``before``: a new target lane other than the road's own continuation of

@@ -6,11 +6,10 @@ from __future__ import annotations
 
 from typing import Any
 
-import numba
 import numpy as np
 from highway_env.envs.common.action import DiscreteMetaAction
 
-from sb3_marl.sim.kernel import LANE, SPEED, TARGET_LANE, TARGET_SPEED, X, Y
+from sb3_marl.sim.kernel import LANE, SPEED, TARGET_LANE, TARGET_SPEED, X, Y, jit
 from sb3_marl.sim.lanes import LEFT, RIGHT, follow, reachable_from
 
 #: Meta-action index -> label, highway-env's ``DiscreteMetaAction`` numbering.
@@ -33,7 +32,7 @@ def check_actions(action: Any, n_avs: int) -> np.ndarray:
     return actions
 
 
-@numba.njit(cache=True)
+@jit
 def speed_index(speed: float, ladder: np.ndarray) -> int:
     """``MDPVehicle.speed_to_index``: the index of the target speed nearest ``speed`` [m/s] on the
     uniform ``ladder`` [m/s] (rounding half to even, as ``np.round``)."""
@@ -41,7 +40,7 @@ def speed_index(speed: float, ladder: np.ndarray) -> int:
     return int(min(max(np.round((speed - ladder[0]) / (ladder[top] - ladder[0]) * top), 0), top))
 
 
-@numba.njit(cache=True)
+@jit
 def available_actions(state: np.ndarray, n_avs: int, lanes: np.ndarray, ladder: np.ndarray) -> np.ndarray:
     """(n_avs, 5) bool: highway-env's ``DiscreteMetaAction.get_available_actions`` for each AV (the
     first ``n_avs`` rows) on the road ``lanes`` (:mod:`~sb3_marl.sim.lanes`): IDLE always, a lane
@@ -59,7 +58,7 @@ def available_actions(state: np.ndarray, n_avs: int, lanes: np.ndarray, ladder: 
     return mask
 
 
-@numba.njit(cache=True)
+@jit
 def meta_action_targets(state: np.ndarray, n_avs: int, lanes: np.ndarray, ladder: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(n_avs, 5) target lane and (n_avs, 5) target speed [m/s] of each AV (the first ``n_avs``
     rows) under each meta-action, as highway-env's ``MDPVehicle.act`` sets them (LANE_LEFT 0,

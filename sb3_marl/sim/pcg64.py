@@ -10,8 +10,9 @@ would have spawned; :func:`read_state` and :func:`write_state` move the state be
 
 from __future__ import annotations
 
-import numba
 import numpy as np
+
+from sb3_marl.sim.kernel import jit
 
 #: Words of a generator state array.
 STATE_HI, STATE_LO, INC_HI, INC_LO, HAS_UINT32, UINTEGER = range(6)
@@ -40,7 +41,7 @@ def write_state(generator: np.random.Generator, words: np.ndarray) -> None:
     }
 
 
-@numba.njit(cache=True)
+@jit
 def _mul64(a: np.uint64, b: np.uint64) -> tuple[np.uint64, np.uint64]:
     """The 128-bit product of two 64-bit words: (high, low)."""
     mask = np.uint64(0xFFFFFFFF)
@@ -51,7 +52,7 @@ def _mul64(a: np.uint64, b: np.uint64) -> tuple[np.uint64, np.uint64]:
     return high, (cross << np.uint64(32)) | (lo_lo & mask)
 
 
-@numba.njit(cache=True)
+@jit
 def next_uint64(g: np.ndarray) -> np.uint64:
     """PCG64's next 64-bit output (XSL-RR of the stepped state)."""
     high, low = _mul64(g[STATE_LO], _MULT_LO)
@@ -65,7 +66,7 @@ def next_uint64(g: np.ndarray) -> np.uint64:
     return (word >> rotation) | (word << ((np.uint64(64) - rotation) & np.uint64(63)))
 
 
-@numba.njit(cache=True)
+@jit
 def next_uint32(g: np.ndarray) -> np.uint64:
     """A 32-bit output: the buffered upper half of the last 64-bit draw, or a new draw's lower half."""
     if g[HAS_UINT32]:
@@ -76,13 +77,13 @@ def next_uint32(g: np.ndarray) -> np.uint64:
     return word & np.uint64(0xFFFFFFFF)
 
 
-@numba.njit(cache=True)
+@jit
 def random(g: np.ndarray) -> float:
     """``Generator.random()``: uniform in [0, 1)."""
     return float(next_uint64(g) >> np.uint64(11)) * (1.0 / 9007199254740992.0)
 
 
-@numba.njit(cache=True)
+@jit
 def uniform(g: np.ndarray, low: float, high: float, size: int) -> np.ndarray:
     """``Generator.uniform(low, high, size)``."""
     out = np.empty(size)
@@ -91,7 +92,7 @@ def uniform(g: np.ndarray, low: float, high: float, size: int) -> np.ndarray:
     return out
 
 
-@numba.njit(cache=True)
+@jit
 def bounded(g: np.ndarray, span: int) -> np.int64:
     """Uniform in [0, ``span``] (span < 2³² - 1): NumPy's Lemire rejection on 32-bit draws."""
     if span == 0:
@@ -107,13 +108,13 @@ def bounded(g: np.ndarray, span: int) -> np.int64:
     return np.int64(m >> np.uint64(32))
 
 
-@numba.njit(cache=True)
+@jit
 def integers(g: np.ndarray, low: int, high: int) -> int:
     """``Generator.integers(low, high)``: one int in [low, high)."""
     return low + int(bounded(g, high - 1 - low))
 
 
-@numba.njit(cache=True)
+@jit
 def choice(g: np.ndarray, population: int, size: int) -> np.ndarray:
     """``Generator.choice(population, size, replace=False)`` for populations up to 10,000: NumPy's
     Floyd sampling into a hash set, then its shuffle of the sample."""

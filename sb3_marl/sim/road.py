@@ -9,13 +9,13 @@ from __future__ import annotations
 import functools
 from typing import Any
 
-import numba
 import numpy as np
 from highway_env.road.lane import LineType, StraightLane
 from highway_env.road.road import Road, RoadNetwork
 from highway_env.vehicle.behavior import IDMVehicle
 
 from sb3_marl.sim import HDV_STYLES, kernel, meta_actions
+from sb3_marl.sim.kernel import jit
 from sb3_marl.sim.lanes import lane_table
 from sb3_marl.sim.simulator import SEGMENT
 
@@ -99,7 +99,7 @@ def vehicle_state(
     )
 
 
-@numba.njit(cache=True)
+@jit
 def vehicle_rows(
     x: np.ndarray,
     y: np.ndarray,
@@ -119,7 +119,8 @@ def vehicle_rows(
         state[k, kernel.LANE] = state[k, kernel.TARGET_LANE] = lane[k]
         state[k, kernel.COLLIDABLE] = state[k, kernel.PRESENT] = 1.0
         state[k, kernel.VEHICLE_ID] = k
-        state[k, kernel.IDM_ACC : kernel.IDM_TIME + 1] = av_idm if k < n_avs else hdv_idm
+        for c in range(4):
+            state[k, kernel.IDM_ACC + c] = av_idm[c] if k < n_avs else hdv_idm[c]
         if k < n_avs:
             state[k, kernel.TARGET_SPEED] = ladder[meta_actions.speed_index(speed[k], ladder)]
         else:

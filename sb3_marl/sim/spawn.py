@@ -8,10 +8,10 @@ from __future__ import annotations
 
 from typing import Any, NamedTuple
 
-import numba
 import numpy as np
 
 from sb3_marl.sim import HDV_STYLES, kernel, pcg64
+from sb3_marl.sim.kernel import jit
 from sb3_marl.sim.merge_road import MAIN_BEFORE, MAIN_SPAWN, RAMP, RAMP_SPAWN, RAMP_Y, obstacle_rows
 from sb3_marl.sim.road import vehicle_rows
 
@@ -70,7 +70,7 @@ def draw_episode(np_random: np.random.Generator, n_avs: int, s: SpawnParameters)
     return int(n_hdvs), state
 
 
-@numba.njit(cache=True)
+@jit
 def new_episode(g: np.ndarray, n_avs: int, s: SpawnParameters) -> tuple[int, np.ndarray]:
     """A new episode from the generator state ``g`` (advanced): its HDV count, uniform in
     ``s``'s range, and its state array (the ``n_avs`` AVs first, then the HDVs and obstacles)."""
@@ -80,7 +80,7 @@ def new_episode(g: np.ndarray, n_avs: int, s: SpawnParameters) -> tuple[int, np.
     return n_hdvs, _grid_spawn(g, n_avs, n_hdvs, s)
 
 
-@numba.njit(cache=True)
+@jit
 def _grid_spawn(g: np.ndarray, n_avs: int, n_hdvs: int, s: SpawnParameters) -> np.ndarray:
     """The highway's spawn: every vehicle in a distinct random slot of a grid along every lane,
     ``spacing`` m apart from ``start``, jittered by up to ``position_noise`` m (validation keeps the
@@ -93,7 +93,7 @@ def _grid_spawn(g: np.ndarray, n_avs: int, n_hdvs: int, s: SpawnParameters) -> n
     return _vehicles(x, lane * s.lane_width, lane, speeds, n_avs, s)
 
 
-@numba.njit(cache=True)
+@jit
 def _merge_spawn(g: np.ndarray, n_avs: int, n_hdvs: int, s: SpawnParameters) -> np.ndarray:
     """The merge's spawn, as MARL_CAVs' ``merge_env_v1._make_vehicles`` draws it: half the AVs
     (rounded down) at distinct random spawn points of the main road, the others on the ramp, then
@@ -117,7 +117,7 @@ def _merge_spawn(g: np.ndarray, n_avs: int, n_hdvs: int, s: SpawnParameters) -> 
     return np.concatenate((_vehicles(x, y, lane, speeds, n_avs, s), s.obstacles))
 
 
-@numba.njit(cache=True)
+@jit
 def _left(points: int, taken: np.ndarray) -> np.ndarray:
     """The spawn points of ``points`` not ``taken``, in order."""
     free = np.ones(points, dtype=np.bool_)
@@ -125,7 +125,7 @@ def _left(points: int, taken: np.ndarray) -> np.ndarray:
     return np.flatnonzero(free)
 
 
-@numba.njit(cache=True)
+@jit
 def _vehicles(x: np.ndarray, y: np.ndarray, lane: np.ndarray, speed: np.ndarray, n_avs: int, s: SpawnParameters) -> np.ndarray:
     """The state rows of vehicles at (x, y) [m] on ``lane`` at ``speed`` [m/s] (:func:`~sb3_marl.sim.road.vehicle_state`)."""
     return vehicle_rows(x, y, lane, speed, n_avs, s.ladder, s.politeness, s.b_safe, s.min_acc_gain, s.hdv_idm)
