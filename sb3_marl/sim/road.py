@@ -119,8 +119,7 @@ def vehicle_rows(
         state[k, kernel.LANE] = state[k, kernel.TARGET_LANE] = lane[k]
         state[k, kernel.COLLIDABLE] = state[k, kernel.PRESENT] = 1.0
         state[k, kernel.VEHICLE_ID] = k
-        for c in range(4):
-            state[k, kernel.IDM_ACC + c] = av_idm[c] if k < n_avs else hdv_idm[c]
+        state[k, kernel.IDM_ACC : kernel.IDM_TIME + 1] = av_idm if k < n_avs else hdv_idm
         if k < n_avs:
             state[k, kernel.TARGET_SPEED] = ladder[meta_actions.speed_index(speed[k], ladder)]
         else:

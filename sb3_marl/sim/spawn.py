@@ -108,12 +108,14 @@ def _merge_spawn(g: np.ndarray, n_avs: int, n_hdvs: int, s: SpawnParameters) -> 
     n = n_avs + n_hdvs
     speeds = pcg64.uniform(g, s.speed_low, s.speed_high, n)
     noise = pcg64.uniform(g, -1.0, 1.0, n) * s.position_noise
-    x = np.concatenate((main[main_avs], ramp[ramp_avs], main[main_hdvs], ramp[ramp_hdvs])) + noise
-    on_ramp = np.concatenate(
-        (np.zeros(main_avs.size), np.ones(ramp_avs.size), np.zeros(main_hdvs.size), np.ones(ramp_hdvs.size))
-    )
-    lane = np.where(on_ramp > 0, float(RAMP), float(MAIN_BEFORE))
-    y = np.where(on_ramp > 0, RAMP_Y, 0.0)
+    x, y, lane = np.empty(n), np.zeros(n), np.full(n, float(MAIN_BEFORE))
+    k = 0
+    for group, positions in enumerate((main[main_avs], ramp[ramp_avs], main[main_hdvs], ramp[ramp_hdvs])):
+        for position in positions:
+            x[k] = position + noise[k]
+            if group % 2:  # the ramp's
+                y[k], lane[k] = RAMP_Y, float(RAMP)
+            k += 1
     return np.concatenate((_vehicles(x, y, lane, speeds, n_avs, s), s.obstacles))
 
 
