@@ -87,9 +87,9 @@ class RoadBatch:
             c.dropout_generators[k] = pcg64.read_state(dropout_generator)
         self._dropout_generators[k] = dropout_generator
         self._restarted[k] = False
-        if self.parameters.merge and env.steps_done == 0:  # a new situation: as MergeEnv._scenario_info at step 0
+        if self.parameters.merge is not None and env.steps_done == 0:  # a new situation: as MergeEnv._scenario_info at step 0
             self._new_situation(k, env.state[: env.n_avs, kernel.LANE].astype(np.int64))
-        elif self.parameters.merge:
+        elif self.parameters.merge is not None:
             sl = slice(self.slot_starts[k], self.slot_starts[k + 1])
             self.ramp_av[sl], self.merge_time[sl] = env._ramp_avs, env._merge_time
 
@@ -110,7 +110,7 @@ class RoadBatch:
         )
         self.states, self.offsets, self._stale = result.states[: result.offsets[-1]], result.offsets, True
         self._restarted |= starts.restarted
-        if self.parameters.merge:
+        if self.parameters.merge is not None:
             merged = self.ramp_av & np.isnan(self.merge_time) & ~ON_RAMP_SIDE[result.lane]
             steps = np.repeat(steps_before + 1, self.n_avs)
             self.merge_time[merged] = steps[merged] / self.envs[0].config["policy_frequency"]
@@ -122,7 +122,7 @@ class RoadBatch:
     def slot_arrays(self, result: BatchStep, proposed: np.ndarray) -> dict[str, Any]:
         """The per-slot arrays of a step (:func:`~sb3_marl.envs.batch_kernel.step_report`) with
         each AV's copy's mean reward (``global_reward``)."""
-        arrays = step_report(result, proposed, self.envs[0].config, self.parameters.merge)
+        arrays = step_report(result, proposed, self.envs[0].config, self.parameters.merge is not None)
         arrays["global_reward"] = copy_rewards(arrays["reward"], result.neighbours, self.slot_starts, GLOBAL)
         return arrays
 
@@ -145,7 +145,7 @@ class RoadBatch:
             generator = self._dropout_generators[k]
             if generator is not None:
                 pcg64.write_state(generator, c.dropout_generators[k])
-            if self.parameters.merge:
+            if self.parameters.merge is not None:
                 sl = slice(self.slot_starts[k], self.slot_starts[k + 1])
                 env._ramp_avs, env._merge_time = self.ramp_av[sl].copy(), self.merge_time[sl].copy()
         self._restarted[:] = False

@@ -7,7 +7,9 @@ copy k's rows at ``offsets[k]:offsets[k + 1]``; the AV slots of all copies likew
 :meth:`LaneChangeEnv.step <sb3_marl.envs.lane_change_env.LaneChangeEnv.step>` does for one (the
 merge's differences switched by :class:`StepParameters`' ``merge``) — the safety supervisor, the
 frames of the policy step, observations, reward terms, neighbour sets, action masks and the rule
-driver's actions — with the same compiled functions. Units: m, m/s, m/s², s, Hz.
+driver's actions — with the same compiled functions. The merge's functions are compiled only for
+the merge: the parameters' ``merge`` (None on the highway) reaches them as an argument, and numba
+compiles only the branch of its type. Units: m, m/s, m/s², s, Hz.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from sb3_marl.envs.merge_rules import _merge_priorities, _regional_neighbours
+from sb3_marl.envs.merge_rules import MergeRoad, _merge_priorities, _regional_neighbours
 from sb3_marl.envs.observation import _observe
 from sb3_marl.envs.reward import REWARD_TERMS, _neighbour_matrix, _terms, _weighted, mode_rewards
 from sb3_marl.safety.rooms import SLOWER, Horizon
@@ -59,13 +61,8 @@ class StepParameters(NamedTuple):
     y_range: float  # [m]
     v_range: float  # [m/s]
     target_speed_column: bool
-    merge: bool  # the merge's reward term and regional neighbour sets (sb3_marl.envs.merge_env)
-    merging_priority: bool  # the merge's order of service of the supervisor
     spawn: SpawnParameters  # a new episode's traffic
-    route: np.ndarray  # the merge's lane tables (merge_rules.ROUTE, ACROSS, ACROSS_FROM, NEXT_ON_ROUTE)
-    across: np.ndarray
-    across_from: np.ndarray
-    next_on_route: np.ndarray
+    merge: MergeRoad | None  # the merge's neighbour sets and supervisor order (sb3_marl.envs.merge_env); None: the highway
 
 
 class BatchStep(NamedTuple):
@@ -166,7 +163,7 @@ def _step_copies(
     n_copies = offsets.size - 1
     rows = 0  # room for every copy's state, a new episode's as large as it may be
     for k in range(n_copies):
-        spawned = slot_starts[k + 1] - slot_starts[k] + p.spawn.hdv_high + p.spawn.obstacles.shape[0]
+        spawned = slot_starts[k + 1] - slot_starts[k] + p.spawn.hdv_high + p.spawn.n_obstacles
         rows += max(offsets[k + 1] - offsets[k], spawned)
     r = _allocate(np.empty((rows, states.shape[1])), np.zeros(n_copies + 1, dtype=np.int64), slot_starts, p)
     first = _allocate(r.states, r.offsets, slot_starts, p)
@@ -178,7 +175,7 @@ def _step_copies(
         proposed = actions[a:b]
         acting, brake = proposed.copy(), np.zeros(n, dtype=np.bool_)
         if c.supervise[k] or c.shadow[k]:
-            supervised, brake_to_stop = supervise_road(before, n, proposed, p)
+            supervised, brake_to_stop = supervise_road(before, n, proposed, p, p.merge)
             r.intervened[a:b] = (supervised != proposed) | brake_to_stop
             if c.supervise[k]:
                 acting, brake = supervised, brake_to_stop
@@ -188,16 +185,16 @@ def _step_copies(
         c.steps[k] += 1
         r.acceleration[a:b] = (state[:n, kernel.SPEED] - speed_before) * p.policy_frequency
         r.lane_change[a:b] = lane_changes(h.lanes, targets_before, state)
-        _observe_into(r, state, a, b, p)
+        _observe_into(r, state, a, b, p, p.merge)
         r.terminated[k] = r.crashed[a:b].any()
         r.truncated[k] = not r.terminated[k] and (c.steps[k] >= p.max_steps or r.exited[a:b].all())
         if respawn and (r.terminated[k] or r.truncated[k]):  # as the env's reset, from its generator
             if c.dropout[k] > 0:
                 c.supervise[k] = pcg64.random(c.dropout_generators[k]) >= c.dropout[k]
-            c.n_hdvs[k], state = new_episode(c.generators[k], n, p.spawn)
+            c.n_hdvs[k], state = new_episode(c.generators[k], n, p.spawn, p.spawn.merge_obstacles)
             c.steps[k] = 0
             restarted[k] = True
-            _observe_into(first, state, a, b, p)
+            _observe_into(first, state, a, b, p, p.merge)
         r.offsets[k + 1] = r.offsets[k] + state.shape[0]
         r.states[r.offsets[k] : r.offsets[k + 1]] = state
     return _fields(r), (first.obs, first.action_mask, first.rule_action, first.lane, restarted)
@@ -218,7 +215,7 @@ def _observe_copies(
     for k in copies:
         a, b = slot_starts[k], slot_starts[k + 1]
         r.acceleration[a:b], r.lane_change[a:b] = acceleration[a:b], lane_change[a:b]
-        _observe_into(r, states[offsets[k] : offsets[k + 1]], a, b, p)
+        _observe_into(r, states[offsets[k] : offsets[k + 1]], a, b, p, p.merge)
     return _fields(r)
 
 
@@ -283,10 +280,11 @@ def observe_copies(
 
 
 @jit
-def _observe_into(r: BatchStep, state: np.ndarray, a: int, b: int, p: StepParameters) -> None:
+def _observe_into(r: BatchStep, state: np.ndarray, a: int, b: int, p: StepParameters, merge: MergeRoad | None) -> None:
     """Write the observation of one copy's ``state`` (its AVs at slots ``a:b``) into ``r``, with its
     reward terms, neighbour sets, action masks and the rule driver's actions (``r``'s acceleration
-    and lane changes of the slots already set), as :meth:`LaneChangeEnv._observe`."""
+    and lane changes of the slots already set), as :meth:`LaneChangeEnv._observe`. ``merge`` is
+    ``p.merge`` (see the module doc)."""
     h, n = p.horizon, b - a
     x, heading = state[:, kernel.X], state[:, kernel.HEADING]
     v = state[:, kernel.SPEED]
@@ -311,10 +309,10 @@ def _observe_into(r: BatchStep, state: np.ndarray, a: int, b: int, p: StepParame
         p.harsh_threshold,
     )
     r.x[a:b], r.lane[a:b] = x[:n], lane[:n]
-    if p.merge:
-        r.neighbours[a:b, :n] = _regional_neighbours(state, n, p.route, p.across, p.across_from)
-    else:
+    if merge is None:
         r.neighbours[a:b, :n] = _neighbour_matrix(x, lane, visible, n)
+    else:
+        r.neighbours[a:b, :n] = _regional_neighbours(state, n, merge.route, merge.across, merge.across_from)
     vx, vy = v * np.cos(heading), v * np.sin(heading)
     y = state[:, kernel.Y]
     r.obs[a:b, :, :5] = _observe(x, y, vx, vy, visible, n, p.rows, p.road_length, p.x_range, p.y_range, p.v_range)
@@ -336,17 +334,20 @@ def _observe_into(r: BatchStep, state: np.ndarray, a: int, b: int, p: StepParame
 
 
 @jit
-def supervise_road(state: np.ndarray, n: int, proposed: np.ndarray, p: StepParameters) -> tuple[np.ndarray, np.ndarray]:
+def supervise_road(
+    state: np.ndarray, n: int, proposed: np.ndarray, p: StepParameters, merge: MergeRoad | None
+) -> tuple[np.ndarray, np.ndarray]:
     """:class:`~sb3_marl.safety.supervisor.Supervisor` of a copy (priority: the headway margin, or
-    the merge's): the executed meta-actions and which AVs brake to a stop."""
+    the merge's): the executed meta-actions and which AVs brake to a stop. ``merge`` is ``p.merge``
+    (see the module doc)."""
     h = p.horizon
     candidate_lane, candidate_speed = meta_action_targets(state, n, h.lanes, h.ladder)
     choices = available_actions(state, n, h.lanes, h.ladder)
     if p.emergency_brake:
         for i in range(n):
             choices[i, SLOWER] |= state[i, kernel.TARGET_SPEED] < h.ladder[0]
-    if p.merging_priority:
-        priority = _merge_priorities(state, n, p.headway_time, p.next_on_route)
+    if merge is not None and merge.merging_priority:
+        priority = _merge_priorities(state, n, p.headway_time, merge.next_on_route)
     else:
         priority = headway_margins(state, n, h.lanes, p.headway_time)
     executed, _, brake = supervise_arrays(

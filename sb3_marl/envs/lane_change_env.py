@@ -23,6 +23,7 @@ from sb3_marl.envs.batch_kernel import (
     step_report,
     supervise_road,
 )
+from sb3_marl.envs.merge_rules import MergeRoad
 from sb3_marl.envs.observation import observation_space
 from sb3_marl.safety.supervisor import Supervisor
 from sb3_marl.sim import drivers, kernel, lanes, meta_actions
@@ -117,20 +118,13 @@ class LaneChangeEnv(AbstractEnv):
         """highway-env's road of the config, without vehicles."""
         return make_road(self.config, self.np_random)
 
-    def _merge_tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
-        """The merging road's lane tables (:mod:`~sb3_marl.envs.merge_rules`; None: not a merge)."""
+    def _merge_road(self) -> MergeRoad | None:
+        """The merging road's tables and supervisor order (:mod:`~sb3_marl.envs.merge_rules`; None: not a merge)."""
         return None
 
     def step_parameters(self) -> StepParameters:
         """What a compiled step of this scenario reads from its current config."""
-        c, tables = self.config, self._merge_tables()
-        no_table = np.zeros(1, dtype=np.int64)
-        route, across, across_from, next_on_route = tables or (
-            np.zeros((1, 1), dtype=np.bool_),
-            no_table,
-            np.zeros(1),
-            no_table,
-        )
+        c, merge = self.config, self._merge_road()
         return StepParameters(
             self.horizon,
             float(c["policy_frequency"]),
@@ -157,13 +151,8 @@ class LaneChangeEnv(AbstractEnv):
             float(c["obs_y_range"]),
             float(c["obs_speed_range"]),
             bool(c["obs_target_speed"]),
-            tables is not None,
-            tables is not None and c["supervisor_priority"] == "merging",
-            spawn_parameters(c, cfg.resolved_hdv_range(c, self.scenario), tables is not None),
-            route,
-            across,
-            across_from,
-            next_on_route,
+            spawn_parameters(c, cfg.resolved_hdv_range(c, self.scenario), merge is not None),
+            merge,
         )
 
     @property
@@ -224,7 +213,8 @@ class LaneChangeEnv(AbstractEnv):
         y = lanes.centre_y(self.horizon.lanes, lane.astype(np.int64), x)
         self.n_hdvs = len(hdvs)
         vehicles = vehicle_state(self.config, x, lane, speed, self.n_avs, y=y)
-        self.state = np.concatenate([vehicles, self._parameters.spawn.obstacles])
+        obstacles = self._parameters.spawn.merge_obstacles
+        self.state = vehicles if obstacles is None else np.concatenate([vehicles, obstacles])
         return self._observe_start()
 
     @property
@@ -301,7 +291,7 @@ class LaneChangeEnv(AbstractEnv):
         n, h = self.n_avs, self.horizon
         acting, braking, intervened = proposed, np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
         if supervise or shadow:
-            supervised, brake = supervise_road(self.state, n, proposed, p)
+            supervised, brake = supervise_road(self.state, n, proposed, p, p.merge)
             intervened = (supervised != proposed) | brake  # in shadow: where it would have
             if supervise:
                 acting, braking = supervised, brake
@@ -404,7 +394,7 @@ class LaneChangeEnv(AbstractEnv):
         and the scalars ``n_avs``, ``n_hdvs``, ``step``.
         """
         n = self.n_avs
-        arrays = step_report(result, proposed, self.config, self._merge_tables() is not None)
+        arrays = step_report(result, proposed, self.config, self._parameters.merge is not None)
         info = {
             "rewards": arrays.pop("reward"),
             "reward_terms": arrays.pop("reward_terms"),

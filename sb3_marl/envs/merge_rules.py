@@ -5,6 +5,8 @@ reward's neighbour sets. The merge env (:mod:`sb3_marl.envs.merge_env`) and the 
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from sb3_marl.sim import kernel
@@ -46,6 +48,22 @@ ACROSS_FROM = np.array([ENDS[0], -np.inf, -np.inf, np.inf, np.inf, -np.inf])
 #: lane's is left out, as theirs).
 NEXT_ON_ROUTE = np.array([MAIN_BESIDE, MAIN_AFTER, -1, -1, CONVERGING, MERGING_LANE])
 HEADWAY_CAP = 60.0  # [m] MARL_CAVs' headway without a leader
+
+
+class MergeRoad(NamedTuple):
+    """The merging road's tables (above) and supervisor order, as compiled code takes them
+    (:class:`~sb3_marl.envs.batch_kernel.StepParameters`' ``merge``; None there: the highway)."""
+
+    route: np.ndarray
+    across: np.ndarray
+    across_from: np.ndarray
+    next_on_route: np.ndarray
+    merging_priority: bool  # the supervisor serves the AVs in the merge's order (supervisor_priority)
+
+
+def merge_road(merging_priority: bool) -> MergeRoad:
+    """The merging road's :class:`MergeRoad`."""
+    return MergeRoad(ROUTE, ACROSS, ACROSS_FROM, NEXT_ON_ROUTE, merging_priority)
 
 
 @jit

@@ -10,7 +10,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from sb3_marl.sim import HDV_STYLES, kernel, pcg64
+from sb3_marl.sim import HDV_STYLES, pcg64
 from sb3_marl.sim.kernel import jit
 from sb3_marl.sim.merge_road import MAIN_BEFORE, MAIN_SPAWN, RAMP, RAMP_SPAWN, RAMP_Y, obstacle_rows
 from sb3_marl.sim.road import vehicle_rows
@@ -19,7 +19,6 @@ from sb3_marl.sim.road import vehicle_rows
 class SpawnParameters(NamedTuple):
     """What a spawn reads from the scenario config (compiled code takes it as one argument)."""
 
-    merge: bool  # the merge's spawn points (sb3_marl.sim.merge_road), else the highway's grid
     lanes_count: int  # the highway's grid: lanes_count × slots_per_lane slots
     slots_per_lane: int
     start: float  # [m] the grid's first slot
@@ -35,14 +34,16 @@ class SpawnParameters(NamedTuple):
     b_safe: float  # [m/s²]
     min_acc_gain: float  # [m/s²]
     hdv_idm: np.ndarray  # the HDVs' IDM style (sb3_marl.sim.HDV_STYLES)
-    obstacles: np.ndarray  # (obstacles, COLUMNS) rows after the vehicles'
+    n_obstacles: int  # rows after the vehicles' (the merge's end of the merging lane)
+    merge_obstacles: np.ndarray | None  # the merge's: its spawn points (sb3_marl.sim.merge_road) and
+    # obstacle rows (n_obstacles, COLUMNS); None: the highway's grid (compiled code for one road only)
 
 
 def spawn_parameters(config: dict[str, Any], hdv_range: tuple[int, int], merge: bool) -> SpawnParameters:
     """The spawn of a scenario ``config`` with HDV counts in ``hdv_range`` (inclusive) on the merge's
     road (``merge``) or the highway."""
+    obstacles = obstacle_rows() if merge else None
     return SpawnParameters(
-        merge,
         int(config.get("lanes_count", 1)),
         int(config.get("spawn_slots_per_lane", 1)),
         float(config.get("spawn_start", 0.0)),
@@ -58,26 +59,29 @@ def spawn_parameters(config: dict[str, Any], hdv_range: tuple[int, int], merge: 
         float(config["hdv_b_safe"]),
         float(config["hdv_lane_change_threshold"]),
         np.array(HDV_STYLES[config.get("hdv_style", "normal")], dtype=np.float64),
-        obstacle_rows() if merge else np.zeros((0, kernel.COLUMNS)),
+        0 if obstacles is None else len(obstacles),
+        obstacles,
     )
 
 
 def draw_episode(np_random: np.random.Generator, n_avs: int, s: SpawnParameters) -> tuple[int, np.ndarray]:
     """:func:`new_episode` drawn from a NumPy generator (advanced as if it had drawn itself)."""
     words = pcg64.read_state(np_random)
-    n_hdvs, state = new_episode(words, n_avs, s)
+    n_hdvs, state = new_episode(words, n_avs, s, s.merge_obstacles)
     pcg64.write_state(np_random, words)
     return int(n_hdvs), state
 
 
 @jit
-def new_episode(g: np.ndarray, n_avs: int, s: SpawnParameters) -> tuple[int, np.ndarray]:
+def new_episode(g: np.ndarray, n_avs: int, s: SpawnParameters, merge_obstacles: np.ndarray | None) -> tuple[int, np.ndarray]:
     """A new episode from the generator state ``g`` (advanced): its HDV count, uniform in
-    ``s``'s range, and its state array (the ``n_avs`` AVs first, then the HDVs and obstacles)."""
+    ``s``'s range, and its state array (the ``n_avs`` AVs first, then the HDVs and obstacles).
+    ``merge_obstacles`` is ``s.merge_obstacles`` as an argument: numba compiles only the branch of
+    its type (None: the highway's grid)."""
     n_hdvs = pcg64.integers(g, s.hdv_low, s.hdv_high + 1)
-    if s.merge:
-        return n_hdvs, _merge_spawn(g, n_avs, n_hdvs, s)
-    return n_hdvs, _grid_spawn(g, n_avs, n_hdvs, s)
+    if merge_obstacles is None:
+        return n_hdvs, _grid_spawn(g, n_avs, n_hdvs, s)
+    return n_hdvs, _merge_spawn(g, n_avs, n_hdvs, s, merge_obstacles)
 
 
 @jit
@@ -94,7 +98,7 @@ def _grid_spawn(g: np.ndarray, n_avs: int, n_hdvs: int, s: SpawnParameters) -> n
 
 
 @jit
-def _merge_spawn(g: np.ndarray, n_avs: int, n_hdvs: int, s: SpawnParameters) -> np.ndarray:
+def _merge_spawn(g: np.ndarray, n_avs: int, n_hdvs: int, s: SpawnParameters, obstacles: np.ndarray) -> np.ndarray:
     """The merge's spawn, as MARL_CAVs' ``merge_env_v1._make_vehicles`` draws it: half the AVs
     (rounded down) at distinct random spawn points of the main road, the others on the ramp, then
     half the HDVs (rounded down) at the main road's remaining points and the others at the ramp's;
@@ -116,7 +120,7 @@ def _merge_spawn(g: np.ndarray, n_avs: int, n_hdvs: int, s: SpawnParameters) -> 
             if group % 2:  # the ramp's
                 y[k], lane[k] = RAMP_Y, float(RAMP)
             k += 1
-    return np.concatenate((_vehicles(x, y, lane, speeds, n_avs, s), s.obstacles))
+    return np.concatenate((_vehicles(x, y, lane, speeds, n_avs, s), obstacles))
 
 
 @jit
