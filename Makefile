@@ -15,8 +15,9 @@ $(RUNTIME): setup.py pyproject.toml
 	$(PIP) --upgrade pip
 	$(PIP) torch==2.13.0
 	$(PIP) -e .
-	@echo "filling the compiled road kernel's cache once (the first command then starts at once)"
+	@echo "filling the compiled road kernel's cache once, both roads (the first command then starts at once)"
 	$(VENV)/bin/sb3-marl baselines --eval-episodes 1 -o $(VENV)/compiled/baselines.md > /dev/null
+	$(VENV)/bin/sb3-marl baselines --env sb3_marl/Merge-density1-v0 --eval-episodes 1 -o $(VENV)/compiled/baselines_merge.md > /dev/null
 	touch $(RUNTIME)
 
 $(DEV): $(RUNTIME)
