@@ -18,7 +18,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from sb3_marl.envs.merge_rules import MergeRoad, _merge_priorities, _regional_neighbours
+from sb3_marl.envs.merge_rules import MergeRules, _merge_priorities, _regional_neighbours
 from sb3_marl.envs.observation import _observe
 from sb3_marl.envs.reward import REWARD_TERMS, _neighbour_matrix, _terms, _weighted, mode_rewards
 from sb3_marl.safety.rooms import SLOWER, Horizon
@@ -62,7 +62,9 @@ class StepParameters(NamedTuple):
     v_range: float  # [m/s]
     target_speed_column: bool
     spawn: SpawnParameters  # a new episode's traffic
-    merge: MergeRoad | None  # the merge's neighbour sets and supervisor order (sb3_marl.envs.merge_env); None: the highway
+    # the merge's neighbour sets and supervisor order (sb3_marl.envs.merge_env), None on the highway;
+    # compiled callees receive it as an argument, p.merge (see the module doc)
+    merge: MergeRules | None
 
 
 class BatchStep(NamedTuple):
@@ -280,7 +282,7 @@ def observe_copies(
 
 
 @jit
-def _observe_into(r: BatchStep, state: np.ndarray, a: int, b: int, p: StepParameters, merge: MergeRoad | None) -> None:
+def _observe_into(r: BatchStep, state: np.ndarray, a: int, b: int, p: StepParameters, merge: MergeRules | None) -> None:
     """Write the observation of one copy's ``state`` (its AVs at slots ``a:b``) into ``r``, with its
     reward terms, neighbour sets, action masks and the rule driver's actions (``r``'s acceleration
     and lane changes of the slots already set), as :meth:`LaneChangeEnv._observe`. ``merge`` is
@@ -335,7 +337,7 @@ def _observe_into(r: BatchStep, state: np.ndarray, a: int, b: int, p: StepParame
 
 @jit
 def supervise_road(
-    state: np.ndarray, n: int, proposed: np.ndarray, p: StepParameters, merge: MergeRoad | None
+    state: np.ndarray, n: int, proposed: np.ndarray, p: StepParameters, merge: MergeRules | None
 ) -> tuple[np.ndarray, np.ndarray]:
     """:class:`~sb3_marl.safety.supervisor.Supervisor` of a copy (priority: the headway margin, or
     the merge's): the executed meta-actions and which AVs brake to a stop. ``merge`` is ``p.merge``

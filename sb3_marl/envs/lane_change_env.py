@@ -23,7 +23,7 @@ from sb3_marl.envs.batch_kernel import (
     step_report,
     supervise_road,
 )
-from sb3_marl.envs.merge_rules import MergeRoad
+from sb3_marl.envs.merge_rules import MergeRules
 from sb3_marl.envs.observation import observation_space
 from sb3_marl.safety.supervisor import Supervisor
 from sb3_marl.sim import drivers, kernel, lanes, meta_actions
@@ -118,13 +118,13 @@ class LaneChangeEnv(AbstractEnv):
         """highway-env's road of the config, without vehicles."""
         return make_road(self.config, self.np_random)
 
-    def _merge_road(self) -> MergeRoad | None:
+    def _merge_rules(self) -> MergeRules | None:
         """The merging road's tables and supervisor order (:mod:`~sb3_marl.envs.merge_rules`; None: not a merge)."""
         return None
 
     def step_parameters(self) -> StepParameters:
         """What a compiled step of this scenario reads from its current config."""
-        c, merge = self.config, self._merge_road()
+        c, merge = self.config, self._merge_rules()
         return StepParameters(
             self.horizon,
             float(c["policy_frequency"]),

@@ -11,7 +11,7 @@ from highway_env.road.road import Road
 
 from sb3_marl.envs import config as cfg
 from sb3_marl.envs.lane_change_env import LaneChangeEnv
-from sb3_marl.envs.merge_rules import ON_RAMP_SIDE, MergeRoad, merge_road
+from sb3_marl.envs.merge_rules import ACROSS, ACROSS_FROM, NEXT_ON_ROUTE, ON_RAMP_SIDE, ROUTE, MergeRules
 from sb3_marl.sim import kernel
 from sb3_marl.sim.merge_road import (
     MERGING_LANE,
@@ -49,8 +49,8 @@ class MergeEnv(LaneChangeEnv):
     def road_length(self) -> float:
         return ROAD_LENGTH
 
-    def _merge_road(self) -> MergeRoad | None:
-        return merge_road(self.config["supervisor_priority"] == "merging")
+    def _merge_rules(self) -> MergeRules | None:
+        return MergeRules(ROUTE, ACROSS, ACROSS_FROM, NEXT_ON_ROUTE, self.config["supervisor_priority"] == "merging")
 
     def _scenario_info(self, info: dict[str, Any]) -> None:
         """The merge's info: ``ramp_av`` (the AV started on the ramp), ``merge_time`` [s] (when a

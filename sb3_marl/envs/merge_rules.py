@@ -50,7 +50,7 @@ NEXT_ON_ROUTE = np.array([MAIN_BESIDE, MAIN_AFTER, -1, -1, CONVERGING, MERGING_L
 HEADWAY_CAP = 60.0  # [m] MARL_CAVs' headway without a leader
 
 
-class MergeRoad(NamedTuple):
+class MergeRules(NamedTuple):
     """The merging road's tables (above) and supervisor order, as compiled code takes them
     (:class:`~sb3_marl.envs.batch_kernel.StepParameters`' ``merge``; None there: the highway)."""
 
@@ -59,11 +59,6 @@ class MergeRoad(NamedTuple):
     across_from: np.ndarray
     next_on_route: np.ndarray
     merging_priority: bool  # the supervisor serves the AVs in the merge's order (supervisor_priority)
-
-
-def merge_road(merging_priority: bool) -> MergeRoad:
-    """The merging road's :class:`MergeRoad`."""
-    return MergeRoad(ROUTE, ACROSS, ACROSS_FROM, NEXT_ON_ROUTE, merging_priority)
 
 
 @jit
@@ -96,7 +91,7 @@ def _surrounding(state: np.ndarray, k: int, lane: int, route: np.ndarray) -> tup
     """MARL_CAVs' ``Road.surrounding_vehicles``: (front, rear) of vehicle k among the vehicles on
     ``lane``'s route, by x (-1: none; obstacles left out)."""
     s = state[k, kernel.X]
-    front = rear = kernel.NONE
+    front = rear = kernel.NO_VEHICLE
     s_front = s_rear = 0.0
     for j in range(state.shape[0]):
         if j == k or state[j, kernel.IS_OBSTACLE] or not route[lane, int(state[j, kernel.LANE])]:

@@ -19,7 +19,7 @@ from sb3_marl.safety.rooms import (
     set_action,
     set_brake,
 )
-from sb3_marl.sim.kernel import COLLIDABLE, NONE, jit
+from sb3_marl.sim.kernel import COLLIDABLE, NO_VEHICLE, jit
 
 #: The emergency brake as an option of the joint search (after the five meta-actions).
 BRAKE = 5
@@ -56,7 +56,7 @@ def keep_lanes_together(
         for i in range(n_avs):
             if stuck[i]:
                 set_action(trial, i, IDLE, trial_step, candidate_lane, candidate_speed, repeat_actions)
-        trial_path = predict(trial, horizon, trial_step, NONE, collidable, -np.inf)[0]
+        trial_path = predict(trial, horizon, trial_step, NO_VEHICLE, collidable, -np.inf)[0]
         trial_rooms = av_rooms(trial_path, counted_by_all(state0, n_avs, collidable, rear_avs), collidable, dt)
         before, after = np.inf, np.inf
         for i in range(n_avs):
@@ -100,7 +100,7 @@ def _joint_score(
 ) -> tuple[float, float, float, np.ndarray]:
     """(worst room shortfall, worst dead-end shortfall, summed room shortfall) [m] of the AVs' set
     actions (each 0 when every AV has room / a way off), and the AVs' rooms [m]."""
-    path = predict(state, horizon, speed_step, NONE, collidable, -np.inf)[0]
+    path = predict(state, horizon, speed_step, NO_VEHICLE, collidable, -np.inf)[0]
     rooms = av_rooms(path, counted, collidable, horizon.dt)
     worst, dead, total = 0.0, 0.0, 0.0
     for i in range(n_avs):
@@ -161,7 +161,7 @@ def search_pairs(
         for i in order:
             if not collidable[i] or rooms[i] >= min_gap:
                 continue
-            best_pair = (NONE, NONE, NONE, NONE)
+            best_pair = (NO_VEHICLE, NO_VEHICLE, NO_VEHICLE, NO_VEHICLE)
             for j in order:
                 if not collidable[j]:
                     continue

@@ -20,7 +20,7 @@ from sb3_marl.sim.kernel import (
     LANE,
     LENGTH,
     MAX_BRAKING_IMPOSED,
-    NONE,
+    NO_VEHICLE,
     OBSTACLE_LENGTH,
     PRESENT,
     SPEED,
@@ -177,7 +177,7 @@ def dead_end_margin(state: np.ndarray, ego: int, path: np.ndarray, lanes: np.nda
 PREFERENCE = np.array([1, 4, 3, 0, 2], dtype=np.int64)
 #: Speed-index change of each meta-action (FASTER +1, SLOWER -1) when actions repeat over the horizon.
 SPEED_STEP = np.array([0, 0, 0, 1, -1], dtype=np.int64)
-#: highway-env's meta-action indices as int64 (see :data:`~sb3_marl.sim.kernel.NONE`)
+#: highway-env's meta-action indices as int64 (see :data:`~sb3_marl.sim.kernel.NO_VEHICLE`)
 LANE_LEFT, IDLE, LANE_RIGHT, SLOWER = (cast(int, np.int64(action)) for action in (0, 1, 2, 4))
 #: :func:`counted_by`'s ``rear_avs`` off, as a typed bool (a literal False compiles it again)
 AHEAD_ONLY = cast(bool, np.bool_(False))
@@ -254,7 +254,7 @@ def unsafe_cut_ins(
             if lane == int(state[i, LANE]):
                 continue
             s_i = local_coordinates(lanes, lane, state[i, X], state[i, Y])[0]
-            follower, s_follower = NONE, -np.inf
+            follower, s_follower = NO_VEHICLE, -np.inf
             for j in range(n_avs, state.shape[0]):
                 if state[j, IS_HDV] <= 0 or state[j, PRESENT] <= 0:
                     continue

@@ -86,7 +86,7 @@ from sb3_marl.sim.drivers import lane_distance, lane_order, leader
 from sb3_marl.sim.kernel import (
     COLLIDABLE,
     IS_OBSTACLE,
-    NONE,
+    NO_VEHICLE,
     SPEED,
     TARGET_LANE,
     TARGET_SPEED,
@@ -173,7 +173,7 @@ def supervise_arrays(
                     unsafe[i, a] |= candidate_lane[i, a] != state0[i, TARGET_LANE]
     short = min_gap - 1e-6  # [m] the room an unsafe cut-in (or a braked AV's lane change) counts at most
     # the road predicted under the AVs' current actions, shared by every AV's room until one changes
-    path = predict(state, horizon, speed_step, NONE, collidable, -np.inf)[0]
+    path = predict(state, horizon, speed_step, NO_VEHICLE, collidable, -np.inf)[0]
     obstacles = np.flatnonzero(state0[:, IS_OBSTACLE] > 0)
     settled = False  # whether the last pass changed nothing (every room then under the final actions)
     for _ in range(PASSES):

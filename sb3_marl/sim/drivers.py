@@ -31,7 +31,7 @@ from sb3_marl.sim.kernel import (
     MAX_BRAKING_IMPOSED,
     MAX_STEERING_ANGLE,
     MIN_ACC_GAIN,
-    NONE,
+    NO_VEHICLE,
     ON_LANE_MARGIN,
     POLITENESS,
     PRESENT,
@@ -101,7 +101,7 @@ def _neighbours(state: np.ndarray, lanes: np.ndarray, order: LaneOrder, k: int, 
     s, rows, count = order.s, order.members, order.sizes[lane]
     s_k = s[lane, k]
     if count <= SCANNED:  # a few rows, in row order: one pass
-        front = rear = NONE
+        front = rear = NO_VEHICLE
         s_front = s_rear = 0.0
         for i in range(count):
             if rows[lane, i] != k:
@@ -114,13 +114,13 @@ def _neighbours(state: np.ndarray, lanes: np.ndarray, order: LaneOrder, k: int, 
             low = middle + 1
         else:
             high = middle
-    rear = NONE
+    rear = NO_VEHICLE
     if low > 0:
         first = low - 1
         while first > 0 and s[lane, rows[lane, first - 1]] == s[lane, rows[lane, first]]:
             first -= 1
         rear = rows[lane, first]
-    front, i = NONE, low
+    front, i = NO_VEHICLE, low
     while i < count and rows[lane, i] == k:
         i += 1
     if i < count:

@@ -95,18 +95,18 @@ OBSTACLE_DIAGONAL = float(np.sqrt(OBSTACLE_LENGTH**2 + OBSTACLE_WIDTH**2))  # [m
 COLUMNS = 26
 #: "No vehicle" (a row index of -1) as an int64: numba compiles a function passed the literal -1
 #: a second time, for the literal, and a variable started at -1 makes it do so for its callees.
-NONE = cast(int, np.int64(-1))
+NO_VEHICLE = cast(int, np.int64(-1))
 
-F = TypeVar("F", bound=Callable[..., Any])
+_F = TypeVar("_F", bound=Callable[..., Any])
 
 
-def jit(function: F) -> F:
+def jit(function: _F) -> _F:
     """``function`` compiled as every function of the kernel: numba's nopython mode, cached in
     ``NUMBA_CACHE_DIR`` (:mod:`sb3_marl.common.compiled`), without the C callback wrapper numba
     otherwise builds for each function (for first-class function values, which the kernel never
     passes; building them took ~10 % of a cold start's compile time)."""
     options: dict[str, Any] = {"cache": True, "no_cfunc_wrapper": True}
-    return cast(F, numba.njit(function, **options))
+    return cast(_F, numba.njit(function, **options))
 
 
 @jit
@@ -160,7 +160,8 @@ def wrap_to_pi(angle: float) -> float:
 @jit
 def argsort(values: np.ndarray) -> np.ndarray:
     """``np.argsort(values, kind="stable")`` (equal values in index order) by insertion: the kernel
-    sorts a few dozen vehicles at most, and this compiles in a tenth of numba's merge sort's time."""
+    sorts a few dozen vehicles at most, and this compiles in a tenth of numba's merge sort's time.
+    No NaN (numpy sorts it last; here it stays where it is): the kernel sorts none."""
     order = np.empty(values.size, dtype=np.int64)
     for j in range(values.size):
         k = j

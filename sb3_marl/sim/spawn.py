@@ -17,7 +17,8 @@ from sb3_marl.sim.road import vehicle_rows
 
 
 class SpawnParameters(NamedTuple):
-    """What a spawn reads from the scenario config (compiled code takes it as one argument)."""
+    """What a spawn reads from the scenario config (compiled code takes it as one argument, and
+    ``merge_obstacles`` once more on its own: :func:`new_episode`)."""
 
     lanes_count: int  # the highway's grid: lanes_count × slots_per_lane slots
     slots_per_lane: int
@@ -35,8 +36,9 @@ class SpawnParameters(NamedTuple):
     min_acc_gain: float  # [m/s²]
     hdv_idm: np.ndarray  # the HDVs' IDM style (sb3_marl.sim.HDV_STYLES)
     n_obstacles: int  # rows after the vehicles' (the merge's end of the merging lane)
-    merge_obstacles: np.ndarray | None  # the merge's: its spawn points (sb3_marl.sim.merge_road) and
-    # obstacle rows (n_obstacles, COLUMNS); None: the highway's grid (compiled code for one road only)
+    # (n_obstacles, COLUMNS) the merge's obstacle rows, None on the highway: not None selects the
+    # merge's spawn points (sb3_marl.sim.merge_road), None the highway's grid (new_episode)
+    merge_obstacles: np.ndarray | None
 
 
 def spawn_parameters(config: dict[str, Any], hdv_range: tuple[int, int], merge: bool) -> SpawnParameters:

@@ -14,6 +14,7 @@ from parity import compare, run_episode
 from sb3_marl.envs import ENV_IDS
 from sb3_marl.sim.collisions import SWEPT
 from sb3_marl.sim.drivers import SCANNED
+from sb3_marl.sim.kernel import argsort
 from sb3_marl.sim.simulator import COMPILED, STOCK
 
 #: [m, rad, m/s, m/s²] largest state difference accepted: numpy's SIMD arcsin / arctan / tan /
@@ -97,3 +98,17 @@ def test_the_normal_style_is_highway_envs_idm():
         IDMVehicle.DISTANCE_WANTED,
         IDMVehicle.TIME_WANTED,
     )
+
+
+def test_the_kernels_argsort_is_numpys_stable_argsort():
+    """On what the kernel sorts: floats with ties, ±0 and ±inf (distances, positions, priorities),
+    and int64s with ties (collision pairs); empty and single arrays."""
+    rng = np.random.default_rng(0)
+    for size in [0, 1, 2, 5, 17, 40]:
+        for _ in range(50):
+            floats = rng.choice([-np.inf, -1.5, -0.0, 0.0, 0.25, 3.0, np.inf], size) + rng.integers(0, 2, size) * rng.random(
+                size
+            )
+            ints = rng.integers(-3, 4, size)
+            for values in (floats, ints):
+                np.testing.assert_array_equal(argsort(values), np.argsort(values, kind="stable"))
