@@ -59,15 +59,19 @@ def test_a_numba_cache_dir_that_cannot_be_written_falls_back_in_one_line(tmp_pat
 
 
 def test_a_cold_cache_is_announced_and_a_filled_one_is_not(tmp_path, monkeypatch, capsys):
+    """Per road: the highway's step compiled, the merge's is still announced (they compile apart)."""
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
     assert compiled.cache_is_cold()
     compiled.announce_compiling()
     assert capsys.readouterr().err == f"sb3-marl: {compiled.COMPILING.format(folder=tmp_path)}\n"
-    (tmp_path / "module" / "kernel.step-10.py311.nbi").parent.mkdir()
-    (tmp_path / "module" / "kernel.step-10.py311.nbi").write_bytes(b"")
+    (tmp_path / "module").mkdir()
+    (tmp_path / "module" / "spawn._grid_spawn-83.py311.nbi").write_bytes(b"")  # as numba names it
     assert not compiled.cache_is_cold()
     compiled.announce_compiling()
     assert capsys.readouterr().err == ""
+    assert compiled.cache_is_cold(merge=True)
+    compiled.announce_compiling(merge=True)
+    assert capsys.readouterr().err == f"sb3-marl: {compiled.COMPILING.format(folder=tmp_path)}\n"
 
 
 def test_the_time_numba_spends_compiling_is_measured():

@@ -58,7 +58,7 @@ def baselines_command(args: argparse.Namespace) -> int:
         env_id = (MERGE_ENV_IDS if scenario == MERGE else ENV_IDS)[args.density or 1]
     output = args.output or Path("logs") / f"baselines_{env_id.replace('/', '-')}.md"
     check_file("-o/--output", output)
-    announce_compiling()
+    announce_compiling(merge=env_id in MERGE_ENV_IDS.values())
     rows, results = [], []
     start, seed = time.perf_counter(), args.seed + EVAL_SEED_OFFSET
     for name, policy_class in BASELINES.items():

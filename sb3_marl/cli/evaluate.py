@@ -31,7 +31,7 @@ from sb3_marl.cli.common import (
     positive,
 )
 from sb3_marl.common.files import write_text
-from sb3_marl.envs import SCENARIO_IDS, make_scenario
+from sb3_marl.envs import MERGE_ENV_IDS, SCENARIO_IDS, make_scenario
 
 
 def add_parsers(commands: Any) -> None:
@@ -184,7 +184,7 @@ def evaluate_command(args: argparse.Namespace) -> int:
     output = Path(args.output) if args.output else outputs_of(args, run) / "evaluation.json"
     if not args.output:  # the evaluation's files go beside the model: known before the work
         check_folder("-f/--log-folder", str(output.parent))
-    announce_compiling()
+    announce_compiling(merge=run.env_id in MERGE_ENV_IDS.values())
     seed, episodes, progress = args.seed + EVAL_SEED_OFFSET, _episodes(args, run), args.verbose > 0
     start = time.perf_counter()
     result = {"model": str(run.model_path), **run.evaluate(model, episodes, seed, args.deterministic, progress, traffic=True)}

@@ -32,7 +32,7 @@ from sb3_marl.cli.common import (
     positive_or_default,
     set_num_threads,
 )
-from sb3_marl.envs import SCENARIO_IDS
+from sb3_marl.envs import MERGE_ENV_IDS, SCENARIO_IDS
 
 
 def add_parsers(commands: Any) -> None:
@@ -260,7 +260,7 @@ def train_command(args: argparse.Namespace) -> int:
     spec = RunSpec.from_args(args)
     tensorboard_log = spec.tensorboard_folder
     manager = MARLExperimentManager(spec)
-    announce_compiling()
+    announce_compiling(merge=args.env in MERGE_ENV_IDS.values())
     try:
         experiment = manager.setup_experiment()
     except (ValueError, FileNotFoundError) as error:  # bad hyperparameters: nothing has been trained

@@ -57,15 +57,18 @@ def choose_cache_folder(digest: str) -> str | None:
     return f"sb3-marl: neither {preferred} nor {fallback} can be written: set NUMBA_CACHE_DIR to a writable folder"
 
 
-def cache_is_cold() -> bool:
-    """Whether the kernel's cache holds nothing yet (this process will compile)."""
+def cache_is_cold(merge: bool = False) -> bool:
+    """Whether this process will compile the step of the lane change's highway (or, with ``merge``,
+    the merge's road): the cache holds none of that road's own functions yet (its spawn, in
+    :mod:`sb3_marl.sim.spawn`; the two roads' steps are compiled apart)."""
     folder = Path(os.environ.get("NUMBA_CACHE_DIR", ""))
-    return not folder.is_dir() or next(folder.rglob("*.nbi"), None) is None
+    spawn = "_merge_spawn" if merge else "_grid_spawn"
+    return not folder.is_dir() or next(folder.rglob(f"*.{spawn}-*.nbi"), None) is None
 
 
-def announce_compiling() -> None:
-    """One line on stderr before a cold start compiles (nothing when the cache is filled)."""
-    if cache_is_cold():
+def announce_compiling(merge: bool = False) -> None:
+    """One line on stderr before a command compiles its road's step (nothing when it is cached)."""
+    if cache_is_cold(merge):
         print("sb3-marl: " + COMPILING.format(folder=os.environ.get("NUMBA_CACHE_DIR")), file=sys.stderr, flush=True)
 
 
