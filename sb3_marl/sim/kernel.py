@@ -104,7 +104,7 @@ def jit(function: _F) -> _F:
     """``function`` compiled as every function of the kernel: numba's nopython mode, cached in
     ``NUMBA_CACHE_DIR`` (:mod:`sb3_marl.common.compiled`), without the C callback wrapper numba
     otherwise builds for each function (for first-class function values, which the kernel never
-    passes; building them took ~10 % of a cold start's compile time)."""
+    passes)."""
     options: dict[str, Any] = {"cache": True, "no_cfunc_wrapper": True}
     return cast(_F, numba.njit(function, **options))
 
