@@ -1,9 +1,9 @@
 """Cost of the safety supervisor beside the env step it guards, per density (one process).
 
 For each density at its maximum vehicle count, a seeded random policy over the available actions
-drives the scenario with the supervisor on; every step is timed, and so is the supervisor's own
-call (its prediction: array copy of the vehicle states + the compiled horizon simulation) inside
-it. Beside each call, on the same road state, one prediction of the whole road over the horizon
+drives the scenario with the supervisor on; every step is timed. The supervisor runs inside the
+compiled step, so its call (the compiled horizon simulation) is timed apart, on every road state
+the steps started from, with the same proposed actions; beside it one prediction of the whole road over the horizon
 (:func:`~sb3_marl.safety.rooms.predict`: the base path every call starts from; each replacement
 candidate costs another, cut short once it cannot win) and one compiled policy step (its frames and
 the collision test) are timed: their ratio says how many predictions a call makes on average, and
@@ -31,7 +31,6 @@ import numpy as np
 import sb3_marl  # noqa: F401  (registers our ids)
 from sb3_marl.envs import DENSITIES, ENV_IDS
 from sb3_marl.safety.rooms import predict
-from sb3_marl.safety.supervisor import Supervisor
 from sb3_marl.sim.dynamics import policy_step
 from sb3_marl.sim.kernel import COLLIDABLE
 
@@ -43,44 +42,39 @@ def measure(density: int, steps: int, supervisor: bool, seed: int = 0, version: 
     n_avs, n_hdvs = DENSITIES[density]["avs"][1], DENSITIES[density]["hdvs"][1]
     config = {"n_avs": n_avs, "hdv_count_range": [n_hdvs, n_hdvs], "safety_supervisor": supervisor}
     env = gym.make(ENV_IDS[density], config={**config, **({"supervisor_version": version} if version else {})}).unwrapped
-    supervise, spent = Supervisor.__call__, [0.0, 0, 0.0, 0.0]
-
-    def timed(self: Supervisor, state: np.ndarray, n_avs: int, proposed: np.ndarray, available: np.ndarray):
+    rng = np.random.default_rng(seed)
+    env.reset(seed=seed)
+    episode, stepping, interventions, seen = 0, 0.0, 0, []
+    for _ in range(steps):
+        masks = env.action_masks()
+        actions = np.array([rng.choice(np.flatnonzero(row)) for row in masks])
+        seen.append((env.state.copy(), env.n_avs, actions, masks))  # the road the supervisor sees
         tic = time.perf_counter()
-        result = supervise(self, state, n_avs, proposed, available)
+        _, _, terminated, truncated, info = env.step(actions)
+        stepping += time.perf_counter() - tic
+        interventions += int(info["intervened"].sum())
+        if terminated or truncated:
+            episode += 1
+            env.reset(seed=seed + episode)
+    # the supervisor runs inside the compiled step: timed again, apart, on the roads it saw
+    supervise, h, spent = env.supervisor, env.supervisor.horizon, [0.0, 0.0, 0.0]
+    for state, n_avs, actions, masks in seen:
+        idle = np.zeros(n_avs, dtype=np.int64)
+        tic = time.perf_counter()
+        supervise(state, n_avs, actions, masks)
         spent[0] += time.perf_counter() - tic
-        spent[1] += 1
-        h, idle = self.horizon, np.zeros(n_avs, dtype=np.int64)
         tic = time.perf_counter()
         predict(state, h, idle, -1, state[:, COLLIDABLE] > 0, -np.inf)
-        spent[2] += time.perf_counter() - tic
+        spent[1] += time.perf_counter() - tic
         tic = time.perf_counter()
         policy_step(state, idle + 1, h.frames_per_step, h.dt, h.lanes, h.road_end, h.speed_limit, h.ladder, idle > 0)
-        spent[3] += time.perf_counter() - tic
-        return result
-
-    Supervisor.__call__ = timed  # every env's supervisor, timed
-    try:
-        rng = np.random.default_rng(seed)
-        env.reset(seed=seed)
-        episode, stepping, interventions = 0, 0.0, 0
-        for _ in range(steps):
-            actions = np.array([rng.choice(np.flatnonzero(row)) for row in env.action_masks()])
-            tic = time.perf_counter()
-            _, _, terminated, truncated, info = env.step(actions)
-            stepping += time.perf_counter() - tic
-            interventions += int(info["intervened"].sum())
-            if terminated or truncated:
-                episode += 1
-                env.reset(seed=seed + episode)
-    finally:
-        Supervisor.__call__ = supervise
+        spent[2] += time.perf_counter() - tic
     return {
-        "step": (stepping - spent[2] - spent[3]) / steps,  # without the timings beside the calls
-        "supervisor": spent[0] / max(spent[1], 1),
-        "prediction": spent[2] / max(spent[1], 1),
-        "policy_step": spent[3] / max(spent[1], 1),
-        "frames": float(env.supervisor.horizon.frames),
+        "step": stepping / steps,
+        "supervisor": spent[0] / steps,
+        "prediction": spent[1] / steps,
+        "policy_step": spent[2] / steps,
+        "frames": float(h.frames),
         "interventions_per_step": interventions / steps,
     }
 

@@ -104,7 +104,13 @@ def jit(function: _F) -> _F:
     """``function`` compiled as every function of the kernel: numba's nopython mode, cached in
     ``NUMBA_CACHE_DIR`` (:mod:`sb3_marl.common.compiled`), without the C callback wrapper numba
     otherwise builds for each function (for first-class function values, which the kernel never
-    passes)."""
+    passes).
+
+    A function called for every vehicle reads its array arguments before it branches: numba
+    releases an array after its last use, and one last read inside an ``if`` keeps an atomic
+    reference-count update on each side of every call, which LLVM then cannot remove where the
+    function is inlined (the lane helpers of :mod:`~sb3_marl.sim.lanes`; their test checks their
+    machine code)."""
     options: dict[str, Any] = {"cache": True, "no_cfunc_wrapper": True}
     return cast(_F, numba.njit(function, **options))
 

@@ -93,35 +93,34 @@ def lane_table(network: RoadNetwork) -> np.ndarray:
 @jit
 def local_coordinates(lanes: np.ndarray, lane: int, x: float, y: float) -> tuple[float, float]:
     """``lane.local_coordinates((x, y))``: (longitudinal, lateral) [m] of a point in the lane's frame."""
-    dx, dy = x - lanes[lane, START_X], y - lanes[lane, START_Y]
-    ux, uy = lanes[lane, DIRECTION_X], lanes[lane, DIRECTION_Y]
+    start_x, start_y, ux, uy = lanes[lane, START_X], lanes[lane, START_Y], lanes[lane, DIRECTION_X], lanes[lane, DIRECTION_Y]
+    sine, amplitude, pulsation, phase = lanes[lane, SINE], lanes[lane, AMPLITUDE], lanes[lane, PULSATION], lanes[lane, PHASE]
+    dx, dy = x - start_x, y - start_y
     longitudinal = dx * ux + dy * uy
     lateral = dx * -uy + dy * ux
-    if lanes[lane, SINE]:
-        lateral -= lanes[lane, AMPLITUDE] * np.sin(lanes[lane, PULSATION] * longitudinal + lanes[lane, PHASE])
+    if sine:
+        lateral -= amplitude * np.sin(pulsation * longitudinal + phase)
     return longitudinal, lateral
 
 
 @jit
 def heading_at(lanes: np.ndarray, lane: int, longitudinal: float) -> float:
     """``lane.heading_at(longitudinal)`` [rad]."""
-    heading = lanes[lane, HEADING]
-    if lanes[lane, SINE]:
-        amplitude, pulsation = lanes[lane, AMPLITUDE], lanes[lane, PULSATION]
-        heading += np.arctan(amplitude * pulsation * np.cos(pulsation * longitudinal + lanes[lane, PHASE]))
+    heading, sine = lanes[lane, HEADING], lanes[lane, SINE]
+    amplitude, pulsation, phase = lanes[lane, AMPLITUDE], lanes[lane, PULSATION], lanes[lane, PHASE]
+    if sine:
+        heading += np.arctan(amplitude * pulsation * np.cos(pulsation * longitudinal + phase))
     return heading
 
 
 @jit
 def position(lanes: np.ndarray, lane: int, longitudinal: float, lateral: float) -> tuple[float, float]:
     """``lane.position(longitudinal, lateral)``: the world point [m]."""
-    if lanes[lane, SINE]:
-        lateral += lanes[lane, AMPLITUDE] * np.sin(lanes[lane, PULSATION] * longitudinal + lanes[lane, PHASE])
-    ux, uy = lanes[lane, DIRECTION_X], lanes[lane, DIRECTION_Y]
-    return (
-        lanes[lane, START_X] + longitudinal * ux + lateral * -uy,
-        lanes[lane, START_Y] + longitudinal * uy + lateral * ux,
-    )
+    start_x, start_y, ux, uy = lanes[lane, START_X], lanes[lane, START_Y], lanes[lane, DIRECTION_X], lanes[lane, DIRECTION_Y]
+    sine, amplitude, pulsation, phase = lanes[lane, SINE], lanes[lane, AMPLITUDE], lanes[lane, PULSATION], lanes[lane, PHASE]
+    if sine:
+        lateral += amplitude * np.sin(pulsation * longitudinal + phase)
+    return start_x + longitudinal * ux + lateral * -uy, start_y + longitudinal * uy + lateral * ux
 
 
 @jit
@@ -134,9 +133,8 @@ def on_lane(lanes: np.ndarray, lane: int, x: float, y: float, margin: float) -> 
 @jit
 def on_lane_at(lanes: np.ndarray, lane: int, longitudinal: float, lateral: float, margin: float) -> bool:
     """:func:`on_lane` of a point at local coordinates (longitudinal, lateral) [m] of ``lane``."""
-    return abs(lateral) <= lanes[lane, WIDTH] / 2 + margin and (
-        -LANE_VEHICLE_LENGTH <= longitudinal < lanes[lane, LENGTH] + LANE_VEHICLE_LENGTH
-    )
+    width, length = lanes[lane, WIDTH], lanes[lane, LENGTH]
+    return abs(lateral) <= width / 2 + margin and (-LANE_VEHICLE_LENGTH <= longitudinal < length + LANE_VEHICLE_LENGTH)
 
 
 @jit

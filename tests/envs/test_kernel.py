@@ -6,6 +6,7 @@ the same events (crashes, lane changes, HDV lane decisions, lengths) and states 
 benchmarks/kernel_parity.py runs the same comparison over hundreds of episodes per density.
 """
 
+import numba
 import numpy as np
 import pytest
 from helpers import make
@@ -15,6 +16,7 @@ from sb3_marl.envs import ENV_IDS
 from sb3_marl.sim.collisions import SWEPT
 from sb3_marl.sim.drivers import SCANNED
 from sb3_marl.sim.kernel import argsort
+from sb3_marl.sim.lanes import heading_at, local_coordinates, on_lane_at, position
 from sb3_marl.sim.simulator import COMPILED, STOCK
 
 #: [m, rad, m/s, m/s²] largest state difference accepted: numpy's SIMD arcsin / arctan / tan /
@@ -112,3 +114,25 @@ def test_the_kernels_argsort_is_numpys_stable_argsort():
             ints = rng.integers(-3, 4, size)
             for values in (floats, ints):
                 np.testing.assert_array_equal(argsort(values), np.argsort(values, kind="stable"))
+
+
+@pytest.mark.parametrize(
+    ("helper", "arguments"),
+    [
+        (local_coordinates, (1, 80.0, 4.2)),
+        (heading_at, (1, 80.0)),
+        (position, (1, 80.0, 0.3)),
+        (on_lane_at, (1, 80.0, 0.3, 1.0)),
+    ],
+)
+def test_the_lane_geometry_updates_no_reference_counts(helper, arguments):
+    """The lane helpers run for every vehicle, lane and frame: an array that a compiled function
+    still reads inside a branch costs two atomic reference-count updates per call (see
+    sb3_marl.sim.kernel.jit); compiled on their own, their machine code must hold none."""
+    lanes = make(1).horizon.lanes
+    helper(lanes, *arguments)  # the signature the kernel uses (a read-only lane table)
+    own = numba.njit(helper.py_func)  # compiled afresh: numba shows no machine code of cached functions
+    signature = helper.signatures[0]
+    own.compile(signature)
+    body = own.inspect_asm(signature).split(".Lfunc_end0")[0]  # the function itself, not its Python wrapper
+    assert "NRT_incref" not in body and "NRT_decref" not in body
