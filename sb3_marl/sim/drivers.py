@@ -171,15 +171,16 @@ def lane_distance(state: np.ndarray, lanes: np.ndarray, k: int, other: int) -> f
 def idm(state: np.ndarray, lanes: np.ndarray, ego: int, front: int, speed_limit: float) -> float:
     """``IDMVehicle.acceleration`` [m/s²] of ``ego`` behind ``front`` (-1: free road; ego -1 or an
     obstacle: 0)."""
-    if ego < 0 or state[ego, IS_OBSTACLE]:
-        return 0.0
-    target = clip(state[ego, TARGET_SPEED], 0.0, speed_limit)
-    ratio = max(state[ego, SPEED], 0.0) / abs(not_zero(target))
-    acceleration = state[ego, IDM_ACC] * (1 - ratio**DELTA)
+    # every path reads the arrays (a free road: the ego's gap to itself, unused), one exit: kernel.jit
+    row = max(ego, 0)
+    other = front if front >= 0 else row
+    d, gap = lane_distance(state, lanes, row, other), _desired_gap(state, row, other)
+    obstacle, a_max = state[row, IS_OBSTACLE], state[row, IDM_ACC]
+    ratio = max(state[row, SPEED], 0.0) / abs(not_zero(clip(state[row, TARGET_SPEED], 0.0, speed_limit)))
+    acceleration = a_max * (1 - ratio**DELTA)
     if front >= 0:
-        d = lane_distance(state, lanes, ego, front)
-        acceleration -= state[ego, IDM_ACC] * (_desired_gap(state, ego, front) / not_zero(d)) ** 2.0
-    return acceleration
+        acceleration -= a_max * (gap / not_zero(d)) ** 2.0
+    return 0.0 if ego < 0 or obstacle else acceleration
 
 
 @jit
@@ -269,7 +270,10 @@ def act(state: np.ndarray, lanes: np.ndarray, speed_limit: float) -> None:
         if state[k, CRASHED]:
             continue
         state[k, TARGET_LANE] = follow(lanes, int(state[k, TARGET_LANE]), state[k, X], state[k, Y])
-        _change_lane_policy(state, lanes, order, k, speed_limit)
+        # only an HDV changing lanes (the abort rule) or whose timer ran out has a decision to make:
+        # the call costs the reference counts of five arrays (kernel.jit)
+        if state[k, LANE] != state[k, TARGET_LANE] or state[k, TIMER] > LANE_CHANGE_DELAY:
+            _change_lane_policy(state, lanes, order, k, speed_limit)
         lane, target = int(state[k, LANE]), int(state[k, TARGET_LANE])
         steering = _steering(state, lanes, k, target)
         acceleration = idm(state, lanes, k, _neighbours(state, lanes, order, k, lane)[0], speed_limit)

@@ -104,14 +104,18 @@ def jit(function: _F) -> _F:
     """``function`` compiled as every function of the kernel: numba's nopython mode, cached in
     ``NUMBA_CACHE_DIR`` (:mod:`sb3_marl.common.compiled`), without the C callback wrapper numba
     otherwise builds for each function (for first-class function values, which the kernel never
-    passes).
+    passes), with numpy's error model (a division by zero gives inf or NaN, as in numpy, where
+    Python's model would raise; no kernel function divides by zero where it matters).
 
-    A function called for every vehicle reads its array arguments before it branches: numba
-    releases an array after its last use, and one last read inside an ``if`` keeps an atomic
-    reference-count update on each side of every call, which LLVM then cannot remove where the
-    function is inlined (the lane helpers of :mod:`~sb3_marl.sim.lanes`; their test checks their
-    machine code)."""
-    options: dict[str, Any] = {"cache": True, "no_cfunc_wrapper": True}
+    Reference counts: a compiled function takes a reference to each array argument when it starts
+    and gives it back after the array's last use, each an atomic operation; numba removes the
+    pair only where every path out of the function gives it back in the same way. A function
+    called for every vehicle and frame therefore reads its arrays before it branches, leaves by one
+    exit where it can (:func:`~sb3_marl.sim.drivers.idm`), and calls nothing that may raise (the
+    error model above: a raising path keeps the pair too); where it must call a function that
+    numba does not inline, the caller tests first whether the call has work to do
+    (:func:`~sb3_marl.sim.drivers.act`). The lane helpers' test checks their machine code."""
+    options: dict[str, Any] = {"cache": True, "no_cfunc_wrapper": True, "error_model": "numpy"}
     return cast(_F, numba.njit(function, **options))
 
 

@@ -14,7 +14,7 @@ from parity import compare, run_episode
 
 from sb3_marl.envs import ENV_IDS
 from sb3_marl.sim.collisions import SWEPT
-from sb3_marl.sim.drivers import SCANNED
+from sb3_marl.sim.drivers import SCANNED, idm
 from sb3_marl.sim.kernel import argsort
 from sb3_marl.sim.lanes import heading_at, local_coordinates, on_lane_at, position
 from sb3_marl.sim.simulator import COMPILED, STOCK
@@ -116,22 +116,27 @@ def test_the_kernels_argsort_is_numpys_stable_argsort():
                 np.testing.assert_array_equal(argsort(values), np.argsort(values, kind="stable"))
 
 
-@pytest.mark.parametrize(
-    ("helper", "arguments"),
-    [
-        (local_coordinates, (1, 80.0, 4.2)),
-        (heading_at, (1, 80.0)),
-        (position, (1, 80.0, 0.3)),
-        (on_lane_at, (1, 80.0, 0.3, 1.0)),
-    ],
-)
-def test_the_lane_geometry_updates_no_reference_counts(helper, arguments):
-    """The lane helpers run for every vehicle, lane and frame: an array that a compiled function
-    still reads inside a branch costs two atomic reference-count updates per call (see
-    sb3_marl.sim.kernel.jit); compiled on their own, their machine code must hold none."""
-    lanes = make(1).horizon.lanes
-    helper(lanes, *arguments)  # the signature the kernel uses (a read-only lane table)
-    own = numba.njit(helper.py_func)  # compiled afresh: numba shows no machine code of cached functions
+#: Compiled functions run for every vehicle (and lane) at every frame, with their arguments on a road.
+PER_VEHICLE = {
+    "local_coordinates": (local_coordinates, lambda env: (env.horizon.lanes, 1, 80.0, 4.2)),
+    "heading_at": (heading_at, lambda env: (env.horizon.lanes, 1, 80.0)),
+    "position": (position, lambda env: (env.horizon.lanes, 1, 80.0, 0.3)),
+    "on_lane_at": (on_lane_at, lambda env: (env.horizon.lanes, 1, 80.0, 0.3, 1.0)),
+    "idm": (idm, lambda env: (env.state, env.horizon.lanes, 0, 1, 30.0)),
+}
+
+
+@pytest.mark.parametrize("name", sorted(PER_VEHICLE))
+def test_the_per_vehicle_functions_update_no_reference_counts(name):
+    """An array that a compiled function still reads inside a branch, or past a call that may
+    raise, costs two atomic reference-count updates per call (see sb3_marl.sim.kernel.jit):
+    compiled on their own, the machine code of these functions must hold none."""
+    helper, arguments = PER_VEHICLE[name]
+    env = make(1)
+    env.reset(seed=0)
+    helper(*arguments(env))  # the signature the kernel uses (e.g. a read-only lane table)
+    # compiled afresh, as kernel.jit compiles (numba shows no machine code of cached functions)
+    own = numba.njit(helper.py_func, error_model="numpy")
     signature = helper.signatures[0]
     own.compile(signature)
     body = own.inspect_asm(signature).split(".Lfunc_end0")[0]  # the function itself, not its Python wrapper
