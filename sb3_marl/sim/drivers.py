@@ -221,7 +221,9 @@ def mobil(state: np.ndarray, lanes: np.ndarray, order: LaneOrder, k: int, lane: 
 
 @jit
 def _change_lane_policy(state: np.ndarray, lanes: np.ndarray, order: LaneOrder, k: int, speed_limit: float) -> None:
-    """``IDMVehicle.change_lane_policy`` of HDV k (sets its target lane and timer)."""
+    """``IDMVehicle.change_lane_policy`` of HDV k (sets its target lane and timer), for an HDV
+    changing lanes or whose timer passed ``LANE_CHANGE_DELAY`` (``do_every``): :func:`act` tests
+    that before the call, where the policy of any other HDV does nothing."""
     lane, target = int(state[k, LANE]), int(state[k, TARGET_LANE])
     if lane != target:  # a lane change is ongoing: abort it if another vehicle is moving into the lane
         if lanes[lane, ROAD] == lanes[target, ROAD]:
@@ -233,8 +235,6 @@ def _change_lane_policy(state: np.ndarray, lanes: np.ndarray, order: LaneOrder, 
                     if 0 < d < _desired_gap(state, k, j):
                         state[k, TARGET_LANE] = lane
                         break
-        return
-    if not state[k, TIMER] > LANE_CHANGE_DELAY:
         return
     state[k, TIMER] = 0.0
     for side in (int(lanes[lane, LEFT]), int(lanes[lane, RIGHT])):
@@ -270,8 +270,8 @@ def act(state: np.ndarray, lanes: np.ndarray, speed_limit: float) -> None:
         if state[k, CRASHED]:
             continue
         state[k, TARGET_LANE] = follow(lanes, int(state[k, TARGET_LANE]), state[k, X], state[k, Y])
-        # only an HDV changing lanes (the abort rule) or whose timer ran out has a decision to make:
-        # the call costs the reference counts of five arrays (kernel.jit)
+        # only an HDV changing lanes (the abort rule) or whose timer ran out has a decision to make
+        # (highway-env's early returns, tested here: the call costs the reference counts of five arrays, kernel.jit)
         if state[k, LANE] != state[k, TARGET_LANE] or state[k, TIMER] > LANE_CHANGE_DELAY:
             _change_lane_policy(state, lanes, order, k, speed_limit)
         lane, target = int(state[k, LANE]), int(state[k, TARGET_LANE])

@@ -114,7 +114,8 @@ def jit(function: _F) -> _F:
     exit where it can (:func:`~sb3_marl.sim.drivers.idm`), and calls nothing that may raise (the
     error model above: a raising path keeps the pair too); where it must call a function that
     numba does not inline, the caller tests first whether the call has work to do
-    (:func:`~sb3_marl.sim.drivers.act`). The lane helpers' test checks their machine code."""
+    (:func:`~sb3_marl.sim.drivers.act`). ``tests/envs/test_kernel.py`` checks the machine code of the lane
+    helpers and of ``idm``."""
     options: dict[str, Any] = {"cache": True, "no_cfunc_wrapper": True, "error_model": "numpy"}
     return cast(_F, numba.njit(function, **options))
 
