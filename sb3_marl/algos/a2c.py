@@ -24,6 +24,15 @@ from sb3_marl.algos.common.policies import clip_gradients
 from sb3_marl.algos.ppo import MaskableActorCritic
 
 
+def check_cadence(per_agent_updates: bool, scale_lr_by_slots: bool) -> None:
+    """``scale_lr_by_slots`` only without ``per_agent_updates``: a ValueError naming both."""
+    if scale_lr_by_slots and per_agent_updates:
+        raise ValueError(
+            "scale_lr_by_slots: true needs per_agent_updates: false (the per-slot cadence takes "
+            "one step of the learning rate per slot already)."
+        )
+
+
 class MaskableA2C(MaskableActorCritic):
     """A2C (SB3's arguments and defaults) with invalid-action masking (see the module doc).
 
@@ -43,6 +52,9 @@ class MaskableA2C(MaskableActorCritic):
         the off-policy correction of the later per-slot steps (each sees a policy the earlier slots'
         steps moved). False: the plain A2C loss at every step (the authors' code, with one road and
         4-6 slots; with 15 slots at density 3 it learned worse: ``results/a2c-update/``)
+    :param scale_lr_by_slots: without ``per_agent_updates``, the one step on the whole rollout
+        takes the learning rate times the number of AV slots, the step per AV-sample of the
+        per-slot cadence (whose rollout takes one step of the learning rate per slot)
 
     Other parameters: as SB3's ``A2C``.
     """
@@ -65,6 +77,7 @@ class MaskableA2C(MaskableActorCritic):
         safety_loss_coef: float = 0.0,
         per_agent_updates: bool = False,
         importance_weights: bool = True,
+        scale_lr_by_slots: bool = False,
         prior: str | None = None,
         prior_warm_start: int = 0,
         prior_coef: float = 1.0,
@@ -88,6 +101,8 @@ class MaskableA2C(MaskableActorCritic):
             policy_kwargs["optimizer_kwargs"] = dict(alpha=0.99, eps=rms_prop_eps, weight_decay=0)
         self.per_agent_updates = bool(per_agent_updates)
         self.importance_weights = bool(importance_weights)
+        check_cadence(per_agent_updates, scale_lr_by_slots)
+        self.scale_lr_by_slots = bool(scale_lr_by_slots)
         super().__init__(
             policy,
             env,
@@ -165,6 +180,9 @@ class MaskableA2C(MaskableActorCritic):
         supervisor teacher's step."""
         self.policy.set_training_mode(True)
         self._update_learning_rate(self.policy.optimizer)
+        if self.scale_lr_by_slots:
+            for group in self.policy.optimizer.param_groups:
+                group["lr"] *= self.n_envs
         logs: dict[str, list] = defaultdict(list)
         for indices in self._minibatches():
             data = self.rollout_buffer._get_samples(indices)
@@ -190,6 +208,8 @@ class MaskableA2C(MaskableActorCritic):
             logs["value_loss"].append(value_loss.item())
             logs["entropy_loss"].append(entropy_loss.item())
         self._n_updates += 1
+        if self.scale_lr_by_slots:  # the teacher's step below takes the learning rate itself
+            self._update_learning_rate(self.policy.optimizer)
         buffer = self.rollout_buffer
         for key, entries in logs.items():
             self.logger.record(f"train/{key}", float(np.mean(entries)))

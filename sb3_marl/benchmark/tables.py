@@ -60,6 +60,10 @@ PAPER_FINDINGS = {
         "Beyond the merging paper: MA2C on the merge trained and evaluated with the supervisor's MOBIL safety check",
         "not studied (the merging paper's supervisor checks the AVs' own headway only)",
     ),
+    "cadence": (
+        "Beyond the paper: MA2C's update cadence, one RMSprop step per AV slot against one per rollout",
+        "not studied (the authors take one step per AV, on one road of 4-6 AVs)",
+    ),
     "copies": (
         "Beyond the paper: MA2C with 3, 9 and 18 scenario copies per VecEnv (the same budget in env steps)",
         "not studied (the authors' MA2C steps one env)",

@@ -258,6 +258,7 @@ def validate_hyperparams(algo: str, hyperparams: dict[str, Any], env_id: str | N
     for key, value in hyperparams.items():
         check_value(key, value)
     # keys whose check lives beside the code that uses them (one check each)
+    from sb3_marl.algos.a2c import check_cadence
     from sb3_marl.algos.common.rule_prior import RulePrior
     from sb3_marl.algos.common.teacher import check_safety_loss_coef
 
@@ -272,6 +273,7 @@ def validate_hyperparams(algo: str, hyperparams: dict[str, Any], env_id: str | N
     ):
         if key in hyperparams:
             check(hyperparams[key])
+    check_cadence(hyperparams.get("per_agent_updates", False), hyperparams.get("scale_lr_by_slots", False))
     masking = hyperparams.get("action_masking", True)
     if not isinstance(masking, bool):
         raise ValueError(

@@ -70,6 +70,7 @@ def test_grids_hold_each_trial_once():
         "curriculum",
         "mobil-safety",
         "copies",
+        "cadence",
     }
     from sb3_marl.benchmark.grid import EXPERIMENTS
     from sb3_marl.benchmark.tables import PAPER_FINDINGS
@@ -103,6 +104,7 @@ def test_grids_hold_each_trial_once():
     assert [spec.variant for spec in safety] == ["default"] * 3 + ["safety-training"] * 3
     assert safety[-1].hyperparams == VARIANTS["safety-training"] and safety[-1].hyperparams["supervisor_dropout"] > 0
     assert make_grid("penalty", seeds=1)[-1].hyperparams == {"intervention_penalty": 0.0}
+    assert make_grid("cadence", seeds=1)[-1].hyperparams == {"per_agent_updates": False, "scale_lr_by_slots": True}
     spec = make_grid("comfort", densities=(2,), seeds=1)[1]
     assert spec.hyperparams == {"env_config": {"comfort": False}}
     assert spec.n_timesteps(1.0) == 3_000_000  # 1M env steps at 3 AV-steps per env step (copies of 2+3+4 AVs)
@@ -298,7 +300,7 @@ def test_bad_arguments_are_rejected_before_any_work(argv, message, capsys, tmp_p
 
 
 def test_bad_api_arguments_and_changed_settings_name_the_field(tiny_benchmark, tmp_path, capsys):
-    with pytest.raises(ValueError, match=r"Invalid grid='papers': expected one of \['baselines', 'comfort'"):
+    with pytest.raises(ValueError, match=r"Invalid grid='papers': expected one of \['baselines', 'cadence', 'comfort'"):
         run_benchmark("papers", tmp_path)
     with pytest.raises(ValueError, match=r"Invalid budget=2: expected a fraction in \(0, 1\]"):
         run_benchmark("reward", tmp_path, budget=2)

@@ -133,6 +133,7 @@ def test_scenario_overrides_from_yaml(tmp_path):
         ("ma2c", {"n_steps": 10**11}, r"n_steps=100000000000: expected an integer >= 1 and <= 100000"),
         ("madqn", {"buffer_size": 10**11}, r"buffer_size=100000000000: expected an integer >= 1 and <= 10000000"),
         ("ma2c", {"policy_kwargs": {"net_arch": [16000, 16000]}}, r"layers of up to 16,000 units"),
+        ("ma2c", {"per_agent_updates": True, "scale_lr_by_slots": True}, r"scale_lr_by_slots: true needs per_agent_up"),
     ],
 )
 def test_bad_hyperparameters(algo, hyperparams, match):
@@ -176,3 +177,22 @@ def test_the_loader_imports_no_learner():
     )
     learners = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout.strip()
     assert learners == "['sb3_marl.algos.common', 'sb3_marl.algos.common.loading']"
+
+
+def test_one_step_per_rollout_with_the_learning_rate_times_the_slots():
+    """``scale_lr_by_slots``: the rollout's one step takes the learning rate times the AV slots,
+    as a model given that learning rate; the per-slot cadence's learning rate stays as set."""
+
+    def trained(hp):
+        venv = make_venv(ENV_IDS[1], hp, seed=0)
+        model = make_model("ma2c", venv, hp, seed=0)
+        model.learn(3 * 10 * venv.num_envs)
+        venv.close()
+        return model, th.nn.utils.parameters_to_vector(model.policy.parameters()).detach()
+
+    one_step = {"n_steps": 10, "per_agent_updates": False}
+    scaled, scaled_params = trained({**one_step, "learning_rate": 1e-3, "scale_lr_by_slots": True})
+    _, reference = trained({**one_step, "learning_rate": 1e-3 * scaled.n_envs})
+    _, unscaled = trained({**one_step, "learning_rate": 1e-3})
+    assert scaled.n_envs == 6 and th.equal(scaled_params, reference) and not th.equal(scaled_params, unscaled)
+    assert scaled.policy.optimizer.param_groups[0]["lr"] == 1e-3  # set back for the teacher's step
