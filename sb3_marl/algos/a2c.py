@@ -16,7 +16,7 @@ import torch.nn.functional as F
 from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
-from stable_baselines3.common.utils import explained_variance
+from stable_baselines3.common.utils import explained_variance, update_learning_rate
 
 from sb3_marl.algos.common.base import ACTOR_CRITIC_POLICIES
 from sb3_marl.algos.common.buffers import PerAgentDictRolloutBuffer, PerAgentRolloutBuffer
@@ -180,9 +180,10 @@ class MaskableA2C(MaskableActorCritic):
         supervisor teacher's step."""
         self.policy.set_training_mode(True)
         self._update_learning_rate(self.policy.optimizer)
+        learning_rate = self.lr_schedule(self._current_progress_remaining)
         if self.scale_lr_by_slots:
-            for group in self.policy.optimizer.param_groups:
-                group["lr"] *= self.n_envs
+            update_learning_rate(self.policy.optimizer, learning_rate * self.n_envs)
+            self.logger.record("train/learning_rate", learning_rate * self.n_envs)
         logs: dict[str, list] = defaultdict(list)
         for indices in self._minibatches():
             data = self.rollout_buffer._get_samples(indices)
@@ -208,8 +209,7 @@ class MaskableA2C(MaskableActorCritic):
             logs["value_loss"].append(value_loss.item())
             logs["entropy_loss"].append(entropy_loss.item())
         self._n_updates += 1
-        if self.scale_lr_by_slots:  # the teacher's step below takes the learning rate itself
-            self._update_learning_rate(self.policy.optimizer)
+        update_learning_rate(self.policy.optimizer, learning_rate)  # the teacher's step takes it unscaled
         buffer = self.rollout_buffer
         for key, entries in logs.items():
             self.logger.record(f"train/{key}", float(np.mean(entries)))

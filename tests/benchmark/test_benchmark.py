@@ -104,7 +104,7 @@ def test_grids_hold_each_trial_once():
     assert [spec.variant for spec in safety] == ["default"] * 3 + ["safety-training"] * 3
     assert safety[-1].hyperparams == VARIANTS["safety-training"] and safety[-1].hyperparams["supervisor_dropout"] > 0
     assert make_grid("penalty", seeds=1)[-1].hyperparams == {"intervention_penalty": 0.0}
-    assert make_grid("cadence", seeds=1)[-1].hyperparams == {"per_agent_updates": False, "scale_lr_by_slots": True}
+    assert make_grid("cadence", seeds=1)[0].hyperparams == {"per_agent_updates": True, "scale_lr_by_slots": False}
     spec = make_grid("comfort", densities=(2,), seeds=1)[1]
     assert spec.hyperparams == {"env_config": {"comfort": False}}
     assert spec.n_timesteps(1.0) == 3_000_000  # 1M env steps at 3 AV-steps per env step (copies of 2+3+4 AVs)

@@ -40,6 +40,7 @@ LEARNERS = ("ma2c", "mappo", "madqn", "maacktr", "matrpo")
 #: that have their own optimiser steps or clipping (the supervisor teacher's, the rule prior's)
 CASES: dict[str, tuple[str, int, dict]] = {
     **{f"{algo}-d{density}": (algo, density, {}) for algo in LEARNERS for density in (1, 3)},
+    "ma2c-d3-per-slot": ("ma2c", 3, {"per_agent_updates": True, "scale_lr_by_slots": False}),
     "ma2c-d1-teacher": ("ma2c", 1, {"safety_loss_coef": 0.5}),
     "mappo-d1-teacher": ("mappo", 1, {"safety_loss_coef": 0.5}),
     "ma2c-d1-prior": ("ma2c", 1, {"prior": "idm-mobil", "prior_warm_start": 500, "prior_decay_steps": 2_000}),

@@ -9,7 +9,7 @@ from sb3_marl.algos import ALGOS, get_algo
 from sb3_marl.algos.common.policies import MA2CFeaturesExtractor, ma2c_policy_kwargs
 from sb3_marl.benchmark.grid import load_variants
 from sb3_marl.cli import main
-from sb3_marl.envs import ENV_IDS
+from sb3_marl.envs import ENV_IDS, MERGE_ENV_IDS
 from sb3_marl.runs.hyperparams import (
     CONFIG_DIR,
     conf_file_path,
@@ -86,7 +86,9 @@ def test_every_zoo_config_builds_its_model(algo, density):
 
 
 def test_the_safe_recipe_is_the_grid_variant_over_the_ma2c_config(tmp_path, capsys):
-    variant = load_variants(CONFIG_DIR / "grids" / "variants.yml")[0]["rule-prior-agreement-0.5"]
+    """... with the authors' update cadence, which its results were measured with."""
+    variants = load_variants(CONFIG_DIR / "grids" / "variants.yml")[0]
+    variant = {**variants["rule-prior-agreement-0.5"], **variants["per-slot-updates"]}
     safe = conf_file_path("ma2c_safe")
     assert safe == CONFIG_DIR / "ma2c_safe.yml"
     for env_id in ENV_IDS.values():
@@ -104,6 +106,10 @@ def test_ma2c_config_has_the_paper_settings():
     hp = load_hyperparams("ma2c", ENV_IDS[1])
     assert (hp["gamma"], hp["learning_rate"], hp["ent_coef"], hp["max_grad_norm"]) == (0.99, 5e-4, 0.01, 5.0)
     assert hp["use_rms_prop"] and hp["rms_prop_eps"] == 1e-5 and hp["n_steps"] == 100
+    # one step per rollout at the learning rate x slots on the lane change; the authors' cadence on the merge
+    assert (hp["per_agent_updates"], hp["scale_lr_by_slots"]) == (False, True)
+    merge = load_hyperparams("ma2c", MERGE_ENV_IDS[3])
+    assert (merge["per_agent_updates"], merge["scale_lr_by_slots"], merge["n_timesteps"]) == (True, False, 5e6)
     model = make_model("ma2c", make_venv(ENV_IDS[1], hp, seed=0), hp, seed=0)
     assert isinstance(model.policy.optimizer, th.optim.RMSprop)
     assert model.policy.optimizer.defaults["eps"] == 1e-5
