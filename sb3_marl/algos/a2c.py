@@ -1,7 +1,8 @@
 """MA2C: A2C (SB3's arguments, defaults and loss) with action masks, the authors' per-slot update
-cadence and the project's rollout (:class:`~sb3_marl.algos.common.base.MaskableOnPolicy`); its
-update (:meth:`MaskableA2C.train`) reads top to bottom here. The class builds on sb3-contrib's
-``MaskablePPO`` only for its masked policy and rollout buffer set-up, ``predict`` and saving."""
+cadence or one step per rollout at the learning rate x slots, and the project's rollout
+(:class:`~sb3_marl.algos.common.base.MaskableOnPolicy`); its update (:meth:`MaskableA2C.train`)
+reads top to bottom here. The class builds on sb3-contrib's ``MaskablePPO`` only for its masked
+policy and rollout buffer set-up, ``predict`` and saving."""
 
 from __future__ import annotations
 

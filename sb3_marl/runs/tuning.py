@@ -40,12 +40,20 @@ def sample_actor_critic_params(trial: optuna.Trial) -> dict[str, Any]:
 
 def sample_ma2c_params(trial: optuna.Trial, n_actions: int, n_envs: int, additional_args: dict) -> dict[str, Any]:
     """MA2C (the authors' RMSprop A2C with masks): the actor-critic keys, the gradient clip and the
-    update cadence. The network stays the paper's."""
-    return {
-        **sample_actor_critic_params(trial),
-        "max_grad_norm": trial.suggest_categorical("max_grad_norm", [0.5, 1.0, 2.0, 5.0, 10.0]),
-        "per_agent_updates": trial.suggest_categorical("per_agent_updates", [True, False]),
-    }
+    update cadence (the per-slot one, or one step per rollout at the scaled learning rate). The
+    network stays the paper's."""
+    return _convert_ma2c(
+        {
+            **sample_actor_critic_params(trial),
+            "max_grad_norm": trial.suggest_categorical("max_grad_norm", [0.5, 1.0, 2.0, 5.0, 10.0]),
+            "per_agent_updates": trial.suggest_categorical("per_agent_updates", [True, False]),
+        }
+    )
+
+
+def _convert_ma2c(params: dict[str, Any]) -> dict[str, Any]:
+    """One step per AV slot, or one per rollout at the learning rate x slots (results/update-cadence/)."""
+    return {**params, "scale_lr_by_slots": not params["per_agent_updates"]}
 
 
 def sample_acktr_params(trial: optuna.Trial, n_actions: int, n_envs: int, additional_args: dict) -> dict[str, Any]:
@@ -65,7 +73,7 @@ def _convert_acktr(params: dict[str, Any]) -> dict[str, Any]:
 
 #: Learner -> (sampler, converter of a trial's params to hyperparameters).
 SAMPLERS: dict[str, tuple[Sampler, Callable[[dict], dict]]] = {
-    "ma2c": (sample_ma2c_params, dict),
+    "ma2c": (sample_ma2c_params, _convert_ma2c),
     "maacktr": (sample_acktr_params, _convert_acktr),
     "acktr": (sample_acktr_params, _convert_acktr),
     "mappo": (HYPERPARAMS_SAMPLER["ppo"], HYPERPARAMS_CONVERTER["ppo"]),

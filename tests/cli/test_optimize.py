@@ -54,6 +54,10 @@ def test_a_tiny_in_memory_study_writes_the_report_and_a_usable_zoo_config(tmp_pa
     best = report.loc[report["value"].idxmax()]
     entry = yaml.safe_load(best_file.read_text())[ENV]
     assert entry["learning_rate"] == pytest.approx(best["params_learning_rate"])
+    assert (entry["per_agent_updates"], entry["scale_lr_by_slots"]) == (
+        best["params_per_agent_updates"],
+        not best["params_per_agent_updates"],
+    )
     assert entry["env_config"] == {"safety_supervisor": True} and entry["n_steps"] == 20
     assert load_hyperparams("ma2c", ENV, path=best_file)["ent_coef"] == pytest.approx(best["params_ent_coef"])
     assert not (tmp_path / "ma2c" / f"{ENV_NAME}_1").exists(), "a search writes no empty run folder"
