@@ -64,6 +64,10 @@ PAPER_FINDINGS = {
         "Beyond the paper: MA2C's update cadence, one RMSprop step per AV slot against one per rollout",
         "not studied (the authors take one step per AV, on one road of 4-6 AVs)",
     ),
+    "merge-cadence": (
+        "Beyond the merging paper: MA2C's update cadence on the merge, one RMSprop step per AV slot against one per rollout",
+        "not studied (the authors take one step per AV)",
+    ),
     "copies": (
         "Beyond the paper: MA2C with 3, 9 and 18 scenario copies per VecEnv (the same budget in env steps)",
         "not studied (the authors' MA2C steps one env)",

@@ -71,6 +71,7 @@ def test_grids_hold_each_trial_once():
         "mobil-safety",
         "copies",
         "cadence",
+        "merge-cadence",
     }
     from sb3_marl.benchmark.grid import EXPERIMENTS
     from sb3_marl.benchmark.tables import PAPER_FINDINGS
