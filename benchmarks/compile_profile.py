@@ -10,7 +10,9 @@ functions compiled inside it), with the time including those. One torch thread.
 from __future__ import annotations
 
 import argparse
+import atexit
 import os
+import shutil
 import tempfile
 import time
 from collections import defaultdict
@@ -19,6 +21,8 @@ os.environ["NUMBA_CACHE_DIR"] = tempfile.mkdtemp()  # before numba reads its con
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 from numba.core import event
+
+atexit.register(shutil.rmtree, os.environ["NUMBA_CACHE_DIR"], ignore_errors=True)
 
 
 def durations(listener: event.RecordingListener, name_of) -> tuple[dict, dict, dict]:

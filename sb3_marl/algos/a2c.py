@@ -25,8 +25,14 @@ from sb3_marl.algos.common.policies import clip_gradients
 from sb3_marl.algos.ppo import MaskableActorCritic
 
 
-def check_cadence(per_agent_updates: bool, scale_lr_by_slots: bool) -> None:
-    """``scale_lr_by_slots`` only without ``per_agent_updates``: a ValueError naming both."""
+def check_cadence(per_agent_updates: Any, scale_lr_by_slots: Any) -> None:
+    """Both flags booleans, ``scale_lr_by_slots`` only without ``per_agent_updates``: a ValueError
+    naming the flag (a command line's bare ``false`` is the string "false", which would be true)."""
+    for key, value in (("per_agent_updates", per_agent_updates), ("scale_lr_by_slots", scale_lr_by_slots)):
+        if not isinstance(value, bool):
+            raise ValueError(
+                f"Invalid {key}={value!r}: expected true or false (True or False in a key:value on the command line)."
+            )
     if scale_lr_by_slots and per_agent_updates:
         raise ValueError(
             "scale_lr_by_slots: true needs per_agent_updates: false (the per-slot cadence takes "
@@ -100,10 +106,9 @@ class MaskableA2C(MaskableActorCritic):
         if use_rms_prop and "optimizer_class" not in policy_kwargs:
             policy_kwargs["optimizer_class"] = th.optim.RMSprop
             policy_kwargs["optimizer_kwargs"] = dict(alpha=0.99, eps=rms_prop_eps, weight_decay=0)
-        self.per_agent_updates = bool(per_agent_updates)
+        self.per_agent_updates = per_agent_updates
         self.importance_weights = bool(importance_weights)
-        check_cadence(per_agent_updates, scale_lr_by_slots)
-        self.scale_lr_by_slots = bool(scale_lr_by_slots)
+        self.scale_lr_by_slots = scale_lr_by_slots
         super().__init__(
             policy,
             env,
@@ -156,6 +161,12 @@ class MaskableA2C(MaskableActorCritic):
         return super().learn(
             total_timesteps, callback, log_interval, tb_log_name, reset_num_timesteps, use_masking, progress_bar
         )
+
+    def _setup_model(self) -> None:
+        """SB3's, after checking the update cadence (``load`` sets the saved and the given attributes
+        before it calls this)."""
+        check_cadence(self.per_agent_updates, self.scale_lr_by_slots)
+        super()._setup_model()
 
     def _minibatches(self) -> Iterator[np.ndarray]:
         """Indices of the flattened (slot-major) rollout buffer: one array per AV slot in a random

@@ -140,6 +140,7 @@ def test_scenario_overrides_from_yaml(tmp_path):
         ("madqn", {"buffer_size": 10**11}, r"buffer_size=100000000000: expected an integer >= 1 and <= 10000000"),
         ("ma2c", {"policy_kwargs": {"net_arch": [16000, 16000]}}, r"layers of up to 16,000 units"),
         ("ma2c", {"per_agent_updates": True, "scale_lr_by_slots": True}, r"scale_lr_by_slots: true needs per_agent_up"),
+        ("ma2c", {"scale_lr_by_slots": "false"}, r"Invalid scale_lr_by_slots='false': expected true or false"),
     ],
 )
 def test_bad_hyperparameters(algo, hyperparams, match):
@@ -185,9 +186,9 @@ def test_the_loader_imports_no_learner():
     assert learners == "['sb3_marl.algos.common', 'sb3_marl.algos.common.loading']"
 
 
-def test_one_step_per_rollout_with_the_learning_rate_times_the_slots():
+def test_one_step_per_rollout_with_the_learning_rate_times_the_slots(tmp_path):
     """``scale_lr_by_slots``: the rollout's one step takes the learning rate times the AV slots,
-    as a model given that learning rate; the per-slot cadence's learning rate stays as set."""
+    as a model given that learning rate; loading it with the per-slot cadence is refused."""
 
     def trained(hp):
         venv = make_venv(ENV_IDS[1], hp, seed=0)
@@ -202,3 +203,6 @@ def test_one_step_per_rollout_with_the_learning_rate_times_the_slots():
     _, unscaled = trained({**one_step, "learning_rate": 1e-3})
     assert scaled.n_envs == 6 and th.equal(scaled_params, reference) and not th.equal(scaled_params, unscaled)
     assert scaled.policy.optimizer.param_groups[0]["lr"] == 1e-3  # set back for the teacher's step
+    scaled.save(tmp_path / "scaled.zip")
+    with pytest.raises(ValueError, match="scale_lr_by_slots: true needs per_agent_updates: false"):
+        get_algo("ma2c").load(tmp_path / "scaled.zip", per_agent_updates=True)
