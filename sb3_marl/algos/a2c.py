@@ -23,6 +23,7 @@ from sb3_marl.algos.common.base import ACTOR_CRITIC_POLICIES
 from sb3_marl.algos.common.buffers import PerAgentDictRolloutBuffer, PerAgentRolloutBuffer
 from sb3_marl.algos.common.policies import clip_gradients
 from sb3_marl.algos.ppo import MaskableActorCritic
+from sb3_marl.common.checks import invalid
 
 
 def check_cadence(per_agent_updates: Any, scale_lr_by_slots: Any) -> None:
@@ -30,9 +31,7 @@ def check_cadence(per_agent_updates: Any, scale_lr_by_slots: Any) -> None:
     naming the flag (a command line's bare ``false`` is the string "false", which would be true)."""
     for key, value in (("per_agent_updates", per_agent_updates), ("scale_lr_by_slots", scale_lr_by_slots)):
         if not isinstance(value, bool):
-            raise ValueError(
-                f"Invalid {key}={value!r}: expected true or false (True or False in a key:value on the command line)."
-            )
+            raise invalid(key, value, "true or false (True or False in a key:value on the command line)")
     if scale_lr_by_slots and per_agent_updates:
         raise ValueError(
             "scale_lr_by_slots: true needs per_agent_updates: false (the per-slot cadence takes "
