@@ -79,11 +79,11 @@ def compiled_round(venv: ParameterSharingVecEnv, steps: int, rng: np.random.Gene
     for _ in range(steps):
         masks = venv.action_masks()
         actions = np.where(masks, rng.random(masks.shape), -1.0).argmax(axis=1)
-        inputs.append((batch.states, batch.offsets.copy(), actions, CopyState(*(a.copy() for a in batch.copies))))
-        venv.step(actions)  # batch.states is a new array after every step and reset
+        inputs.append((batch.roads.states, batch.roads.offsets.copy(), actions, CopyState(*(a.copy() for a in batch.copies))))
+        venv.step(actions)  # batch.roads.states is a new array after every step and reset
     start = time.perf_counter()
     for states, offsets, actions, copies in inputs:
-        step_copies(states, offsets, batch.slot_starts, actions, copies, batch.parameters, respawn=True)
+        step_copies(states, offsets, batch.roads.slot_starts, actions, copies, batch.parameters, respawn=True)
     return steps * len(venv.slices) / (time.perf_counter() - start)
 
 

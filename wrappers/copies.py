@@ -17,7 +17,6 @@ from gymnasium import spaces
 from stable_baselines3.common.env_util import is_wrapped
 from stable_baselines3.common.vec_env.base_vec_env import CloudpickleWrapper
 
-from sb3_marl.envs.config import with_supervisor
 from sb3_marl.envs.reward import apply_reward_mode
 from wrappers.step_arrays import Ending, copy_arrays
 
@@ -30,38 +29,29 @@ class CopyRunner:
 
     With ``supervisor_dropout`` p > 0 (and the scenario's safety supervisor on) each episode runs
     without the supervisor with probability p, drawn at its reset from a generator seeded by the
-    copy's seeded reset (same seed, same episodes): training meets its own mistakes with their
-    crash cost, while most episodes keep the supervisor's safe exploration.
+    copy's seeded reset (same seed, same episodes; the scenario's
+    :meth:`~sb3_marl.envs.lane_change_env.LaneChangeEnv.set_supervisor_dropout`): training meets its
+    own mistakes with their crash cost, while most episodes keep the supervisor's safe exploration.
     """
 
     def __init__(self, factory: Callable[[], gym.Env], copy: int, reward_mode: str, supervisor_dropout: float = 0.0) -> None:
         self.env = factory()
         self.copy = copy
         self.reward_mode = reward_mode
-        self.supervisor_dropout = supervisor_dropout
-        # whether the dropout switches the scenario's safety supervisor (configured on: a scenario env)
-        config = getattr(self.env.unwrapped, "config", {})
-        self._supervised = bool(config.get("safety_supervisor", False)) if supervisor_dropout else False
-        self._dropout_rng = np.random.default_rng()
-
-    def _episode_options(self, seed: int | None, options: dict[str, Any] | None = None) -> dict[str, Any]:
-        """The reset options of the episode about to start: with ``supervisor_dropout``, the
-        scenario's config for it with the supervisor drawn on or off (highway-env's
-        ``options={"config": ...}``, written by :func:`~sb3_marl.envs.config.with_supervisor`)."""
-        options = dict(options or {})
-        if self._supervised:
-            if seed is not None:
-                self._dropout_rng = np.random.default_rng([seed, self.copy])
-            on = bool(self._dropout_rng.random() >= self.supervisor_dropout)
-            options["config"] = with_supervisor(options.get("config"), on)
-        return options
+        if supervisor_dropout:
+            scenario = self.env.unwrapped
+            if not hasattr(scenario, "set_supervisor_dropout"):
+                raise ValueError(
+                    f"Invalid supervisor_dropout={supervisor_dropout}: copy {copy} ({type(scenario).__name__}) is not "
+                    "a scenario env with a safety supervisor (expected 0)."
+                )
+            scenario.set_supervisor_dropout(supervisor_dropout, copy)
 
     def spaces(self) -> tuple[spaces.Space, spaces.Space]:
         return self.env.observation_space, self.env.action_space
 
     def reset(self, seed: int | None, options: dict[str, Any]) -> tuple[np.ndarray, dict[str, Any]]:
         """Observations (n_avs, ...) and the per-AV step arrays (:func:`copy_arrays`)."""
-        options = self._episode_options(seed, options)
         obs, info = self.env.reset(seed=seed, **({"options": options} if options else {}))
         missing = [key for key in ("rewards", "neighbours") if key not in info]
         if missing:
@@ -73,13 +63,8 @@ class CopyRunner:
 
     def restart(self) -> tuple[np.ndarray, dict[str, Any]]:
         """:meth:`reset` after an episode ended (no seed: the copy's generator goes on)."""
-        obs, info = self.env.reset(options=self._episode_options(None) or None)
+        obs, info = self.env.reset()
         return obs, copy_arrays(info)
-
-    def dropout(self) -> tuple[np.random.Generator | None, float]:
-        """The supervisor dropout's generator and probability where it applies (else None, 0): a
-        batch draws the next episodes' supervisor from it (:class:`~sb3_marl.envs.batch.RoadBatch`)."""
-        return (self._dropout_rng, self.supervisor_dropout) if self._supervised else (None, 0.0)
 
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool, dict[str, Any], Ending | None]:
         """Step with one action per AV: observations (the new episode's when done), rewards in

@@ -157,7 +157,6 @@ class ParameterSharingVecEnv(VecEnv):
         envs = [runner.env.unwrapped for runner in self.copies.local_runners()]
         use_batch = batched and isinstance(env, str) and render_mode is None and envs and all(map(batchable, envs))
         self.batch = RoadBatch(envs, reward_mode) if use_batch else None  # type: ignore[arg-type]
-        self._copies_touched = False
         starts = np.concatenate([[0], np.cumsum(n_avs)])
         self.slices: list[slice] = [slice(int(a), int(b)) for a, b in itertools.pairwise(starts)]
         self.slot_copy = np.repeat(np.arange(n_copies), n_avs)
@@ -184,23 +183,18 @@ class ParameterSharingVecEnv(VecEnv):
     def _submit(self, calls: dict[int, tuple[str, tuple]]) -> list[tuple[int, list[int]]]:
         """Send ``{copy: (method, args)}`` to the copies; returns what :meth:`_collect` needs."""
         self._check_open()
-        self._hand_over_copies()
         return self.copies.submit(calls)
-
-    def _hand_over_copies(self) -> None:
-        """Before anything reads or changes the copies' envs: give them the batch's state, and take
-        theirs back before the next batched step."""
-        batch = getattr(self, "batch", None)
-        if batch is not None:
-            batch.sync()
-            self._copies_touched = True
 
     def _check_open(self) -> None:
         if getattr(self, "closed", False):
             raise RuntimeError("This ParameterSharingVecEnv is closed: create a new one.")
 
     def _collect(self, pending: list[tuple[int, list[int]]]) -> dict[int, Any]:
-        return self.copies.collect(pending)
+        results = self.copies.collect(pending)
+        batch = getattr(self, "batch", None)
+        if batch is not None:
+            batch.check()  # the call may have reconfigured a copy
+        return results
 
     def _run(self, calls: dict[int, tuple[str, tuple]]) -> dict[int, Any]:
         """Run ``{copy: (CopyRunner method, args)}``, all groups in parallel; ``{copy: result}``."""
@@ -214,8 +208,6 @@ class ParameterSharingVecEnv(VecEnv):
         results = self._run(calls)
         for k, (obs, _) in results.items():
             self._obs[self.slices[k]] = obs
-        if self.batch is not None:
-            self._load_copies()  # the copies were reset by their envs (reset options may reconfigure)
         self.step_arrays = self._join([results[k][1] for k in range(self.n_copies)])
         self.reset_infos = [{} for _ in range(self.num_envs)]
         self._current = {method: getattr(self.step_arrays, key).copy() for method, key in CACHED_METHODS.items()}
@@ -262,8 +254,6 @@ class ParameterSharingVecEnv(VecEnv):
         """One compiled step of every copy (:class:`~sb3_marl.envs.batch.RoadBatch`), which begins
         a new episode wherever one ended (as the copy's env would draw it) in the same call."""
         assert self.batch is not None
-        if self._copies_touched:
-            self._load_copies()
         step, starts, arrays, rewards = self.batch.step(self._actions)
         self._obs[:] = step.obs
         endings: dict[int, Ending] = {}
@@ -273,13 +263,6 @@ class ParameterSharingVecEnv(VecEnv):
             first = {"action_mask": starts.action_mask[sl], "rule_action": starts.rule_action[sl]}
             endings[k] = Ending(step.obs[sl], bool(step.truncated[k]), first)
         return self._finish(rewards, StepArrays.join([arrays], self.slot_copy, self.slot_agent), endings)
-
-    def _load_copies(self) -> None:
-        """The batch takes every copy's state, generators and dropout from its env and runner."""
-        assert self.batch is not None
-        for k, runner in enumerate(self.copies.local_runners()):
-            self.batch.load(k, *runner.dropout())
-        self._copies_touched = False
 
     def _join(self, parts: list[dict[str, Any]]) -> StepArrays:
         """The copies' per-AV arrays (:func:`~wrappers.step_arrays.copy_arrays`) over the slots."""
@@ -381,7 +364,6 @@ class ParameterSharingVecEnv(VecEnv):
         """The unwrapped scenario env of a copy (``dummy`` backend only: workers keep theirs)."""
         if self.vec_backend != "dummy":
             raise RuntimeError("copy_env() needs vec_backend='dummy': subproc copies live in worker processes.")
-        self._hand_over_copies()
         return self.copies.local_runners()[copy].env.unwrapped
 
     def close(self) -> None:

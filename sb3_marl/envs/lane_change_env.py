@@ -8,6 +8,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+from gymnasium.utils import seeding
 from highway_env.envs.common.abstract import AbstractEnv
 from highway_env.envs.common.graphics import EnvViewer
 from highway_env.road.road import Road
@@ -18,19 +19,19 @@ from sb3_marl.envs.batch_kernel import (
     BatchStep,
     StepParameters,
     observe_copies,
-    one_copy,
     step_copies,
     step_report,
     supervise_road,
 )
 from sb3_marl.envs.merge_rules import MergeRules
 from sb3_marl.envs.observation import observation_space
+from sb3_marl.envs.roads import Roads
 from sb3_marl.safety.supervisor import Supervisor
-from sb3_marl.sim import drivers, kernel, lanes, meta_actions
+from sb3_marl.sim import drivers, kernel, lanes, meta_actions, pcg64
 from sb3_marl.sim.meta_actions import ACTION_INDEX, ACTIONS
 from sb3_marl.sim.road import highway_lanes, make_road, vehicle_state
 from sb3_marl.sim.simulator import COMPILED, SIMULATORS, STOCK, capture, step_objects, vehicle_objects
-from sb3_marl.sim.spawn import draw_episode, spawn_parameters
+from sb3_marl.sim.spawn import new_episode, spawn_parameters
 
 __all__ = ["ACTIONS", "ACTION_INDEX", "LaneChangeEnv"]
 
@@ -58,7 +59,9 @@ class LaneChangeEnv(AbstractEnv):
     episode is truncated early once every AV has left, since nothing remains to decide.
 
     State: :attr:`state`, one row per vehicle on the road (:mod:`~sb3_marl.sim.kernel`'s columns,
-    the AVs first), stepped by compiled code. :attr:`road` shows it as highway-env objects, built
+    the AVs first), stepped by compiled code; it, the episode's clock, HDV count, supervisor draw
+    and generator live in a :class:`~sb3_marl.envs.roads.Roads` (this env's own, or a batch's that
+    holds several copies). :attr:`road` shows it as highway-env objects, built
     when read; highway-env's own classes step those objects frame by frame instead while frames are
     drawn (a viewer, ``show_trajectories``) or with ``simulator = "stock"`` (the parity reference,
     same episodes within rounding: tests/envs/test_kernel.py).
@@ -69,7 +72,11 @@ class LaneChangeEnv(AbstractEnv):
     metadata = {"render_modes": ["human", "rgb_array"]}
     scenario: str = cfg.LANE_CHANGE  #: the config's scenario (:mod:`~sb3_marl.envs.config`)
     simulator: str = COMPILED  #: ``"compiled"`` (default) or ``"stock"`` (:mod:`~sb3_marl.sim.simulator`)
-    _state: np.ndarray = np.zeros((0, kernel.COLUMNS))  # AbstractEnv.__init__ resets the env
+    _roads: Roads  # where this env's road lives: road _k of it (set by the first configure)
+    _k = 0
+    _np_random: np.random.Generator | None  # gymnasium's
+    _dropout = 0.0  # probability that an episode runs without the configured supervisor
+    _dropout_stream: int | None = None
     _road: Road | None = None
     _road_current = False  # whether _road's vehicles are the current state
 
@@ -88,7 +95,6 @@ class LaneChangeEnv(AbstractEnv):
             config = {"density": density, **(config or {})}
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"Invalid render_mode={render_mode!r}: expected one of {self.metadata['render_modes']} or None.")
-        self.n_hdvs = 0
         super().__init__(config=config, render_mode=render_mode)
 
     @classmethod
@@ -109,6 +115,33 @@ class LaneChangeEnv(AbstractEnv):
         self.horizon = self.supervisor.horizon
         self._n_avs = cfg.resolved_n_avs(self.config, self.scenario)
         self._parameters = self.step_parameters()
+        roads: Roads | None = getattr(self, "_roads", None)
+        if roads is None or (len(roads.n_avs) == 1 and roads.n_avs[0] != self._n_avs):
+            self._home(Roads(np.array([self._n_avs])), 0, None if roads is None else roads.copies)
+        elif roads.n_avs[self._k] != self._n_avs:
+            raise RuntimeError(
+                f"Scenario copy {self._k} of a batch cannot change n_avs ({roads.n_avs[self._k]} -> {self._n_avs}): "
+                "a batch steps copies of one config (use batched=False to step the copies one by one)."
+            )
+        c, on = self._roads.copies, bool(self.config["safety_supervisor"])
+        c.supervise[self._k], c.shadow[self._k] = on, bool(self.config["supervisor_shadow"])
+        c.dropout[self._k] = self._dropout if on else 0.0
+
+    def _home(self, roads: Roads, k: int, words_from: Any = None) -> None:
+        """This env's road becomes road ``k`` of ``roads`` (``words_from``: a CopyState whose first
+        road's generator words it keeps)."""
+        if words_from is not None:
+            roads.copies.generators[k] = words_from.generators[0]
+            roads.copies.dropout_generators[k] = words_from.dropout_generators[0]
+        self._roads, self._k = roads, k
+
+    def set_supervisor_dropout(self, dropout: float, stream: int) -> None:
+        """With the supervisor configured on, each episode runs without it with probability
+        ``dropout``, drawn at its start from a generator of its own, seeded at a seeded reset as
+        ``np.random.default_rng([seed, stream])`` (ParameterSharingVecEnv's ``supervisor_dropout``)."""
+        self._dropout, self._dropout_stream = float(dropout), int(stream)
+        self._roads.copies.dropout_generators[self._k] = pcg64.read_state(np.random.default_rng())
+        self._derive()
 
     def _road_data(self) -> tuple[np.ndarray, float]:
         """The road as the kernel reads it: (lane table, road end [m])."""
@@ -182,6 +215,13 @@ class LaneChangeEnv(AbstractEnv):
         """Spawn a new episode (:func:`~sb3_marl.sim.spawn.new_episode`, from :attr:`np_random`);
         ``options={"config": {...}}`` reconfigures first, as in highway-env."""
         gym.Env.reset(self, seed=seed)
+        roads, k = self._roads, self._k
+        if seed is not None or self._np_random is None:  # a new generator: the road's words from now on
+            if self._np_random is None:
+                self._np_random, self._np_random_seed = seeding.np_random()
+            roads.take(k, self._np_random)
+        if seed is not None and self._dropout_stream is not None:
+            roads.copies.dropout_generators[k] = pcg64.read_state(np.random.default_rng([seed, self._dropout_stream]))
         if options and "config" in options:
             self.configure(options["config"])
         if self.simulator not in SIMULATORS:
@@ -189,9 +229,14 @@ class LaneChangeEnv(AbstractEnv):
         self.update_metadata()
         self._derive()  # a config changed in place since (highway-env's env.config[...] = ...)
         self.define_spaces()
-        self.time = self.steps = 0
-        self.done = False
-        self.n_hdvs, self.state = draw_episode(self.np_random, self.n_avs, self._parameters.spawn)
+        self.steps, self.done, c = 0, False, self._roads.copies
+        roads.read_lent()
+        if c.dropout[k] > 0:
+            c.supervise[k] = pcg64.random(c.dropout_generators[k]) >= c.dropout[k]
+        spawn = self._parameters.spawn
+        n_hdvs, state = new_episode(c.generators[k], self.n_avs, spawn, spawn.merge_obstacles)
+        roads.write_lent()
+        self.n_hdvs, self.state = int(n_hdvs), state
         self._road = None
         obs, info = self._observe_start()
         if self.render_mode == "human":
@@ -220,11 +265,58 @@ class LaneChangeEnv(AbstractEnv):
     @property
     def state(self) -> np.ndarray:
         """(vehicles, :data:`~sb3_marl.sim.kernel.COLUMNS`) the road's vehicles, the AVs first."""
-        return self._state
+        return self._roads.rows(self._k)
 
     @state.setter
     def state(self, state: np.ndarray) -> None:
-        self._state, self._road_current = state, False
+        self._roads.set_rows(self._k, state)
+        self._road_current = False
+
+    @property
+    def steps(self) -> int:
+        """Simulation frames of the current episode (highway-env's count; whole policy steps)."""
+        return int(self._roads.copies.steps[self._k]) * self.horizon.frames_per_step
+
+    @steps.setter
+    def steps(self, frames: int) -> None:
+        self._roads.copies.steps[self._k] = frames // self.horizon.frames_per_step
+
+    @property
+    def time(self) -> float:
+        """[s] simulated time of the current episode."""
+        return self.steps_done / self.config["policy_frequency"]
+
+    @time.setter
+    def time(self, time: float) -> None:
+        self._roads.copies.steps[self._k] = round(time * self.config["policy_frequency"])
+
+    @property
+    def n_hdvs(self) -> int:
+        """HDVs at the episode's start."""
+        return int(self._roads.copies.n_hdvs[self._k])
+
+    @n_hdvs.setter
+    def n_hdvs(self, n_hdvs: int) -> None:
+        self._roads.copies.n_hdvs[self._k] = n_hdvs
+
+    @property
+    def supervised(self) -> bool:
+        """Whether the current episode runs the safety supervisor (the config's, or its dropout's draw)."""
+        return bool(self._roads.copies.supervise[self._k])
+
+    @property
+    def np_random(self) -> np.random.Generator:
+        """gymnasium's generator of the env: its road's episodes are drawn from it (a mirror of
+        the road's generator words, :meth:`~sb3_marl.envs.roads.Roads.lend`)."""
+        if self._np_random is None:
+            self._np_random, self._np_random_seed = seeding.np_random()
+            self._roads.take(self._k, self._np_random)
+        return self._roads.lend(self._k, self._np_random)
+
+    @np_random.setter
+    def np_random(self, value: np.random.Generator) -> None:
+        self._np_random, self._np_random_seed = value, -1  # as gymnasium's setter
+        self._roads.take(self._k, value)
 
     @property
     def road(self) -> Road:
@@ -265,15 +357,14 @@ class LaneChangeEnv(AbstractEnv):
         n = self.n_avs
         proposed = meta_actions.check_actions(action, n)
         p = self._parameters
-        supervise, shadow = bool(self.config["safety_supervisor"]), bool(self.config["supervisor_shadow"])
+        roads, k = self._roads, self._k
+        if len(roads.n_avs) > 1:
+            raise RuntimeError(f"Scenario copy {k} is stepped by its batch (ParameterSharingVecEnv.step), not alone.")
         if self._uses_objects():
-            result = self._step_objects(proposed, p, supervise, shadow)
+            result = self._step_objects(proposed, p, bool(roads.copies.supervise[k]), bool(roads.copies.shadow[k]))
         else:
-            copy = one_copy(self.steps_done, supervise, shadow, self.n_hdvs)
-            result, _ = step_copies(self.state, self._rows(), np.array([0, n]), proposed, copy, p)
+            result, _ = step_copies(self.state, self._rows(), np.array([0, n]), proposed, roads.copies, p)
             self.state = result.states[: result.offsets[-1]]
-            self.steps += self.horizon.frames_per_step
-        self.time += 1.0 / self.config["policy_frequency"]
         obs, info = self._report(result, proposed)
         terminated, truncated = bool(result.terminated[0]), bool(result.truncated[0])
         self.done = terminated or truncated
@@ -297,6 +388,7 @@ class LaneChangeEnv(AbstractEnv):
                 acting, braking = supervised, brake
         speed_before, targets_before = self.state[:n, kernel.SPEED].copy(), self.state[:n, kernel.TARGET_LANE].copy()
         self._simulate(acting, braking)
+        self._roads.copies.steps[self._k] += 1
         state = self.state
         acceleration = (state[:n, kernel.SPEED] - speed_before) * self.config["policy_frequency"]
         changed = lanes.lane_changes(h.lanes, targets_before, state)
@@ -323,7 +415,6 @@ class LaneChangeEnv(AbstractEnv):
 
     def _frame(self, frame: int) -> None:
         """After each simulated frame of the objects: draw the frames between policy steps."""
-        self.steps += 1
         if frame < self.horizon.frames_per_step - 1:
             self._automatic_rendering()
 
@@ -341,7 +432,7 @@ class LaneChangeEnv(AbstractEnv):
     @property
     def steps_done(self) -> int:
         """Policy steps taken in the current episode."""
-        return self.steps // self.horizon.frames_per_step
+        return int(self._roads.copies.steps[self._k])
 
     def action_masks(self) -> np.ndarray:
         """(n_avs, 5) bool: which meta-actions are available to each AV.

@@ -52,6 +52,24 @@ class MergeEnv(LaneChangeEnv):
     def _merge_rules(self) -> MergeRules | None:
         return MergeRules(ROUTE, ACROSS, ACROSS_FROM, NEXT_ON_ROUTE, self.config["supervisor_priority"] == "merging")
 
+    @property
+    def _ramp_avs(self) -> np.ndarray:
+        """Which AVs started the episode on the ramp (a view of the road's record)."""
+        return self._roads.ramp_av[self._roads.slots(self._k)]
+
+    @_ramp_avs.setter
+    def _ramp_avs(self, ramp_avs: np.ndarray) -> None:
+        self._roads.ramp_av[self._roads.slots(self._k)] = ramp_avs
+
+    @property
+    def _merge_time(self) -> np.ndarray:
+        """[s] when each ramp AV reached the main road (NaN: not yet; a view of the road's record)."""
+        return self._roads.merge_time[self._roads.slots(self._k)]
+
+    @_merge_time.setter
+    def _merge_time(self, merge_time: np.ndarray) -> None:
+        self._roads.merge_time[self._roads.slots(self._k)] = merge_time
+
     def _scenario_info(self, info: dict[str, Any]) -> None:
         """The merge's info: ``ramp_av`` (the AV started on the ramp), ``merge_time`` [s] (when a
         ramp AV reached the main road; NaN: not yet) and ``stranded`` (vehicles at a standstill,

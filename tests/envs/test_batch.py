@@ -74,13 +74,14 @@ def test_batched_options_equal_one_by_one(config, options):
 
 
 def test_the_copies_envs_follow_the_batch():
-    """A copy's env, read between batched steps, holds the batch's state; changed, the batch takes it."""
+    """A copy's env reads its road in the batch's state; what the env changes is the batch's."""
     venv = ParameterSharingVecEnv(ENV_IDS[1], n_copies=2, seed=0)
     venv.reset()
     for _ in range(3):
         venv.step(np.ones(venv.num_envs, dtype=np.int64))
     env = venv.copy_env(0)
-    assert env.steps_done == venv.batch.copies.steps[0] and np.array_equal(env.state, venv.batch.states[: len(env.state)])
+    assert env.steps_done == venv.batch.copies.steps[0]
+    assert np.shares_memory(env.state, venv.batch.roads.states)  # a view of the batch's roads, not a copy
     env.place(avs=[(100.0 + 40 * i, 0, 25.0) for i in range(env.n_avs)])
     venv.step(np.ones(venv.num_envs, dtype=np.int64))
     x = venv.copy_env(0).state[: env.n_avs, 0]
@@ -94,11 +95,11 @@ def test_the_merge_keeps_its_merge_times_in_a_batch():
     venv.reset()
     for _ in range(60):
         venv.step(np.full(venv.num_envs, 1, dtype=np.int64))  # IDLE: the supervisor takes the ramp AVs across
-    assert venv.batch.ramp_av.any() and np.isfinite(venv.batch.merge_time).any()
+    assert venv.batch.roads.ramp_av.any() and np.isfinite(venv.batch.roads.merge_time).any()
     for k in range(venv.n_copies):
         env, sl = venv.copy_env(k), venv.slices[k]
-        assert np.array_equal(env._ramp_avs, venv.batch.ramp_av[sl])
-        assert np.array_equal(env._merge_time, venv.batch.merge_time[sl], equal_nan=True)
+        assert np.array_equal(env._ramp_avs, venv.batch.roads.ramp_av[sl])
+        assert np.array_equal(env._merge_time, venv.batch.roads.merge_time[sl], equal_nan=True)
     venv.close()
 
 
@@ -127,10 +128,10 @@ def test_envs_after_batched_new_episodes_equal_one_by_one():
         batched, one_by_one = (venv.copy_env(k) for venv in venvs)
         for name in ("n_hdvs", "time", "steps"):
             assert getattr(batched, name) == getattr(one_by_one, name), name
-        assert batched.config["safety_supervisor"] == one_by_one.config["safety_supervisor"]
+        assert batched.supervised == one_by_one.supervised
         assert batched.np_random.bit_generator.state == one_by_one.np_random.bit_generator.state
-        runners = [venv.copies.local_runners()[k] for venv in venvs]
-        assert runners[0]._dropout_rng.bit_generator.state == runners[1]._dropout_rng.bit_generator.state
+        dropout_words = [env._roads.copies.dropout_generators[env._k] for env in (batched, one_by_one)]
+        np.testing.assert_array_equal(*dropout_words)
         np.testing.assert_array_equal(batched.state, one_by_one.state)
     for venv in venvs:
         venv.close()
