@@ -20,7 +20,6 @@ import numpy as np
 from sb3_marl.envs.batch_kernel import BatchStep, CopyState, Starts, copy_rewards, step_copies, step_report
 from sb3_marl.envs.lane_change_env import LaneChangeEnv
 from sb3_marl.envs.merge_env import MergeEnv
-from sb3_marl.envs.merge_rules import ON_RAMP_SIDE
 from sb3_marl.envs.reward import REWARD_MODES
 from sb3_marl.envs.roads import Roads
 
@@ -80,13 +79,11 @@ class RoadBatch:
         )
         roads.write_lent()
         roads.states, roads.offsets[:] = result.states[: result.offsets[-1]], result.offsets
-        if self.parameters.merge is not None:
-            merged = roads.ramp_av & np.isnan(roads.merge_time) & ~ON_RAMP_SIDE[result.lane]
+        if self.parameters.merge is not None:  # as MergeEnv._scenario_info
             steps = np.repeat(steps_before + 1, roads.n_avs)
-            roads.merge_time[merged] = steps[merged] / self.envs[0].config["policy_frequency"]
-            for k in np.flatnonzero(starts.restarted).tolist():  # a new situation: as MergeEnv._scenario_info at step 0
-                sl = roads.slots(k)
-                roads.ramp_av[sl], roads.merge_time[sl] = ON_RAMP_SIDE[starts.lane[sl]], np.nan
+            roads.record_merges(slice(None), result.lane, steps, self.parameters.policy_frequency)
+            for k in np.flatnonzero(starts.restarted).tolist():
+                roads.new_situation(roads.slots(k), starts.lane[roads.slots(k)])
         arrays = self.slot_arrays(result, actions)
         return result, starts, arrays, copy_rewards(arrays["reward"], result.neighbours, roads.slot_starts, self.mode)
 

@@ -11,7 +11,7 @@ from highway_env.road.road import Road
 
 from sb3_marl.envs import config as cfg
 from sb3_marl.envs.lane_change_env import LaneChangeEnv
-from sb3_marl.envs.merge_rules import ACROSS, ACROSS_FROM, NEXT_ON_ROUTE, ON_RAMP_SIDE, ROUTE, MergeRules
+from sb3_marl.envs.merge_rules import ACROSS, ACROSS_FROM, NEXT_ON_ROUTE, ROUTE, MergeRules
 from sb3_marl.sim import kernel
 from sb3_marl.sim.merge_road import (
     MERGING_LANE,
@@ -52,37 +52,17 @@ class MergeEnv(LaneChangeEnv):
     def _merge_rules(self) -> MergeRules | None:
         return MergeRules(ROUTE, ACROSS, ACROSS_FROM, NEXT_ON_ROUTE, self.config["supervisor_priority"] == "merging")
 
-    @property
-    def _ramp_avs(self) -> np.ndarray:
-        """Which AVs started the episode on the ramp (a view of the road's record)."""
-        return self._roads.ramp_av[self._roads.slots(self._k)]
-
-    @_ramp_avs.setter
-    def _ramp_avs(self, ramp_avs: np.ndarray) -> None:
-        self._roads.ramp_av[self._roads.slots(self._k)] = ramp_avs
-
-    @property
-    def _merge_time(self) -> np.ndarray:
-        """[s] when each ramp AV reached the main road (NaN: not yet; a view of the road's record)."""
-        return self._roads.merge_time[self._roads.slots(self._k)]
-
-    @_merge_time.setter
-    def _merge_time(self, merge_time: np.ndarray) -> None:
-        self._roads.merge_time[self._roads.slots(self._k)] = merge_time
-
     def _scenario_info(self, info: dict[str, Any]) -> None:
         """The merge's info: ``ramp_av`` (the AV started on the ramp), ``merge_time`` [s] (when a
         ramp AV reached the main road; NaN: not yet) and ``stranded`` (vehicles at a standstill,
         under 1 m/s, on the merging lane)."""
-        state, n = self.state, self.n_avs
-        on_ramp_side = ON_RAMP_SIDE[state[:n, kernel.LANE].astype(np.int64)]
+        state, n, roads, slots = self.state, self.n_avs, self._roads, self._roads.slots(self._k)
+        lane = state[:n, kernel.LANE].astype(np.int64)
         if self.steps == 0:  # a new situation (reset, place)
-            self._ramp_avs = on_ramp_side
-            self._merge_time = np.full(n, np.nan)
-        merged = self._ramp_avs & np.isnan(self._merge_time) & ~on_ramp_side
-        self._merge_time[merged] = self.steps_done / self.config["policy_frequency"]
-        info["ramp_av"] = self._ramp_avs.copy()
-        info["merge_time"] = self._merge_time.copy()
+            roads.new_situation(slots, lane)
+        else:
+            roads.record_merges(slots, lane, np.full(n, self.steps_done), self.config["policy_frequency"])
+        info["ramp_av"], info["merge_time"] = roads.ramp_av[slots].copy(), roads.merge_time[slots].copy()
         stranded = (
             (state[:, kernel.LANE] == MERGING_LANE) & (state[:, kernel.SPEED] < 1.0) & (state[:, kernel.IS_OBSTACLE] == 0)
         )

@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from sb3_marl.envs.batch_kernel import CopyState
+from sb3_marl.envs.merge_rules import ON_RAMP_SIDE
 from sb3_marl.sim import kernel, pcg64
 
 
@@ -77,6 +78,19 @@ class Roads:
             return
         self.states = np.concatenate([self.states[:a], state, self.states[b:]])
         self.offsets[k + 1 :] += len(state) - (b - a)
+
+    def record_merges(self, slots: slice, lane: np.ndarray, steps: np.ndarray, policy_frequency: float) -> None:
+        """The merge's record after a step of the AV ``slots``: a ramp AV on the main road for the
+        first time (its ``lane`` off the ramp's side) merged at its road's ``steps`` (one per AV) /
+        ``policy_frequency`` s."""
+        merge_time = self.merge_time[slots]
+        merged = self.ramp_av[slots] & np.isnan(merge_time) & ~ON_RAMP_SIDE[lane]
+        merge_time[merged] = steps[merged] / policy_frequency
+
+    def new_situation(self, slots: slice, lane: np.ndarray) -> None:
+        """The merge's record of a new situation (a reset, a new episode, ``place``) of the AV
+        ``slots`` in ``lane``: those on the ramp's side are its ramp AVs, none merged yet."""
+        self.ramp_av[slots], self.merge_time[slots] = ON_RAMP_SIDE[lane], np.nan
 
     def lend(self, k: int, generator: np.random.Generator) -> np.random.Generator:
         """``generator`` with road k's words, mirroring them from now on (see the module doc)."""
