@@ -48,6 +48,7 @@ class RoadBatch:
         self.check()
         self.parameters = envs[0].step_parameters()
         self.roads = Roads.join([(env._roads, env._k) for env in envs])
+        self.roads.batched = True
         for k, env in enumerate(envs):
             env._home(self.roads, k)
 

@@ -116,7 +116,7 @@ class LaneChangeEnv(AbstractEnv):
         self._n_avs = cfg.resolved_n_avs(self.config, self.scenario)
         self._parameters = self.step_parameters()
         roads: Roads | None = getattr(self, "_roads", None)
-        if roads is None or (len(roads.n_avs) == 1 and roads.n_avs[0] != self._n_avs):
+        if roads is None or (not roads.batched and roads.n_avs[0] != self._n_avs):
             self._home(Roads(np.array([self._n_avs])), 0, None if roads is None else roads.copies)
         elif roads.n_avs[self._k] != self._n_avs:
             raise RuntimeError(
@@ -358,7 +358,7 @@ class LaneChangeEnv(AbstractEnv):
         proposed = meta_actions.check_actions(action, n)
         p = self._parameters
         roads, k = self._roads, self._k
-        if len(roads.n_avs) > 1:
+        if roads.batched:
             raise RuntimeError(f"Scenario copy {k} is stepped by its batch (ParameterSharingVecEnv.step), not alone.")
         if self._uses_objects():
             result = self._step_objects(proposed, p, bool(roads.copies.supervise[k]), bool(roads.copies.shadow[k]))

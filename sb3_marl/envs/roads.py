@@ -42,6 +42,7 @@ class Roads:
         self.ramp_av = np.zeros(slots, dtype=np.bool_)  # the merge's: the AV started on the ramp
         self.merge_time = np.full(slots, np.nan)  # [s] the merge's: when a ramp AV reached the main road
         self._lent: dict[int, np.random.Generator] = {}  # road -> the generator mirroring its words
+        self.batched = False  # whether a RoadBatch steps these roads (their envs then do not step alone)
 
     @classmethod
     def join(cls, parts: list[tuple[Roads, int]]) -> Roads:
@@ -68,7 +69,7 @@ class Roads:
 
     def set_rows(self, k: int, state: np.ndarray) -> None:
         """Road k's vehicles become ``state`` (its AVs first)."""
-        if len(self.n_avs) == 1:
+        if len(self.n_avs) == 1:  # (no copy)
             self.states = state
             self.offsets[1] = len(state)
             return
