@@ -53,23 +53,30 @@ class Horizon(NamedTuple):
     road_end: float  # [m] x past which vehicles leave the road
     speed_limit: float  # [m/s]
     dt: float  # [s] one frame
-    frames: int  # frames predicted
+    frames: int  # frames predicted, each of ``stride`` frames (stride × dt s)
     frames_per_step: int  # frames of one policy step
     ladder: np.ndarray  # [m/s] the AVs' target speeds (MDPVehicle.target_speeds)
+    stride: int  # simulated frames per predicted frame: 1, or a policy step's (supervisor_version 6)
 
     @classmethod
-    def from_config(cls, config: dict[str, Any], lanes: np.ndarray | None = None, road_end: float | None = None) -> Horizon:
+    def from_config(
+        cls, config: dict[str, Any], lanes: np.ndarray | None = None, road_end: float | None = None, stride: int = 1
+    ) -> Horizon:
         """The road and time grid of a scenario config (frequencies [Hz], ``supervisor_horizon`` [s]);
         the road is ``lanes`` and ``road_end`` [m], by default the lane-change highway of the config
-        (:func:`~sb3_marl.sim.road.highway_lanes`, ``road_length``)."""
+        (:func:`~sb3_marl.sim.road.highway_lanes`, ``road_length``); the prediction takes ``stride``
+        simulated frames at a time (0: a policy step's)."""
+        frames_per_step = max(config["simulation_frequency"] // config["policy_frequency"], 1)
+        stride = stride or frames_per_step
         return cls(
             lanes=highway_lanes(config) if lanes is None else lanes,
             road_end=float(config["road_length"] if road_end is None else road_end),
             speed_limit=float(config["speed_limit"]),
             dt=1.0 / config["simulation_frequency"],
-            frames=max(int(round(config["supervisor_horizon"] * config["simulation_frequency"])), 1),
-            frames_per_step=max(config["simulation_frequency"] // config["policy_frequency"], 1),
+            frames=max(int(round(config["supervisor_horizon"] * config["simulation_frequency"] / stride)), 1),
+            frames_per_step=frames_per_step,
             ladder=np.asarray(config["target_speeds"], dtype=np.float64),
+            stride=stride,
         )
 
 
@@ -77,7 +84,8 @@ class Horizon(NamedTuple):
 def predict(
     state0: np.ndarray, horizon: Horizon, speed_step: np.ndarray, ego: int, collidable: np.ndarray, floor: float
 ) -> tuple[np.ndarray, float]:
-    """(frames, :data:`PATH_ROWS`, n) every vehicle after each frame of the road driven from
+    """(frames, :data:`PATH_ROWS`, n) every vehicle after each predicted frame (``horizon.stride``
+    simulated frames in one step of stride × dt s) of the road driven from
     ``state0`` (the kernel's layout, the AVs' targets set), and the room [m] of
     vehicle ``ego`` along it (see :func:`path_room`; inf for ``ego`` -1). The prediction stops as soon
     as that room is at most ``floor`` m (it can only shrink): the rest of the path is then unset.
@@ -91,13 +99,14 @@ def predict(
     room = np.inf
     ladder = horizon.ladder
     top = ladder.size - 1
+    dt, per_step = horizon.dt * horizon.stride, max(horizon.frames_per_step // horizon.stride, 1)
     for frame in range(horizon.frames):
-        if frame > 0 and frame % horizon.frames_per_step == 0:
+        if frame > 0 and frame % per_step == 0:
             for k in range(speed_step.size):
                 if speed_step[k] != 0:
                     index = min(max(speed_index(state[k, SPEED], ladder) + speed_step[k], 0), top)
                     state[k, TARGET_SPEED] = ladder[index]
-        drive(state, horizon.dt, horizon.lanes, horizon.speed_limit)
+        drive(state, dt, horizon.lanes, horizon.speed_limit)
         _record(path[frame], state)
         if ego >= 0:
             room = min(room, frame_room(ego, path[frame], collidable, horizon.dt))

@@ -5,8 +5,9 @@ priority order: the smallest headway margin first (gap to the leader in the AV's
 speed [m/s] × ``headway_time`` [s]; :func:`headway_margins`; the merge serves its merging lane
 first, the merge's own order in the scenario's compiled step; equal priorities: the lower AV index first, so runs
 stay reproducible without drawing random numbers). For the AV being served it predicts the next
-``supervisor_horizon`` s of the whole road, frame by frame at ``simulation_frequency`` Hz
-(:mod:`sb3_marl.safety.rooms`):
+``supervisor_horizon`` s of the whole road, frame by frame at ``simulation_frequency`` Hz (from
+``supervisor_version`` 6, the default: a policy step at a time, at ``policy_frequency`` Hz, the
+same equations on frames of 1 / policy_frequency s; :mod:`sb3_marl.safety.rooms`):
 
 - every vehicle with the road's own equations (:func:`sb3_marl.sim.dynamics.drive`: highway-env's
   controllers, the HDVs' IDM and MOBIL lane changes with their timers and abort rule, the
@@ -24,7 +25,7 @@ stay reproducible without drawing random numbers). For the AV being served it pr
 The *room* of the AV is the smallest bumper-to-bumper gap [m] over the horizon to any vehicle
 whose body overlaps it laterally; bodies are the axis-aligned boxes around the (possibly tilted)
 vehicle rectangles, and, as highway-env's own collision test, each gap is shortened by the
-distance the two vehicles close within the next frame, so a negative room is a predicted
+distance the two vehicles close within the next simulated frame, so a negative room is a predicted
 collision, with a little to spare. If the action's room is below ``supervisor_min_gap`` m
 (default 2 m), it is replaced by the action available to the AV (the env's action mask) with the
 largest room, ties in the order IDLE, SLOWER, FASTER, LANE_LEFT, LANE_RIGHT. The AVs are served
@@ -95,20 +96,24 @@ from sb3_marl.sim.kernel import (
 )
 from sb3_marl.sim.meta_actions import meta_action_targets
 
-#: The supervisor's versions -> (emergency brake, joint search, a braked AV keeps its lane) they
-#: turn on: what the config's ``supervisor_version`` selects where ``supervisor_emergency_brake`` /
-#: ``supervisor_joint_search`` are null. Evaluations record the version, and ``sb3-marl benchmark
-#: evaluate`` re-evaluates trials evaluated under another (history in CHANGELOG.md; 3: the road's own
-#: equations in the prediction; 4: the emergency brake with its release, :meth:`Supervisor.choices`,
-#: and the joint search, the merge's since 2026-12-02; 5: an AV braked below the speed ladder starts
-#: no lane change, which at a few m/s would leave it standing across two lanes).
-SUPERVISOR_VERSIONS: dict[int, tuple[bool, bool, bool]] = {
-    3: (False, False, False),
-    4: (True, True, False),
-    5: (True, True, True),
+#: The supervisor's versions -> (emergency brake, joint search, a braked AV keeps its lane, the
+#: prediction a policy step at a time) they turn on: what the config's ``supervisor_version``
+#: selects where ``supervisor_emergency_brake`` / ``supervisor_joint_search`` are null. Evaluations
+#: record the version, and ``sb3-marl benchmark evaluate`` re-evaluates trials evaluated under
+#: another (history in CHANGELOG.md; 3: the road's own equations in the prediction; 4: the
+#: emergency brake with its release, :meth:`Supervisor.choices`, and the joint search, the merge's
+#: since 2026-12-02; 5: an AV braked below the speed ladder starts no lane change, which at a few m/s
+#: would leave it standing across two lanes; 6: version 5 predicting the road a policy step at a
+#: time, frames of 1 / policy_frequency s instead of 1 / simulation_frequency s, a third of the
+#: work; results/supervisor-v6/).
+SUPERVISOR_VERSIONS: dict[int, tuple[bool, bool, bool, bool]] = {
+    3: (False, False, False, False),
+    4: (True, True, False, False),
+    5: (True, True, True, False),
+    6: (True, True, True, True),
 }
 #: The versions the merge accepts (its version 3 released the emergency brake otherwise).
-MERGE_SUPERVISOR_VERSIONS = (4, 5)
+MERGE_SUPERVISOR_VERSIONS = (4, 5, 6)
 NO_LEADER_GAP = 1e6  # [m], headway of an AV without leader (priority only)
 #: Passes over the AVs in priority order (the second checks against the first pass's final actions).
 PASSES = 2
@@ -291,9 +296,15 @@ def supervisor_switches(config: dict[str, Any]) -> tuple[bool, bool, bool]:
     """(emergency brake, joint search, a braked AV keeps its lane) of a full scenario config: the
     first two as set, or as its ``supervisor_version`` says where they are null; the third as the
     version says."""
-    brake, joint, keep_lane = SUPERVISOR_VERSIONS[config["supervisor_version"]]
+    brake, joint, keep_lane, _ = SUPERVISOR_VERSIONS[config["supervisor_version"]]
     set_brake, set_joint = config["supervisor_emergency_brake"], config["supervisor_joint_search"]
     return (brake if set_brake is None else bool(set_brake), joint if set_joint is None else bool(set_joint), keep_lane)
+
+
+def prediction_stride(config: dict[str, Any]) -> int:
+    """Simulated frames per predicted frame of a full scenario config: 1, or (0) a policy step's
+    where its ``supervisor_version`` predicts a policy step at a time."""
+    return 0 if SUPERVISOR_VERSIONS[config["supervisor_version"]][3] else 1
 
 
 @dataclass(frozen=True)
@@ -331,7 +342,7 @@ class Supervisor:
     ) -> Supervisor:
         """The supervisor of ``config`` on the road ``lanes`` (see :meth:`Horizon.from_config`)."""
         return cls(
-            Horizon.from_config(config, lanes, road_end),
+            Horizon.from_config(config, lanes, road_end, stride=prediction_stride(config)),
             float(config["headway_time"]),
             float(config["supervisor_min_gap"]),
             bool(config["supervisor_repeat_actions"]),
