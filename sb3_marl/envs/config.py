@@ -109,9 +109,9 @@ def default_config() -> dict[str, Any]:
         "supervisor_rear_avs": True,
         # the supervisor's decisions by version (sb3_marl.safety.supervisor.SUPERVISOR_VERSIONS):
         # 3 (the paper's numbers: results/supervisor-v3) has the emergency brake and the joint
-        # search below off; 4 (the merge's default) has both on; 5 (the lane change's default) is 4
-        # where an AV braked to a stop starts no lane change
-        "supervisor_version": 5,
+        # search below off; 4 (the merge's default) has both on; 5 is 4 where an AV braked to a stop
+        # starts no lane change; 6 (the lane change's default) is 5 predicting a policy step at a time
+        "supervisor_version": 6,
         # when no meta-action leaves an AV supervisor_min_gap of room, brake it to a stop (a target
         # speed of 0 m/s, below the speed ladder) if that leaves more; a braked AV may then be
         # released by the supervisor with SLOWER (to the ladder's lowest speed); null: as

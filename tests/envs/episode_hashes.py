@@ -85,7 +85,8 @@ def episode_record(env_id: str, supervisor: bool, seed: int, version: int | None
 
 def all_records() -> dict[str, dict[str, Any]]:
     """Every scenario id with the supervisor on (its default version) and off; the lane change's
-    also under its earlier default, version 3 (the paper's numbers as committed before version 5)."""
+    also under its earlier defaults, version 3 (the paper's numbers as committed before version 5)
+    and version 5 (the default before version 6)."""
     records = {
         f"{env_id} supervisor={on} seed={seed}": episode_record(env_id, on, seed)
         for env_id in SCENARIO_IDS
@@ -94,7 +95,8 @@ def all_records() -> dict[str, dict[str, Any]]:
     }
     for env_id in (i for i in SCENARIO_IDS if "LaneChange" in i):
         for seed in EPISODE_SEEDS:
-            records[f"{env_id} supervisor=v3 seed={seed}"] = episode_record(env_id, True, seed, version=3)
+            for version in (3, 5):
+                records[f"{env_id} supervisor=v{version} seed={seed}"] = episode_record(env_id, True, seed, version=version)
     return records
 
 
