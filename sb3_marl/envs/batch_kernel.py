@@ -134,12 +134,6 @@ class CopyState(NamedTuple):
     dropout: np.ndarray  # float, probability that an episode runs without the supervisor (0: as configured)
 
 
-def one_copy(steps: int, supervise: bool, shadow: bool, n_hdvs: int) -> CopyState:
-    """The :class:`CopyState` of one road stepped without respawning (no generators)."""
-    none = np.zeros((1, 6), dtype=np.uint64)
-    return CopyState(np.array([steps]), np.array([supervise]), np.array([shadow]), np.array([n_hdvs]), none, none, np.zeros(1))
-
-
 class Starts(NamedTuple):
     """The new episodes a step began (arrays over the AV slots, filled where ``restarted``)."""
 
