@@ -100,11 +100,13 @@ def test_the_paper_grid_table_regenerates():
 @pytest.mark.parametrize("algo", ["ma2c", "madqn", "maacktr", "mappo"])
 def test_committed_grid_models_reproduce_their_final_evaluation(algo):
     """Each learner's density-1 seed-0 grid model, re-evaluated on the first 3 episodes of its
-    final evaluation (same seeds, sampled actions, its scenario config), gives the committed returns
-    with the supervisor and without it (to :data:`RETURN_TOLERANCE`), and the same protocol."""
+    final evaluation (same seeds, sampled actions, its scenario config, the supervisor version it
+    records), gives the committed returns with the supervisor and without it (to
+    :data:`RETURN_TOLERANCE`), and the same protocol."""
     trial = PAPER_GRID / "trials" / f"{algo}_density1_default_seed0"
     committed = json.loads((trial / "result.json").read_text())["paper_evaluation"]
     run = find_run(trial, algo, "sb3_marl/LaneChange-density1-v0")
+    run.hyperparams["env_config"] = {**run.env_config, "supervisor_version": committed["supervisor_version"]}
     again = run.evaluate(run.load_model("cpu"), 3, committed["seeds"][0])
     assert again["supervisor_version"] == committed["supervisor_version"]
     assert again["returns"] == pytest.approx(committed["returns"][:3], rel=RETURN_TOLERANCE)

@@ -163,19 +163,18 @@ REFERENCE_VARIANTS = {"lane-change": ("default", ""), "merge": ("merge", ", merg
 
 def reference_configs(trials: list[TrialLog], log_folder: str | Path) -> Iterator[tuple[str, int, str, dict[str, Any]]]:
     """(road, density, scenario id, scenario config) of each road of :data:`REFERENCE_VARIANTS` and
-    density with a finished MA2C trial of the road's variant (the config of its first such trial)."""
+    density with a finished MA2C trial of the road's variant (the config of its first such trial,
+    under the safety supervisor version its final evaluation was made with, so the references meet
+    the learners' supervisor)."""
     from sb3_marl.runs.folders import find_run
 
     for (road, (variant, _)), density in itertools.product(REFERENCE_VARIANTS.items(), DENSITIES):
         finished = [t for t in select_trials(trials, "ma2c", variant, density) if t.result is not None]
         if finished:
             spec = finished[0].spec
-            yield (
-                road,
-                density,
-                spec.env_id,
-                find_run(Path(log_folder) / "trials" / spec.trial_id, spec.algo, spec.env_id).env_config,
-            )
+            config = find_run(Path(log_folder) / "trials" / spec.trial_id, spec.algo, spec.env_id).env_config
+            version = (finished[0].result or {}).get("paper_evaluation", {}).get("supervisor_version")
+            yield road, density, spec.env_id, config if version is None else {**config, "supervisor_version": version}
 
 
 def reference_summaries(trials: list[TrialLog], log_folder: str | Path, seed: int) -> dict[tuple[str, int], dict[str, Any]]:

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sb3_marl.envs import make_scenario
-from sb3_marl.sim.kernel import ACCELERATION, CRASHED, HEADING, LANE, SPEED, STEERING, TARGET_LANE, X, Y
+from sb3_marl.sim.kernel import ACCELERATION, CRASHED, HEADING, LANE, SPEED, STEERING, TARGET_LANE, VEHICLE_ID, X, Y
 
 #: Meta-action probabilities (LANE_LEFT, IDLE, LANE_RIGHT, FASTER, SLOWER). Uniform random actions
 #: end most episodes in a crash within a few steps; "cruise" is mostly IDLE, so that episodes last
@@ -39,6 +39,7 @@ class Episode:
     """One seeded episode: per step the vehicle states and observation, and its outcome."""
 
     states: list[np.ndarray] = field(default_factory=list)
+    ids: list[np.ndarray] = field(default_factory=list)  # per step: the vehicles' ids, road order
     observations: list[np.ndarray] = field(default_factory=list)
     #: per step: terminated, truncated, the AVs' crash and lane-change flags, the HDVs' target lanes
     events: list[tuple] = field(default_factory=list)
@@ -56,11 +57,12 @@ def run_episode(simulator: str, env_id: str, seed: int, policy: str, **config) -
     env.simulator = simulator
     rng = np.random.default_rng(seed)
     obs, _ = env.reset(seed=seed)
-    episode = Episode(states=[vehicle_states(env)], observations=[obs])
+    episode = Episode(states=[vehicle_states(env)], ids=[env.state[:, VEHICLE_ID].copy()], observations=[obs])
     while True:
         obs, _, terminated, truncated, info = env.step(rng.choice(5, env.n_avs, p=ACTION_PROBABILITIES[policy]))
         hdv_targets = tuple(env.state[env.n_avs :, TARGET_LANE].astype(int).tolist())
         episode.states.append(vehicle_states(env))
+        episode.ids.append(env.state[:, VEHICLE_ID].copy())
         episode.observations.append(obs)
         episode.events.append(
             (terminated, truncated, tuple(info["crashed"].tolist()), tuple(info["lane_change"].tolist()), hdv_targets)
@@ -97,18 +99,18 @@ def compare(reference: str, candidate: str, env_id: str, seeds: range, policy: s
         if a.events != b.events or len(a.states) != len(b.states):
             result.different_outcomes.append(seed)
             continue
-        stopped = np.zeros(0, dtype=bool)  # rows that stood still earlier in the episode
-        for s, t, o, p in zip(a.states, b.states, a.observations, b.observations):
+        stood_still: set[float] = set()  # ids of the vehicles that stood still earlier in the episode
+        for s, t, o, p, ids in zip(a.states, b.states, a.observations, b.observations, a.ids):
             if s.shape != t.shape:
                 result.different_outcomes.append(seed)
                 break
             if not s.size:
                 continue
             # the steering command divides by the speed: after a standstill (a vehicle stranded at
-            # the merging lane's end) last-bit differences of the heading flip it, so such vehicles
-            # are compared apart (rows are tracked while none leaves the road)
-            slow = np.abs(s[:, COMPARED.index(SPEED)]) < STANDSTILL
-            stopped = (stopped | slow) if stopped.shape == slow.shape else slow
+            # the merging lane's end, an AV the supervisor braked to a stop) last-bit differences of
+            # the heading flip it, so such vehicles are compared apart (tracked by id)
+            stood_still.update(ids[np.abs(s[:, COMPARED.index(SPEED)]) < STANDSTILL].tolist())
+            stopped = np.isin(ids, list(stood_still))
             difference = np.abs(s - t)
             result.max_state_difference = max(result.max_state_difference, float(difference[~stopped].max(initial=0.0)))
             result.standstill_difference = max(result.standstill_difference, float(difference[stopped].max(initial=0.0)))
