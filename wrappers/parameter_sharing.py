@@ -28,7 +28,7 @@ from sb3_marl.envs import (  # importing sb3_marl.envs registers the scenario id
 from sb3_marl.envs.batch import RoadBatch, batchable
 from sb3_marl.envs.reward import REWARD_MODES
 from wrappers.copies import CopyGroups, CopyRunner, per_agent_spaces
-from wrappers.step_arrays import Ending, StepArrays
+from wrappers.step_arrays import Endings, StepArrays
 
 VEC_BACKENDS = ("dummy", "subproc")
 #: Copy methods whose result has one row per AV; ``env_method`` hands each slot its own row.
@@ -242,58 +242,54 @@ class ParameterSharingVecEnv(VecEnv):
             return self._step_batch()
         results = self._collect(self._pending)
         rewards = np.zeros(self.num_envs)
-        endings: dict[int, Ending] = {}
+        arrays = self._join([results[k][3] for k in range(self.n_copies)])
+        ended, time_limit = np.zeros(self.n_copies, dtype=bool), np.zeros(self.n_copies, dtype=bool)
+        terminal, mask, rule = self._obs.copy(), arrays.action_mask.copy(), arrays.rule_action.copy()
         for k, (obs, slot_rewards, _, _, ending) in results.items():
-            self._obs[self.slices[k]] = obs
-            rewards[self.slices[k]] = slot_rewards
+            sl = self.slices[k]
+            self._obs[sl], rewards[sl] = obs, slot_rewards
             if ending is not None:
-                endings[k] = ending
-        return self._finish(rewards, self._join([results[k][3] for k in range(self.n_copies)]), endings)
+                ended[k], time_limit[k], terminal[sl] = True, ending.time_limit, ending.terminal_observation
+                mask[sl], rule[sl] = ending.reset_arrays["action_mask"], ending.reset_arrays["rule_action"]
+        return self._finish(rewards, arrays, Endings(ended, time_limit, terminal, mask, rule))
 
     def _step_batch(self) -> VecEnvStepReturn:
         """One compiled step of every copy (:class:`~sb3_marl.envs.batch.RoadBatch`), which begins
         a new episode wherever one ended (as the copy's env would draw it) in the same call."""
         assert self.batch is not None
         step, starts, arrays, rewards = self.batch.step(self._actions)
-        self._obs[:] = step.obs
-        endings: dict[int, Ending] = {}
-        for k in np.flatnonzero(starts.restarted).tolist():
-            sl = self.slices[k]
-            self._obs[sl] = starts.obs[sl]
-            first = {"action_mask": starts.action_mask[sl], "rule_action": starts.rule_action[sl]}
-            endings[k] = Ending(step.obs[sl], bool(step.truncated[k]), first)
+        np.copyto(self._obs, np.where(np.repeat(starts.restarted, self.n_avs)[:, None, None], starts.obs, step.obs))
+        endings = Endings(starts.restarted, step.truncated, step.obs, starts.action_mask, starts.rule_action)
         return self._finish(rewards, StepArrays.join([arrays], self.slot_copy, self.slot_agent), endings)
 
     def _join(self, parts: list[dict[str, Any]]) -> StepArrays:
         """The copies' per-AV arrays (:func:`~wrappers.step_arrays.copy_arrays`) over the slots."""
         return StepArrays.join(parts, self.slot_copy, self.slot_agent)
 
-    def _finish(self, rewards: np.ndarray, arrays: StepArrays, endings: dict[int, Ending]) -> VecEnvStepReturn:
-        """The step's return from every slot's reward, the step's arrays and the copies whose
-        episode ended (their observations in ``self._obs`` already the new episode's)."""
+    def _finish(self, rewards: np.ndarray, arrays: StepArrays, endings: Endings) -> VecEnvStepReturn:
+        """The step's return from every slot's reward, the step's arrays and how the copies whose
+        episode ended ended (their observations in ``self._obs`` already the new episode's)."""
         self._episode_returns += rewards
         self._episode_lengths += 1
         self.step_arrays = arrays
         infos: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
-        dones = np.zeros(self.num_envs, dtype=bool)
+        dones = np.repeat(endings.ended, self.n_avs)
         self._current = {method: getattr(arrays, key).copy() for method, key in CACHED_METHODS.items()}
-        elapsed = round(time.time() - self._t_start, 6)
-        for k, ending in endings.items():
-            sl = self.slices[k]
-            dones[sl] = True
-            for method, key in CACHED_METHODS.items():
-                self._current[method][sl] = ending.reset_arrays[key]
-            for agent, slot in enumerate(range(sl.start, sl.stop)):
-                info = infos[slot]
-                info["terminal_observation"] = ending.terminal_observation[agent]
-                info["TimeLimit.truncated"] = ending.time_limit
-                info["episode"] = {
-                    "r": float(self._episode_returns[slot]),
-                    "l": int(self._episode_lengths[slot]),
-                    "t": elapsed,
+        if dones.any():
+            for method, key in CACHED_METHODS.items():  # the new episodes' first observations'
+                self._current[method][dones] = getattr(endings, key)[dones]
+            elapsed = round(time.time() - self._t_start, 6)
+            slots = np.flatnonzero(dones)
+            time_limit = np.repeat(endings.time_limit, self.n_avs)[slots].tolist()
+            returns, lengths = self._episode_returns[slots].tolist(), self._episode_lengths[slots].tolist()
+            for slot, truncated, r, length in zip(slots.tolist(), time_limit, returns, lengths):
+                infos[slot] = {
+                    "terminal_observation": endings.terminal_observation[slot],
+                    "TimeLimit.truncated": truncated,
+                    "episode": {"r": r, "l": length, "t": elapsed},
                 }
-            self._episode_returns[sl] = 0.0
-            self._episode_lengths[sl] = 0
+            self._episode_returns[dones] = 0.0
+            self._episode_lengths[dones] = 0
         return self._obs.copy(), rewards.astype(np.float32), dones, infos
 
     # ---- VecEnv plumbing --------------------------------------------------------------------

@@ -112,6 +112,19 @@ def copy_arrays(info: dict[str, Any]) -> dict[str, Any]:
     return arrays
 
 
+class Endings(NamedTuple):
+    """Which copies' episodes ended in a VecEnv step and how: over the copies, whether it ended and
+    whether by a time limit or the road's end (SB3's ``TimeLimit.truncated``; a crash is a
+    termination); over the AV slots (rows of copies that went on: anything), the ended episodes'
+    last observations and the new episodes' first action masks and rule actions."""
+
+    ended: np.ndarray  # (copies,) bool
+    time_limit: np.ndarray  # (copies,) bool
+    terminal_observation: np.ndarray  # (slots, vehicles, features)
+    action_mask: np.ndarray  # (slots, 5) bool
+    rule_action: np.ndarray  # (slots,) int
+
+
 class Ending(NamedTuple):
     """How a copy's episode ended: its last observations (n_avs, ...), whether by a time limit or
     the road's end (SB3's ``TimeLimit.truncated``; a crash is a termination), and the arrays of the
