@@ -173,7 +173,7 @@ def reference_configs(trials: list[TrialLog], log_folder: str | Path) -> Iterato
         if finished:
             spec = finished[0].spec
             config = find_run(Path(log_folder) / "trials" / spec.trial_id, spec.algo, spec.env_id).env_config
-            version = (finished[0].result or {}).get("paper_evaluation", {}).get("supervisor_version")
+            version = ((finished[0].result or {}).get("paper_evaluation") or {}).get("supervisor_version")
             yield road, density, spec.env_id, config if version is None else {**config, "supervisor_version": version}
 
 

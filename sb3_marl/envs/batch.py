@@ -79,7 +79,7 @@ class RoadBatch:
             roads.states, roads.offsets, roads.slot_starts, actions, roads.copies, self.parameters, respawn=True
         )
         roads.write_lent()
-        roads.states, roads.offsets[:] = result.states[: result.offsets[-1]], result.offsets
+        roads.set_all(result.states[: result.offsets[-1]], result.offsets)
         if self.parameters.merge is not None:  # as MergeEnv._scenario_info
             steps = np.repeat(steps_before + 1, roads.n_avs)
             roads.record_merges(slice(None), result.lane, steps, self.parameters.policy_frequency)

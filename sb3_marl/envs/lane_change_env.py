@@ -78,7 +78,7 @@ class LaneChangeEnv(AbstractEnv):
     _dropout = 0.0  # probability that an episode runs without the configured supervisor
     _dropout_stream: int | None = None
     _road: Road | None = None
-    _road_current = False  # whether _road's vehicles are the current state
+    _road_at = -1  # the road store's change count when _road's vehicles were the state
 
     def __init__(
         self,
@@ -105,35 +105,42 @@ class LaneChangeEnv(AbstractEnv):
         """Merge ``config`` over the current config after validating the result."""
         merged = {**self.config, **(config or {})}
         cfg.validate_config(merged, self.scenario)
+        self._check_n_avs(cfg.resolved_n_avs(merged, self.scenario))
         super().configure(config)
         self._derive()
+        if config and "safety_supervisor" in config:  # from now on (else: the episode's draw stays)
+            self._roads.copies.supervise[self._k] = bool(self.config["safety_supervisor"])
 
     def _derive(self) -> None:
         """What the steps read from the config: the road and time grid, the safety supervisor, the
-        compiled step's parameters (the supervisor's switches are read at each step)."""
+        compiled step's parameters, the road's store (its supervisor switch is the episode's:
+        reset draws it, :meth:`configure` sets it)."""
+        n_avs = cfg.resolved_n_avs(self.config, self.scenario)
+        self._check_n_avs(n_avs)
         self.supervisor = Supervisor.from_config(self.config, *self._road_data())
         self.horizon = self.supervisor.horizon
-        self._n_avs = cfg.resolved_n_avs(self.config, self.scenario)
+        self._n_avs = n_avs
         self._parameters = self.step_parameters()
         roads: Roads | None = getattr(self, "_roads", None)
-        if roads is None or (not roads.batched and roads.n_avs[0] != self._n_avs):
-            self._home(Roads(np.array([self._n_avs])), 0, None if roads is None else roads.copies)
-        elif roads.n_avs[self._k] != self._n_avs:
+        if roads is None:
+            self._home(Roads(np.array([n_avs])), 0)
+        elif roads.n_avs[self._k] != n_avs:
+            self._home(roads.resized(n_avs), 0)
+        c, on = self._roads.copies, bool(self.config["safety_supervisor"])
+        c.shadow[self._k], c.dropout[self._k] = bool(self.config["supervisor_shadow"]), self._dropout if on else 0.0
+
+    def _check_n_avs(self, n_avs: int) -> None:
+        """A RuntimeError, before anything changes, where a batch's copy would change its AV count."""
+        roads: Roads | None = getattr(self, "_roads", None)
+        if roads is not None and roads.batched and roads.n_avs[self._k] != n_avs:
             raise RuntimeError(
-                f"Scenario copy {self._k} of a batch cannot change n_avs ({roads.n_avs[self._k]} -> {self._n_avs}): "
+                f"Scenario copy {self._k} of a batch cannot change n_avs ({roads.n_avs[self._k]} -> {n_avs}): "
                 "a batch steps copies of one config (use batched=False to step the copies one by one)."
             )
-        c, on = self._roads.copies, bool(self.config["safety_supervisor"])
-        c.supervise[self._k], c.shadow[self._k] = on, bool(self.config["supervisor_shadow"])
-        c.dropout[self._k] = self._dropout if on else 0.0
 
-    def _home(self, roads: Roads, k: int, words_from: Any = None) -> None:
-        """This env's road becomes road ``k`` of ``roads`` (``words_from``: a CopyState whose first
-        road's generator words it keeps)."""
-        if words_from is not None:
-            roads.copies.generators[k] = words_from.generators[0]
-            roads.copies.dropout_generators[k] = words_from.dropout_generators[0]
-        self._roads, self._k = roads, k
+    def _home(self, roads: Roads, k: int) -> None:
+        """This env's road becomes road ``k`` of ``roads``."""
+        self._roads, self._k, self._road_at = roads, k, -1
 
     def set_supervisor_dropout(self, dropout: float, stream: int) -> None:
         """With the supervisor configured on, each episode runs without it with probability
@@ -215,13 +222,6 @@ class LaneChangeEnv(AbstractEnv):
         """Spawn a new episode (:func:`~sb3_marl.sim.spawn.new_episode`, from :attr:`np_random`);
         ``options={"config": {...}}`` reconfigures first, as in highway-env."""
         gym.Env.reset(self, seed=seed)
-        roads, k = self._roads, self._k
-        if seed is not None or self._np_random is None:  # a new generator: the road's words from now on
-            if self._np_random is None:
-                self._np_random, self._np_random_seed = seeding.np_random()
-            roads.take(k, self._np_random)
-        if seed is not None and self._dropout_stream is not None:
-            roads.copies.dropout_generators[k] = pcg64.read_state(np.random.default_rng([seed, self._dropout_stream]))
         if options and "config" in options:
             self.configure(options["config"])
         if self.simulator not in SIMULATORS:
@@ -229,8 +229,16 @@ class LaneChangeEnv(AbstractEnv):
         self.update_metadata()
         self._derive()  # a config changed in place since (highway-env's env.config[...] = ...)
         self.define_spaces()
-        self.steps, self.done, c = 0, False, self._roads.copies
+        roads, k = self._roads, self._k
+        if seed is not None or self._np_random is None:  # a new generator: the road's words from now on
+            if self._np_random is None:
+                self._np_random, self._np_random_seed = seeding.np_random()
+            roads.take(k, self._np_random)
+        if seed is not None and self._dropout_stream is not None:
+            roads.copies.dropout_generators[k] = pcg64.read_state(np.random.default_rng([seed, self._dropout_stream]))
+        self.steps, self.done, c = 0, False, roads.copies
         roads.read_lent()
+        c.supervise[k] = bool(self.config["safety_supervisor"])
         if c.dropout[k] > 0:
             c.supervise[k] = pcg64.random(c.dropout_generators[k]) >= c.dropout[k]
         spawn = self._parameters.spawn
@@ -270,7 +278,6 @@ class LaneChangeEnv(AbstractEnv):
     @state.setter
     def state(self, state: np.ndarray) -> None:
         self._roads.set_rows(self._k, state)
-        self._road_current = False
 
     @property
     def steps(self) -> int:
@@ -323,9 +330,9 @@ class LaneChangeEnv(AbstractEnv):
         """highway-env's road with :attr:`state`'s vehicles as objects, the AVs first."""
         if self._road is None:
             self._road = self._make_road()
-        if not self._road_current:
+        if self._road_at != self._roads.changes:
             self._road.vehicles = vehicle_objects(self._road, self.state, self.config)
-            self._road_current = True
+            self._road_at = self._roads.changes
         return self._road
 
     @road.setter
@@ -411,7 +418,7 @@ class LaneChangeEnv(AbstractEnv):
         step_objects(road, [ACTIONS[int(a)] for a in actions], braking, h.frames_per_step, h.dt, h.road_end, self._frame)
         self.enable_auto_render = False
         self.state = capture(road.vehicles, road.network, road.objects)
-        self._road_current = True  # the objects stepped are the state
+        self._road_at = self._roads.changes  # the objects stepped are the state
 
     def _frame(self, frame: int) -> None:
         """After each simulated frame of the objects: draw the frames between policy steps."""

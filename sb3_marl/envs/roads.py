@@ -43,6 +43,7 @@ class Roads:
         self.merge_time = np.full(slots, np.nan)  # [s] the merge's: when a ramp AV reached the main road
         self._lent: dict[int, np.random.Generator] = {}  # road -> the generator mirroring its words
         self.batched = False  # whether a RoadBatch steps these roads (their envs then do not step alone)
+        self.changes = 0  # counts the changes of the vehicles (a reader's cache of them is current while it holds)
 
     @classmethod
     def join(cls, parts: list[tuple[Roads, int]]) -> Roads:
@@ -67,8 +68,19 @@ class Roads:
         """Road k's AVs among all roads' AVs."""
         return slice(int(self.slot_starts[k]), int(self.slot_starts[k + 1]))
 
+    def resized(self, n_avs: int) -> Roads:
+        """A one-road store of ``n_avs`` AVs with this one-road store's episode record and
+        generators (its lent generator's draws taken first), no vehicles."""
+        self.read_lent()
+        roads = Roads(np.array([n_avs]))
+        for field, value in zip(roads.copies, self.copies):
+            field[:] = value
+        roads._lent = dict(self._lent)
+        return roads
+
     def set_rows(self, k: int, state: np.ndarray) -> None:
         """Road k's vehicles become ``state`` (its AVs first)."""
+        self.changes += 1
         if len(self.n_avs) == 1:  # (no copy)
             self.states = state
             self.offsets[1] = len(state)
@@ -79,6 +91,11 @@ class Roads:
             return
         self.states = np.concatenate([self.states[:a], state, self.states[b:]])
         self.offsets[k + 1 :] += len(state) - (b - a)
+
+    def set_all(self, states: np.ndarray, offsets: np.ndarray) -> None:
+        """Every road's vehicles become ``states``, road k's at ``offsets[k]:offsets[k + 1]`` (a batch's step)."""
+        self.changes += 1
+        self.states, self.offsets[:] = states, offsets
 
     def record_merges(self, slots: slice, lane: np.ndarray, steps: np.ndarray, policy_frequency: float) -> None:
         """The merge's record after a step of the AV ``slots``: a ramp AV on the main road for the
@@ -94,9 +111,13 @@ class Roads:
         self.ramp_av[slots], self.merge_time[slots] = ON_RAMP_SIDE[lane], np.nan
 
     def lend(self, k: int, generator: np.random.Generator) -> np.random.Generator:
-        """``generator`` with road k's words, mirroring them from now on (see the module doc)."""
-        pcg64.write_state(generator, self.copies.generators[k])
-        self._lent[k] = generator
+        """``generator`` with road k's words, mirroring them from now on (see the module doc); lent
+        already, it is current and its draws since become the words."""
+        if self._lent.get(k) is generator:
+            self.copies.generators[k] = pcg64.read_state(generator)
+        else:
+            pcg64.write_state(generator, self.copies.generators[k])
+            self._lent[k] = generator
         return generator
 
     def take(self, k: int, generator: np.random.Generator) -> None:

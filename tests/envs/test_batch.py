@@ -9,7 +9,7 @@ from dataclasses import fields
 import numpy as np
 import pytest
 
-from sb3_marl.envs import ENV_IDS, MERGE_ENV_IDS
+from sb3_marl.envs import ENV_IDS, MERGE_ENV_IDS, make_scenario
 from wrappers import ParameterSharingVecEnv
 from wrappers.step_arrays import StepArrays
 
@@ -134,3 +134,39 @@ def test_envs_after_batched_new_episodes_equal_one_by_one():
         np.testing.assert_array_equal(batched.state, one_by_one.state)
     for venv in venvs:
         venv.close()
+
+
+def test_np_random_is_the_stream_the_episodes_are_drawn_from():
+    """Draws through ``env.np_random`` (read once or again) advance the words the next spawn draws
+    from, alone and after a change of the AV count."""
+    env = make_scenario(ENV_IDS[1], {"n_avs": 1})
+    env.reset(seed=0)
+    assert env.np_random.random() != env.np_random.random()
+    for change in ({}, {"n_avs": 2}):
+        starts = []
+        for draw in (True, False):
+            env.reset(seed=5)
+            if draw:
+                env.np_random.random()
+            env.configure(change)
+            starts.append(env.reset()[0])
+        assert not np.array_equal(*starts), change
+
+
+def test_a_batched_copy_shows_each_step_and_refuses_a_new_av_count_untouched():
+    venv = ParameterSharingVecEnv(ENV_IDS[1], n_copies=2, seed=0, config={"safety_supervisor": True}, supervisor_dropout=1.0)
+    venv.reset()
+    env = venv.copy_env(0)
+    before = env.road.vehicles[0].position[0]
+    venv.step(np.ones(venv.num_envs, dtype=np.int64))
+    assert env.road.vehicles[0].position[0] != before and env.road.vehicles[0].position[0] == env.state[0, 0]
+    n = env.n_avs
+    with pytest.raises(RuntimeError, match="cannot change n_avs"):
+        venv.env_method("configure", {"n_avs": n + 1}, indices=[0])
+    assert env.n_avs == env.config["n_avs"] == n and env.action_masks().shape == (n, 5)
+    assert not env.supervised  # the dropout's draw (p = 1) outlives a configure that does not set the supervisor
+    env.configure({})
+    assert not env.supervised
+    env.configure({"safety_supervisor": True})
+    assert env.supervised
+    venv.close()
