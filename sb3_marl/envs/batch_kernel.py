@@ -20,7 +20,7 @@ import numpy as np
 
 from sb3_marl.envs.merge_rules import MergeRules, _merge_priorities, _regional_neighbours
 from sb3_marl.envs.observation import _observe
-from sb3_marl.envs.reward import REWARD_TERMS, _neighbour_matrix, _terms, _weighted, mode_rewards
+from sb3_marl.envs.reward import _neighbour_matrix, _terms, mode_rewards, reward_terms, total_reward
 from sb3_marl.safety.rooms import SLOWER, Horizon
 from sb3_marl.safety.supervisor import headway_margins, supervise_arrays
 from sb3_marl.sim import kernel, pcg64
@@ -379,26 +379,16 @@ def step_report(result: BatchStep, proposed: np.ndarray, config: dict[str, Any],
     """The per-slot arrays of a step, named as the scenario's info entries: the driving metrics,
     masks, actions and interventions of ``result``, each AV's own weighted reward (``reward``) and
     its unweighted terms (``reward_terms``, with the merge's merging-lane cost where ``merge``)."""
-    terms = result.terms
-    terms[1] = np.minimum(np.log(terms[1]), 0.0)  # numpy's log: the same on every CPU as the env's always was
-    own = _weighted(
-        terms[0],
-        terms[1],
-        terms[2],
-        terms[3],
-        float(config["safety_weight"]),
-        float(config["headway_weight"]),
-        float(config["speed_weight"]),
-        float(config["comfort_weight"]) if config["comfort"] else 0.0,
-    )
-    names = dict(zip(REWARD_TERMS, terms[:6]))
+    names = reward_terms(result.terms)
+    headway = names.pop("headway_distance")
+    own = total_reward(names, config)
     if merge:  # MARL_CAVs' merging-lane cost: -exp(-(x - merge end)² / (10 × merging lane length))
         cost = -np.exp(-((result.x - MERGE_END) ** 2) / (10 * ENDS[2]))
         names["merging_lane"] = np.where(result.lane == MERGING_LANE, cost, 0.0)
         own = own + config["merging_lane_weight"] * names["merging_lane"]
     return {
         "speed": result.speed,
-        "headway": terms[6],
+        "headway": headway,
         "acceleration": result.acceleration,
         "lane_change": result.lane_change,
         "crashed": result.crashed,

@@ -24,7 +24,6 @@ import numpy as np
 from gymnasium import spaces
 
 from sb3_marl.sim.kernel import argsort, clip, jit
-from sb3_marl.sim.snapshot import TrafficSnapshot
 
 FEATURES = ("presence", "x", "y", "vx", "vy")
 TARGET_SPEED_FEATURE = "target_speed"
@@ -41,34 +40,6 @@ def observation_space(n_avs: int, config: dict[str, Any]) -> spaces.Box:
     return spaces.Box(low=-1.0, high=1.0, shape=shape, dtype=np.float32)
 
 
-def observe(
-    snapshot: TrafficSnapshot, config: dict[str, Any], road_length: float, target_speeds: np.ndarray | None = None
-) -> np.ndarray:
-    """Observations of all AVs, shape (n_avs, obs_vehicles_count, features), float32.
-
-    :param road_length: [m] the length the ego's x is normalised by
-    :param target_speeds: [m/s] the AVs' target speeds, needed with ``obs_target_speed``
-    """
-    obs = _observe(
-        snapshot.x,
-        snapshot.y,
-        snapshot.vx,
-        snapshot.vy,
-        snapshot.visible,
-        snapshot.n_avs,
-        config["obs_vehicles_count"],
-        float(road_length),
-        float(config["obs_x_range"]),
-        float(config["obs_y_range"]),
-        float(config["obs_speed_range"]),
-    )
-    if not config["obs_target_speed"]:
-        return obs
-    column = np.zeros((*obs.shape[:2], 1), dtype=np.float32)
-    column[:, 0, 0] = np.clip(np.asarray(target_speeds, dtype=float) / config["obs_speed_range"], -1.0, 1.0)
-    return np.concatenate([obs, column], axis=2)
-
-
 @jit
 def _observe(
     x: np.ndarray,
@@ -83,8 +54,9 @@ def _observe(
     y_range: float,
     v_range: float,
 ) -> np.ndarray:
-    """:func:`observe` on the snapshot's arrays (compiled: a dozen vehicles, called every step).
-    Other vehicles are ranked by |dx|, equal distances by index."""
+    """(n_avs, rows, 5) float32: the observation of AVs ``0..n_avs-1`` (see the module doc) among
+    the road's vehicles (``x``, ``y`` [m], ``vx``, ``vy`` [m/s], ``visible``, AVs first); other
+    vehicles are ranked by |dx|, equal distances by index."""
     obs = np.zeros((n_avs, rows, 5), dtype=np.float32)
     distance = np.empty(x.size)
     for i in range(n_avs):

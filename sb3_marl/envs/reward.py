@@ -22,44 +22,17 @@ from typing import Any
 import numpy as np
 
 from sb3_marl.sim.kernel import jit
-from sb3_marl.sim.snapshot import TrafficSnapshot
 
 REWARD_TERMS = ("safety", "headway", "speed", "comfort", "harsh_acceleration", "lane_change")
 
 
-def reward_terms(
-    snapshot: TrafficSnapshot,
-    crashed: np.ndarray,
-    acceleration: np.ndarray,
-    lane_change: np.ndarray,
-    config: dict[str, Any],
-) -> dict[str, np.ndarray]:
-    """Unweighted reward terms per AV, each of shape (n_avs,).
-
-    :param crashed: (n_avs,) crash flags
-    :param acceleration: (n_avs,) mean longitudinal acceleration over the policy step [m/s²]
-    :param lane_change: (n_avs,) True where the AV started a lane change this step
-    :return: ``safety``, ``headway``, ``speed``, ``comfort`` (= harsh_acceleration + lane_change),
-        ``harsh_acceleration``, ``lane_change`` and the ``headway_distance`` used [m]
-    """
-    v_min, v_max = config["reward_speed_range"]
-    terms = _terms(
-        snapshot.x,
-        snapshot.lane,
-        snapshot.visible,
-        snapshot.speed,
-        snapshot.n_avs,
-        np.asarray(crashed, dtype=np.bool_),
-        np.asarray(acceleration, dtype=np.float64),
-        np.asarray(lane_change, dtype=np.bool_),
-        float(config["headway_max_distance"]),
-        float(config["headway_time"]),
-        float(v_min),
-        float(v_max),
-        float(config["harsh_acceleration_threshold"]),
-    )
-    terms[1] = np.minimum(np.log(terms[1]), 0.0)  # numpy's log, as the committed results were computed
-    return dict(zip((*REWARD_TERMS, "headway_distance"), terms))
+def reward_terms(raw: np.ndarray) -> dict[str, np.ndarray]:
+    """Unweighted reward terms per AV by name (:data:`REWARD_TERMS`: ``safety``, ``headway``,
+    ``speed``, ``comfort`` = ``harsh_acceleration`` + ``lane_change``), then the
+    ``headway_distance`` used [m], from :func:`_terms`' rows (``raw``, (7, n_avs), its headway row
+    turned into the term in place)."""
+    raw[1] = np.minimum(np.log(raw[1]), 0.0)  # numpy's log: the same on every CPU, as the committed results
+    return dict(zip((*REWARD_TERMS, "headway_distance"), raw))
 
 
 @jit
@@ -78,8 +51,11 @@ def _terms(
     v_max: float,
     harsh_threshold: float,
 ) -> np.ndarray:
-    """(7, n_avs): the rows of :func:`reward_terms` in :data:`REWARD_TERMS` order, then the headway
-    distance [m]; the headway row holds d / (v t_d) (1 when v <= 0), whose log the caller takes."""
+    """(7, n_avs): the terms of AVs ``0..n_avs-1`` (``crashed``, ``acceleration`` [m/s²] over the
+    policy step, ``lane_change`` started, per AV) among the road's vehicles (``x`` [m], ``lane``,
+    ``visible``, ``speed`` [m/s], AVs first) in :data:`REWARD_TERMS` order, then the headway
+    distance [m]; the headway row holds d / (v t_d) (1 when v <= 0), whose log :func:`reward_terms`
+    takes."""
     terms = np.empty((7, n_avs))
     for i in range(n_avs):
         distance = max_distance  # to the nearest visible vehicle ahead in the lane, capped
@@ -131,18 +107,13 @@ def _weighted(
     return reward
 
 
-def neighbour_matrix(snapshot: TrafficSnapshot) -> np.ndarray:
-    """(n_avs, n_avs) bool: row i is the neighbour set of AV i used by the local reward.
-
-    The set holds AV i itself and, in AV i's lane and each adjacent lane, the nearest visible AV
-    ahead (dx >= 0) and the nearest visible AV behind (dx < 0); among equally near AVs the first
-    one. AVs past the road end are in no other AV's set, and their own set is themselves only.
-    """
-    return _neighbour_matrix(snapshot.x, snapshot.lane, snapshot.visible, snapshot.n_avs)
-
-
 @jit
 def _neighbour_matrix(x: np.ndarray, lane: np.ndarray, visible: np.ndarray, n: int) -> np.ndarray:
+    """(n, n) bool: row i is the neighbour set of AV i (the road's vehicles ``x`` [m], ``lane``,
+    ``visible``, the n AVs first) used by the local reward. The set holds AV i itself and, in AV
+    i's lane and each adjacent lane, the nearest visible AV ahead (dx >= 0) and the nearest visible
+    AV behind (dx < 0); among equally near AVs the first one. AVs past the road end are in no other
+    AV's set, and their own set is themselves only."""
     neighbours = np.eye(n, dtype=np.bool_)
     nearest = np.empty((3, 2), dtype=np.int64)  # (lane offset + 1, ahead) -> AV, -1: none
     for i in range(n):
@@ -171,7 +142,7 @@ REWARD_MODES = ("local", "global", "individual")
 def apply_reward_mode(info: dict[str, Any], reward_mode: str) -> np.ndarray:
     """(n_avs,) rewards of one copy's AVs in a reward mode, from the copy's step info: ``local``
     (the paper's) is the mean of the per-AV rewards over the AV's neighbour set
-    (:func:`neighbour_matrix`), ``global`` the mean over all AVs, ``individual`` the AV's own."""
+    (:func:`_neighbour_matrix`), ``global`` the mean over all AVs, ``individual`` the AV's own."""
     own = np.asarray(info["rewards"], dtype=np.float64)
     neighbours = np.asarray(info["neighbours"], dtype=np.bool_)
     return mode_rewards(own, neighbours, REWARD_MODES.index(reward_mode))

@@ -4,8 +4,7 @@ One array layout of the vehicles (:mod:`~sb3_marl.sim.kernel`), highway-env's eq
 on it (drivers: IDM, MOBIL and the rule driver; dynamics: the bicycle step and the frame loop;
 collisions; lanes; meta-actions and their masks), the roads as data with their spawn
 (:mod:`~sb3_marl.sim.road`: the lane change's highway; :mod:`~sb3_marl.sim.merge_road`: the
-on-ramp merge), a numpy snapshot of the traffic (:mod:`~sb3_marl.sim.snapshot`) and the bridge to
-highway-env's own classes, the stock reference and renderer (:mod:`~sb3_marl.sim.simulator`).
+on-ramp merge) and the bridge to highway-env's own classes, the stock reference and renderer (:mod:`~sb3_marl.sim.simulator`).
 """
 
 #: The two roads by name (each scenario is named after its road): the lane change's highway and

@@ -8,31 +8,32 @@ from helpers import make
 
 from sb3_marl.envs import default_config
 from sb3_marl.envs.lane_change_env import ACTION_INDEX
-from sb3_marl.envs.reward import neighbour_matrix, reward_terms, total_reward
-from sb3_marl.sim.snapshot import TrafficSnapshot
+from sb3_marl.envs.reward import _neighbour_matrix, _terms, reward_terms, total_reward
 
 CONFIG = default_config()
 
 
-def snapshot(vehicles, n_avs, road_length=520.0):
-    """Vehicles as (x, lane, speed); AVs first."""
+def road(vehicles, road_length=520.0):
+    """The arrays of vehicles given as (x, lane, speed), AVs first: x, lane, visible, speed."""
     x = np.array([v[0] for v in vehicles], dtype=float)
-    lane = np.array([v[1] for v in vehicles])
-    speed = np.array([v[2] for v in vehicles], dtype=float)
-    return TrafficSnapshot(
-        x=x, y=4.0 * lane, vx=speed, vy=np.zeros_like(x), speed=speed, lane=lane, visible=x <= road_length, n_avs=n_avs
-    )
+    return x, np.array([v[1] for v in vehicles]), x <= road_length, np.array([v[2] for v in vehicles], dtype=float)
 
 
-def terms_of(snap, crashed=None, acceleration=None, lane_change=None, config=CONFIG):
-    n = snap.n_avs
-    return reward_terms(
-        snap,
-        np.zeros(n, bool) if crashed is None else np.asarray(crashed),
-        np.zeros(n) if acceleration is None else np.asarray(acceleration, float),
-        np.zeros(n, bool) if lane_change is None else np.asarray(lane_change),
-        config,
+def terms_of(vehicles, n_avs, crashed=None, acceleration=None, lane_change=None, config=CONFIG):
+    v_min, v_max = config["reward_speed_range"]
+    raw = _terms(
+        *road(vehicles),
+        n_avs,
+        np.zeros(n_avs, bool) if crashed is None else np.asarray(crashed),
+        np.zeros(n_avs) if acceleration is None else np.asarray(acceleration, float),
+        np.zeros(n_avs, bool) if lane_change is None else np.asarray(lane_change),
+        float(config["headway_max_distance"]),
+        float(config["headway_time"]),
+        float(v_min),
+        float(v_max),
+        float(config["harsh_acceleration_threshold"]),
     )
+    return reward_terms(raw)
 
 
 def test_headway_term():
@@ -40,23 +41,21 @@ def test_headway_term():
     # AV1: its only leader (540 m) is past the road end -> ignored -> d = 60 m -> log(60/24) > 0 -> 0.
     # AV2: nearest leader AV1 is 260 m ahead -> capped at 60 m -> 0.
     # AV3: leader at 10 m, speed 30 m/s -> log(10 / 36).
-    snap = snapshot(
-        [(100, 0, 25), (300, 1, 20), (40, 1, 25), (200, 0, 30), (120, 0, 20), (310, 0, 20), (540, 1, 20), (210, 0, 30)],
-        n_avs=4,
-    )
-    terms = terms_of(snap)
+    vehicles = [(100, 0, 25), (300, 1, 20), (40, 1, 25), (200, 0, 30), (120, 0, 20), (310, 0, 20), (540, 1, 20), (210, 0, 30)]
+    terms = terms_of(vehicles, n_avs=4)
     np.testing.assert_allclose(terms["headway_distance"], [20, 60, 60, 10])
     np.testing.assert_allclose(terms["headway"], [math.log(20 / 30), 0.0, 0.0, math.log(10 / 36)])
 
 
 def test_speed_term():
-    snap = snapshot([(0, 0, 5.0), (50, 0, 10.0), (100, 0, 25.0), (150, 0, 30.0), (200, 0, 34.0)], n_avs=5)
-    np.testing.assert_allclose(terms_of(snap)["speed"], [0.0, 0.0, 0.75, 1.0, 1.0])
+    vehicles = [(0, 0, 5.0), (50, 0, 10.0), (100, 0, 25.0), (150, 0, 30.0), (200, 0, 34.0)]
+    np.testing.assert_allclose(terms_of(vehicles, n_avs=5)["speed"], [0.0, 0.0, 0.75, 1.0, 1.0])
 
 
 def test_safety_comfort_and_total():
-    snap = snapshot([(100, 0, 25.0), (200, 0, 25.0), (300, 0, 25.0)], n_avs=3)
-    terms = terms_of(snap, crashed=[True, False, False], acceleration=[0.5, -3.0, 2.99], lane_change=[False, True, True])
+    vehicles = [(100, 0, 25.0), (200, 0, 25.0), (300, 0, 25.0)]
+    crashed, lane_change = [True, False, False], [False, True, True]
+    terms = terms_of(vehicles, 3, crashed=crashed, acceleration=[0.5, -3.0, 2.99], lane_change=lane_change)
     np.testing.assert_array_equal(terms["safety"], [-1, 0, 0])
     np.testing.assert_array_equal(terms["harsh_acceleration"], [0, 1, 0])  # |a| >= 3 m/s² is harsh
     np.testing.assert_array_equal(terms["lane_change"], [0, 1, 1])
@@ -73,11 +72,9 @@ def test_safety_comfort_and_total():
 def test_neighbour_sets():
     # AVs: 0 lane0 x100, 1 lane0 x150, 2 lane0 x200, 3 lane1 x120, 4 lane1 x300, 5 past the road end;
     # HDVs in between never count and never hide an AV.
-    snap = snapshot(
-        [(100, 0, 25), (150, 0, 25), (200, 0, 25), (120, 1, 25), (300, 1, 25), (530, 0, 25), (125, 0, 25)],
-        n_avs=6,
-    )
-    sets = [set(np.flatnonzero(row)) for row in neighbour_matrix(snap)]
+    vehicles = [(100, 0, 25), (150, 0, 25), (200, 0, 25), (120, 1, 25), (300, 1, 25), (530, 0, 25), (125, 0, 25)]
+    x, lane, visible, _ = road(vehicles)
+    sets = [set(np.flatnonzero(row)) for row in _neighbour_matrix(x, lane, visible, 6)]
     assert sets[0] == {0, 1, 3}
     assert sets[1] == {0, 1, 2, 3, 4}
     assert sets[2] == {1, 2, 3, 4}
