@@ -230,10 +230,9 @@ class LaneChangeEnv(AbstractEnv):
         self._derive()  # a config changed in place since (highway-env's env.config[...] = ...)
         self.define_spaces()
         roads, k = self._roads, self._k
-        if seed is not None or self._np_random is None:  # a new generator: the road's words from now on
-            if self._np_random is None:
-                self._np_random, self._np_random_seed = seeding.np_random()
-            roads.take(k, self._np_random)
+        generator = self._generator()
+        if seed is not None:  # gymnasium's reset made a new generator: the road's words from now on
+            roads.take(k, generator)
         if seed is not None and self._dropout_stream is not None:
             roads.copies.dropout_generators[k] = pcg64.read_state(np.random.default_rng([seed, self._dropout_stream]))
         self.steps, self.done, c = 0, False, roads.copies
@@ -315,15 +314,20 @@ class LaneChangeEnv(AbstractEnv):
     def np_random(self) -> np.random.Generator:
         """gymnasium's generator of the env: its road's episodes are drawn from it (a mirror of
         the road's generator words, :meth:`~sb3_marl.envs.roads.Roads.lend`)."""
-        if self._np_random is None:
-            self._np_random, self._np_random_seed = seeding.np_random()
-            self._roads.take(self._k, self._np_random)
-        return self._roads.lend(self._k, self._np_random)
+        return self._roads.lend(self._k, self._generator())
 
     @np_random.setter
     def np_random(self, value: np.random.Generator) -> None:
         self._np_random, self._np_random_seed = value, -1  # as gymnasium's setter
         self._roads.take(self._k, value)
+
+    def _generator(self) -> np.random.Generator:
+        """gymnasium's generator of the env as it is, made with a random seed on first use (its
+        state then the road's words)."""
+        if self._np_random is None:
+            self._np_random, self._np_random_seed = seeding.np_random()
+            self._roads.take(self._k, self._np_random)
+        return self._np_random
 
     @property
     def road(self) -> Road:
