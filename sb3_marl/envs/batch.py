@@ -80,7 +80,7 @@ class RoadBatch:
         )
         roads.write_lent()
         roads.set_all(result.states[: result.offsets[-1]], result.offsets)
-        if self.parameters.merge is not None:  # as MergeEnv._scenario_info
+        if self.parameters.merge is not None:  # as LaneChangeEnv._merge_info
             steps = np.repeat(steps_before + 1, roads.n_avs)
             roads.record_merges(slice(None), result.lane, steps, self.parameters.policy_frequency)
             for k in np.flatnonzero(starts.restarted).tolist():

@@ -23,13 +23,14 @@ from sb3_marl.envs.batch_kernel import (
     step_report,
     supervise_road,
 )
-from sb3_marl.envs.merge_rules import MergeRules
 from sb3_marl.envs.observation import observation_space
 from sb3_marl.envs.roads import Roads
+from sb3_marl.envs.scenario_road import ScenarioRoad, highway_env_road, scenario_road
 from sb3_marl.safety.supervisor import Supervisor
 from sb3_marl.sim import drivers, kernel, lanes, meta_actions, pcg64
+from sb3_marl.sim.merge_road import MERGING_LANE
 from sb3_marl.sim.meta_actions import ACTION_INDEX, ACTIONS
-from sb3_marl.sim.road import highway_lanes, make_road, vehicle_state
+from sb3_marl.sim.road import vehicle_state
 from sb3_marl.sim.simulator import COMPILED, SIMULATORS, STOCK, capture, step_objects, vehicle_objects
 from sb3_marl.sim.spawn import new_episode, spawn_parameters
 
@@ -79,6 +80,7 @@ class LaneChangeEnv(AbstractEnv):
     _dropout_stream: int | None = None
     _road: Road | None = None
     _road_at = -1  # the road store's change count when _road's vehicles were the state
+    _scenario_road: ScenarioRoad  # the config's road (set by the first configure)
 
     def __init__(
         self,
@@ -99,7 +101,7 @@ class LaneChangeEnv(AbstractEnv):
 
     @classmethod
     def default_config(cls) -> dict[str, Any]:
-        return cfg.default_config()
+        return cfg.scenario_default_config(cls.scenario)
 
     def configure(self, config: dict[str, Any] | None) -> None:
         """Merge ``config`` over the current config after validating the result."""
@@ -117,7 +119,8 @@ class LaneChangeEnv(AbstractEnv):
         reset draws it, :meth:`configure` sets it)."""
         n_avs = cfg.resolved_n_avs(self.config, self.scenario)
         self._check_n_avs(n_avs)
-        self.supervisor = Supervisor.from_config(self.config, *self._road_data())
+        self._scenario_road = road = scenario_road(self.config, self.scenario)
+        self.supervisor = Supervisor.from_config(self.config, road.lanes, road.end)
         self.horizon = self.supervisor.horizon
         self._n_avs = n_avs
         self._parameters = self.step_parameters()
@@ -150,21 +153,9 @@ class LaneChangeEnv(AbstractEnv):
         self._roads.copies.dropout_generators[self._k] = pcg64.read_state(np.random.default_rng())
         self._derive()
 
-    def _road_data(self) -> tuple[np.ndarray, float]:
-        """The road as the kernel reads it: (lane table, road end [m])."""
-        return highway_lanes(self.config), float(self.config["road_length"])
-
-    def _make_road(self) -> Road:
-        """highway-env's road of the config, without vehicles."""
-        return make_road(self.config, self.np_random)
-
-    def _merge_rules(self) -> MergeRules | None:
-        """The merging road's tables and supervisor order (:mod:`~sb3_marl.envs.merge_rules`; None: not a merge)."""
-        return None
-
     def step_parameters(self) -> StepParameters:
         """What a compiled step of this scenario reads from its current config."""
-        c, merge = self.config, self._merge_rules()
+        c, merge = self.config, self._scenario_road.merge
         return StepParameters(
             self.horizon,
             float(c["policy_frequency"]),
@@ -197,8 +188,8 @@ class LaneChangeEnv(AbstractEnv):
 
     @property
     def road_length(self) -> float:
-        """[m] the length the observation normalises the ego's x by."""
-        return float(self.config["road_length"])
+        """[m] the road's length, by which the observation normalises the ego's x."""
+        return self._scenario_road.length
 
     @property
     def n_avs(self) -> int:
@@ -333,7 +324,7 @@ class LaneChangeEnv(AbstractEnv):
     def road(self) -> Road:
         """highway-env's road with :attr:`state`'s vehicles as objects, the AVs first."""
         if self._road is None:
-            self._road = self._make_road()
+            self._road = highway_env_road(self.config, self.scenario, self.np_random)
         if self._road_at != self._roads.changes:
             self._road.vehicles = vehicle_objects(self._road, self.state, self.config)
             self._road_at = self._roads.changes
@@ -510,8 +501,21 @@ class LaneChangeEnv(AbstractEnv):
             "n_hdvs": self.n_hdvs,
             "step": self.steps_done,
         }
-        self._scenario_info(info)
+        if self._parameters.merge is not None:
+            self._merge_info(info)
         return result.obs, info
 
-    def _scenario_info(self, info: dict[str, Any]) -> None:
-        """Add the scenario's own entries to a step's ``info`` (none on the lane change)."""
+    def _merge_info(self, info: dict[str, Any]) -> None:
+        """The merge's info: ``ramp_av`` (the AV started on the ramp), ``merge_time`` [s] (when a
+        ramp AV reached the main road; NaN: not yet) and ``stranded`` (vehicles at a standstill,
+        under 1 m/s, on the merging lane)."""
+        state, n, roads, slots = self.state, self.n_avs, self._roads, self._roads.slots(self._k)
+        lane = state[:n, kernel.LANE].astype(np.int64)
+        if self.steps == 0:  # a new situation (reset, place)
+            roads.new_situation(slots, lane)
+        else:
+            roads.record_merges(slots, lane, np.full(n, self.steps_done), self.config["policy_frequency"])
+        info["ramp_av"], info["merge_time"] = roads.ramp_av[slots].copy(), roads.merge_time[slots].copy()
+        on_merging_lane = state[:, kernel.LANE] == MERGING_LANE
+        stranded = on_merging_lane & (state[:, kernel.SPEED] < 1.0) & (state[:, kernel.IS_OBSTACLE] == 0)
+        info["stranded"] = int(np.count_nonzero(stranded))
