@@ -3,7 +3,7 @@
 Records the roads' states and actions of ``--steps`` steps of the parameter-sharing VecEnv
 (``--copies`` copies at ``--density``, random available actions, supervisor off), then times each
 part of the compiled step on them in a compiled loop (µs per road-step): the policy step (the
-frames' driving and collision test), the rule driver's actions, the action masks, the
+frames' driving and collision test), the rule driver's actions (with the masks they read), the action masks, the
 observations, the reward terms with the neighbour sets; beside them the whole compiled step
 (:func:`~sb3_marl.envs.batch_kernel.step_copies`, new episodes included) and the VecEnv's step,
 and a cProfile of the VecEnv's steps (its 12 largest own times). Prints ``name: value unit`` lines.
@@ -52,9 +52,9 @@ def _rule_actions(states: List, actions: List, p: StepParameters) -> None:
         rule_actions(
             state,
             acts.size,
+            available_actions(state, acts.size, h.lanes, h.ladder),  # (as the step's, once for both)
             h.lanes,
             h.speed_limit,
-            h.ladder,
             p.politeness,
             p.b_safe,
             p.lane_change_threshold,

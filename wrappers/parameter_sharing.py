@@ -154,6 +154,7 @@ class ParameterSharingVecEnv(VecEnv):
             self.close()
             raise
         self.n_avs: list[int] = n_avs
+        self._copy_avs = np.array(n_avs)
         envs = [runner.env.unwrapped for runner in self.copies.local_runners()]
         use_batch = batched and isinstance(env, str) and render_mode is None and envs and all(map(batchable, envs))
         self.batch = RoadBatch(envs, reward_mode) if use_batch else None  # type: ignore[arg-type]
@@ -219,15 +220,15 @@ class ParameterSharingVecEnv(VecEnv):
 
     def step_async(self, actions: np.ndarray) -> None:
         actions = np.asarray(actions)
-        if actions.shape not in ((self.num_envs,), (self.num_envs, 1)) or not np.issubdtype(actions.dtype, np.integer):
+        if actions.shape not in ((self.num_envs,), (self.num_envs, 1)) or actions.dtype.kind not in "iu":
             raise ValueError(
                 f"Invalid actions: expected an int array of shape ({self.num_envs},), one meta-action per AV "
                 f"slot, got dtype {actions.dtype} and shape {actions.shape}."
             )
         actions = actions.reshape(self.num_envs)
         n_actions = int(self.action_space.n)  # type: ignore[attr-defined]
-        bad = np.flatnonzero((actions < 0) | (actions >= n_actions))
-        if bad.size:
+        if actions.min() < 0 or actions.max() >= n_actions:
+            bad = np.flatnonzero((actions < 0) | (actions >= n_actions))
             raise ValueError(
                 f"Invalid actions at slots {bad.tolist()}: {actions[bad].tolist()}, expected integers in [0, {n_actions - 1}]."
             )
@@ -258,7 +259,9 @@ class ParameterSharingVecEnv(VecEnv):
         a new episode wherever one ended (as the copy's env would draw it) in the same call."""
         assert self.batch is not None
         step, starts, arrays, rewards = self.batch.step(self._actions)
-        np.copyto(self._obs, np.where(np.repeat(starts.restarted, self.n_avs)[:, None, None], starts.obs, step.obs))
+        self._obs[:] = step.obs
+        new = np.repeat(starts.restarted, self._copy_avs)
+        self._obs[new] = starts.obs[new]
         endings = Endings(starts.restarted, step.truncated, step.obs, starts.action_mask, starts.rule_action)
         return self._finish(rewards, StepArrays.join([arrays], self.slot_copy, self.slot_agent), endings)
 
@@ -273,18 +276,19 @@ class ParameterSharingVecEnv(VecEnv):
         self._episode_lengths += 1
         self.step_arrays = arrays
         infos: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
-        dones = np.repeat(endings.ended, self.n_avs)
+        dones = np.repeat(endings.ended, self._copy_avs)
         self._current = {method: getattr(arrays, key).copy() for method, key in CACHED_METHODS.items()}
         if dones.any():
             for method, key in CACHED_METHODS.items():  # the new episodes' first observations'
                 self._current[method][dones] = getattr(endings, key)[dones]
             elapsed = round(time.time() - self._t_start, 6)
             slots = np.flatnonzero(dones)
-            time_limit = np.repeat(endings.time_limit, self.n_avs)[slots].tolist()
+            time_limit = endings.time_limit[self.slot_copy[slots]].tolist()
             returns, lengths = self._episode_returns[slots].tolist(), self._episode_lengths[slots].tolist()
-            for slot, truncated, r, length in zip(slots.tolist(), time_limit, returns, lengths):
+            terminal = list(endings.terminal_observation[slots])
+            for slot, obs, truncated, r, length in zip(slots.tolist(), terminal, time_limit, returns, lengths):
                 infos[slot] = {
-                    "terminal_observation": endings.terminal_observation[slot],
+                    "terminal_observation": obs,
                     "TimeLimit.truncated": truncated,
                     "episode": {"r": r, "l": length, "t": elapsed},
                 }

@@ -181,7 +181,7 @@ def _step_copies(
         c.steps[k] += 1
         r.acceleration[a:b] = (state[:n, kernel.SPEED] - speed_before) * p.policy_frequency
         r.lane_change[a:b] = lane_changes(h.lanes, targets_before, state)
-        _observe_into(r, state, a, b, p, p.merge)
+        _observe_into(r, state, a, b, p, p.merge, True)
         r.terminated[k] = r.crashed[a:b].any()
         r.truncated[k] = not r.terminated[k] and (c.steps[k] >= p.max_steps or r.exited[a:b].all())
         if respawn and (r.terminated[k] or r.truncated[k]):  # as the env's reset, from its generator
@@ -190,7 +190,7 @@ def _step_copies(
             c.n_hdvs[k], state = new_episode(c.generators[k], n, p.spawn, p.spawn.merge_obstacles)
             c.steps[k] = 0
             restarted[k] = True
-            _observe_into(first, state, a, b, p, p.merge)
+            _observe_into(first, state, a, b, p, p.merge, False)
         r.offsets[k + 1] = r.offsets[k] + state.shape[0]
         r.states[r.offsets[k] : r.offsets[k + 1]] = state
     return _fields(r), (first.obs, first.action_mask, first.rule_action, first.lane, restarted)
@@ -211,7 +211,7 @@ def _observe_copies(
     for k in copies:
         a, b = slot_starts[k], slot_starts[k + 1]
         r.acceleration[a:b], r.lane_change[a:b] = acceleration[a:b], lane_change[a:b]
-        _observe_into(r, states[offsets[k] : offsets[k + 1]], a, b, p, p.merge)
+        _observe_into(r, states[offsets[k] : offsets[k + 1]], a, b, p, p.merge, True)
     return _fields(r)
 
 
@@ -276,11 +276,14 @@ def observe_copies(
 
 
 @jit
-def _observe_into(r: BatchStep, state: np.ndarray, a: int, b: int, p: StepParameters, merge: MergeRules | None) -> None:
+def _observe_into(
+    r: BatchStep, state: np.ndarray, a: int, b: int, p: StepParameters, merge: MergeRules | None, rewarded: bool
+) -> None:
     """Write the observation of one copy's ``state`` (its AVs at slots ``a:b``) into ``r``, with its
-    reward terms, neighbour sets, action masks and the rule driver's actions (``r``'s acceleration
-    and lane changes of the slots already set), as :meth:`LaneChangeEnv._observe`. ``merge`` is
-    ``p.merge`` (see the module doc)."""
+    action masks, the rule driver's actions and, where ``rewarded``, its reward terms and
+    neighbour sets (``r``'s acceleration and lane changes of the slots already set; a new
+    episode's first observation in a step has no reward). ``merge`` is ``p.merge`` (see the
+    module doc)."""
     h, n = p.horizon, b - a
     x, heading = state[:, kernel.X], state[:, kernel.HEADING]
     v = state[:, kernel.SPEED]
@@ -289,6 +292,28 @@ def _observe_into(r: BatchStep, state: np.ndarray, a: int, b: int, p: StepParame
     r.crashed[a:b] = state[:n, kernel.CRASHED] > 0
     r.exited[a:b] = state[:n, kernel.COLLIDABLE] == 0
     r.speed[a:b] = v[:n]
+    r.x[a:b], r.lane[a:b] = x[:n], lane[:n]
+    mask = available_actions(state, n, h.lanes, h.ladder)
+    r.action_mask[a:b] = mask
+    r.rule_action[a:b] = rule_actions(
+        state,
+        n,
+        mask,
+        h.lanes,
+        h.speed_limit,
+        p.politeness,
+        p.b_safe,
+        p.lane_change_threshold,
+        p.rule_acceleration_threshold,
+    )
+    vx, vy = v * np.cos(heading), v * np.sin(heading)
+    y = state[:, kernel.Y]
+    r.obs[a:b, :, :5] = _observe(x, y, vx, vy, visible, n, p.rows, p.road_length, p.x_range, p.y_range, p.v_range)
+    if p.target_speed_column:
+        for i in range(n):
+            r.obs[a + i, 0, 5] = np.float32(min(max(state[i, kernel.TARGET_SPEED] / p.v_range, -1.0), 1.0))
+    if not rewarded:
+        return
     r.terms[:, a:b] = _terms(
         x,
         lane,
@@ -304,29 +329,10 @@ def _observe_into(r: BatchStep, state: np.ndarray, a: int, b: int, p: StepParame
         p.v_max,
         p.harsh_threshold,
     )
-    r.x[a:b], r.lane[a:b] = x[:n], lane[:n]
     if merge is None:
         r.neighbours[a:b, :n] = _neighbour_matrix(x, lane, visible, n)
     else:
         r.neighbours[a:b, :n] = _regional_neighbours(state, n, merge.route, merge.across, merge.across_from)
-    vx, vy = v * np.cos(heading), v * np.sin(heading)
-    y = state[:, kernel.Y]
-    r.obs[a:b, :, :5] = _observe(x, y, vx, vy, visible, n, p.rows, p.road_length, p.x_range, p.y_range, p.v_range)
-    if p.target_speed_column:
-        for i in range(n):
-            r.obs[a + i, 0, 5] = np.float32(min(max(state[i, kernel.TARGET_SPEED] / p.v_range, -1.0), 1.0))
-    r.action_mask[a:b] = available_actions(state, n, h.lanes, h.ladder)
-    r.rule_action[a:b] = rule_actions(
-        state,
-        n,
-        h.lanes,
-        h.speed_limit,
-        h.ladder,
-        p.politeness,
-        p.b_safe,
-        p.lane_change_threshold,
-        p.rule_acceleration_threshold,
-    )
 
 
 @jit

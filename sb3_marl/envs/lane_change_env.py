@@ -454,9 +454,9 @@ class LaneChangeEnv(AbstractEnv):
         return drivers.rule_actions(
             self.state,
             self.n_avs,
+            self.action_masks(),
             self.horizon.lanes,
             float(config["speed_limit"]),
-            self.horizon.ladder,
             float(config["hdv_politeness"]),
             float(config["hdv_b_safe"]),
             float(config["hdv_lane_change_threshold"]),

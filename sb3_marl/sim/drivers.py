@@ -55,7 +55,6 @@ from sb3_marl.sim.kernel import (
     wrap_to_pi,
 )
 from sb3_marl.sim.lanes import LEFT, RIGHT, ROAD, follow, heading_at, local_coordinates, on_lane_at, reachable_from
-from sb3_marl.sim.meta_actions import available_actions
 
 #: Lanes of at most this many vehicles are searched in one pass; longer ones by bisection.
 SCANNED = 16
@@ -287,9 +286,9 @@ def act(state: np.ndarray, lanes: np.ndarray, speed_limit: float) -> None:
 def rule_actions(
     state: np.ndarray,
     n_avs: int,
+    mask: np.ndarray,
     lanes: np.ndarray,
     speed_limit: float,
-    ladder: np.ndarray,
     politeness: float,
     max_braking_imposed: float,
     min_acc_gain: float,
@@ -301,12 +300,12 @@ def rule_actions(
     AV i is read as an HDV aiming at ``speed_limit`` [m/s] with the given MOBIL parameters
     (politeness, safe braking [m/s²], acceleration gain threshold [m/s²]); the other vehicles stay
     as they are. If it is not changing lanes and drives at 1 m/s or more, the first side lane
-    (left, then right) that is available (:func:`available_actions`) and that MOBIL accepts gives
+    (left, then right) that is available (``mask``, (n_avs, 5) bool:
+    :func:`~sb3_marl.sim.meta_actions.available_actions`) and that MOBIL accepts gives
     LANE_LEFT / LANE_RIGHT; otherwise its IDM acceleration behind its leader gives FASTER above
     ``acceleration_threshold`` [m/s²], SLOWER below its negative (each only where available),
     else IDLE. Meta-action indices as highway-env's (LANE_LEFT 0, IDLE 1, LANE_RIGHT 2, FASTER 3,
     SLOWER 4)."""
-    mask = available_actions(state, n_avs, lanes, ladder)
     order = lane_order(state, lanes)
     actions = np.ones(n_avs, dtype=np.int64)
     driver = state.copy()
