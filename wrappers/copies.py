@@ -1,6 +1,7 @@
 """Scenario copies and where they run: :class:`CopyRunner` steps one copy with SB3's VecEnv
-conventions; :class:`LocalCopies` runs a group of them in this process, :class:`WorkerCopies` in a
-worker process (the ``subproc`` backend of :class:`~wrappers.ParameterSharingVecEnv`)."""
+conventions; :class:`~wrappers.ParameterSharingVecEnv` calls its runners directly on the ``dummy``
+backend, and through :class:`CopyGroups` of :class:`WorkerCopies`, a group in each worker process,
+on the ``subproc`` backend."""
 
 from __future__ import annotations
 
@@ -100,26 +101,9 @@ class CopyRunner:
 Call = tuple[int, str, tuple]  # (copy index within its group, CopyRunner method, arguments)
 
 
-def _run_calls(runners: list[CopyRunner], calls: list[Call]) -> list[Any]:
+def run_calls(runners: Sequence[CopyRunner], calls: list[Call]) -> list[Any]:
+    """The results of ``calls`` on ``runners``, in order."""
     return [getattr(runners[index], method)(*args) for index, method, args in calls]
-
-
-class LocalCopies:
-    """Copies stepped one after the other in this process."""
-
-    def __init__(self, runners: Sequence[Callable[[], CopyRunner]]) -> None:
-        self.runners = [make_runner() for make_runner in runners]
-        self._results: list[Any] = []
-
-    def submit(self, calls: list[Call]) -> None:
-        self._results = _run_calls(self.runners, calls)
-
-    def collect(self) -> list[Any]:
-        return self._results
-
-    def close(self) -> None:
-        for runner in self.runners:
-            runner.close()
 
 
 def _worker(remote: Any, parent_remote: Any, factories: CloudpickleWrapper) -> None:
@@ -140,7 +124,7 @@ def _worker(remote: Any, parent_remote: Any, factories: CloudpickleWrapper) -> N
             remote.close()
             break
         try:
-            remote.send(("ok", _run_calls(runners, calls)))
+            remote.send(("ok", run_calls(runners, calls)))
         except Exception as error:  # forwarded to the main process, which re-raises it
             remote.send(("error", (error, traceback.format_exc())))
 
@@ -190,8 +174,7 @@ class WorkerCopies:
 
 
 class CopyGroups:
-    """The copies and where they run: in this process (``n_workers`` None) or spread round-robin
-    over ``n_workers`` worker processes; calls go to every group at once.
+    """The copies spread round-robin over ``n_workers`` worker processes; calls go to every group at once.
 
     :param runners: a factory of each copy's :class:`CopyRunner`, in copy order
     :param start_method: multiprocessing start method of the workers (default: ``forkserver``
@@ -202,27 +185,18 @@ class CopyGroups:
     def __init__(
         self,
         runners: Sequence[Callable[[], CopyRunner]],
-        n_workers: int | None = None,
+        n_workers: int,
         start_method: str | None = None,
         timeout: float = 120.0,
     ) -> None:
-        n_copies, n_groups = len(runners), n_workers or 1
+        n_copies = len(runners)
         #: copy k runs in group placement[k][0] at index placement[k][1]
-        self.placement = [(k % n_groups, k // n_groups) for k in range(n_copies)]
-        self.group_copies = [list(range(g, n_copies, n_groups)) for g in range(n_groups)]
-        self.groups: list[LocalCopies | WorkerCopies]
-        if n_workers is None:
-            self.groups = [LocalCopies(runners)]
-        else:
-            if start_method is None:
-                start_method = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
-            context = mp.get_context(start_method)
-            self.groups = [WorkerCopies([runners[k] for k in copies], context, timeout) for copies in self.group_copies]
-
-    def local_runners(self) -> list[CopyRunner]:
-        """The copies' runners when they run in this process (else none)."""
-        local = self.groups[0]
-        return local.runners if isinstance(local, LocalCopies) else []
+        self.placement = [(k % n_workers, k // n_workers) for k in range(n_copies)]
+        self.group_copies = [list(range(g, n_copies, n_workers)) for g in range(n_workers)]
+        if start_method is None:
+            start_method = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
+        context = mp.get_context(start_method)
+        self.groups = [WorkerCopies([runners[k] for k in copies], context, timeout) for copies in self.group_copies]
 
     def submit(self, calls: dict[int, tuple[str, tuple]]) -> list[tuple[int, list[int]]]:
         """Send ``{copy: (method, args)}`` to the groups; returns what :meth:`collect` needs."""
@@ -248,8 +222,7 @@ class CopyGroups:
         except TimeoutError as error:
             raise TimeoutError(f"{error} It hosts scenario copies {self.group_copies[group]}.") from None
         except (EOFError, BrokenPipeError, ConnectionResetError) as error:
-            worker = self.groups[group]
-            code = worker.process.exitcode if isinstance(worker, WorkerCopies) else None
+            code = self.groups[group].process.exitcode
             raise RuntimeError(
                 f"Worker process {group} of scenario copies {self.group_copies[group]} died ({_exit_reason(code)})."
             ) from error

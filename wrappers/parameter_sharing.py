@@ -36,6 +36,8 @@ PER_AGENT_METHODS = ("action_masks", "rule_actions")
 #: Per-AV methods answered from the current observations' arrays: method -> :class:`StepArrays` field.
 CACHED_METHODS = {"action_masks": "action_mask", "rule_actions": "rule_action"}
 EnvFactory = Callable[[int], gym.Env]
+#: Calls sent to the copies: their results already (``dummy``), or the worker groups that will answer (``subproc``).
+Pending = dict[int, Any] | list[tuple[int, list[int]]]
 
 
 def check_sharing_options(reward_mode: str, n_copies: int | None) -> None:
@@ -146,7 +148,9 @@ class ParameterSharingVecEnv(VecEnv):
                     float(supervisor_dropout),
                 )
             )
-        self.copies = CopyGroups(runners, n_workers, start_method, worker_timeout)
+        #: the copies' runners on the ``dummy`` backend, called directly; on ``subproc``, their worker processes
+        self.runners: list[CopyRunner] = [make_runner() for make_runner in runners] if n_workers is None else []
+        self.copies = None if n_workers is None else CopyGroups(runners, n_workers, start_method, worker_timeout)
         try:
             copy_spaces = self._run(dict.fromkeys(range(n_copies), ("spaces", ())))
             single_obs_space, single_action_space, n_avs = per_agent_spaces(copy_spaces)
@@ -155,7 +159,7 @@ class ParameterSharingVecEnv(VecEnv):
             raise
         self.n_avs: list[int] = n_avs
         self._copy_avs = np.array(n_avs)
-        envs = [runner.env.unwrapped for runner in self.copies.local_runners()]
+        envs = [runner.env.unwrapped for runner in self.runners]
         use_batch = batched and isinstance(env, str) and render_mode is None and envs and all(map(batchable, envs))
         self.batch = RoadBatch(envs, reward_mode) if use_batch else None  # type: ignore[arg-type]
         starts = np.concatenate([[0], np.cumsum(n_avs)])
@@ -177,21 +181,29 @@ class ParameterSharingVecEnv(VecEnv):
 
     @property
     def n_copies(self) -> int:
-        return len(self.copies.placement)
+        return len(self.runners) if self.copies is None else len(self.copies.placement)
 
     # ---- running calls on copies -----------------------------------------------------------
 
-    def _submit(self, calls: dict[int, tuple[str, tuple]]) -> list[tuple[int, list[int]]]:
-        """Send ``{copy: (method, args)}`` to the copies; returns what :meth:`_collect` needs."""
+    def _submit(self, calls: dict[int, tuple[str, tuple]]) -> Pending:
+        """Send ``{copy: (CopyRunner method, args)}`` to the copies (on the ``dummy`` backend: run
+        them now); returns what :meth:`_collect` needs."""
         self._check_open()
+        if self.copies is None:
+            return {k: getattr(self.runners[k], method)(*args) for k, (method, args) in calls.items()}
         return self.copies.submit(calls)
 
     def _check_open(self) -> None:
         if getattr(self, "closed", False):
             raise RuntimeError("This ParameterSharingVecEnv is closed: create a new one.")
 
-    def _collect(self, pending: list[tuple[int, list[int]]]) -> dict[int, Any]:
-        results = self.copies.collect(pending)
+    def _collect(self, pending: Pending) -> dict[int, Any]:
+        """``{copy: result}`` of the calls :meth:`_submit` sent."""
+        if isinstance(pending, dict):
+            results = pending
+        else:
+            assert self.copies is not None, "worker groups answer the subproc backend's calls"
+            results = self.copies.collect(pending)
         batch = getattr(self, "batch", None)
         if batch is not None:
             batch.check()  # the call may have reconfigured a copy
@@ -364,9 +376,12 @@ class ParameterSharingVecEnv(VecEnv):
         """The unwrapped scenario env of a copy (``dummy`` backend only: workers keep theirs)."""
         if self.vec_backend != "dummy":
             raise RuntimeError("copy_env() needs vec_backend='dummy': subproc copies live in worker processes.")
-        return self.copies.local_runners()[copy].env.unwrapped
+        return self.runners[copy].env.unwrapped
 
     def close(self) -> None:
         self.closed = True
-        if hasattr(self, "copies"):
-            self.copies.close()
+        for runner in getattr(self, "runners", []):
+            runner.close()
+        copies: CopyGroups | None = getattr(self, "copies", None)
+        if copies is not None:
+            copies.close()
