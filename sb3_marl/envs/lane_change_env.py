@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 from typing import Any
 
@@ -144,6 +145,19 @@ class LaneChangeEnv(AbstractEnv):
     def _home(self, roads: Roads, k: int) -> None:
         """This env's road becomes road ``k`` of ``roads``."""
         self._roads, self._k, self._road_at = roads, k, -1
+
+    def __deepcopy__(self, memo: dict[int, Any]) -> LaneChangeEnv:
+        """highway-env's deep copy (without the viewer) that steps alone: a batch's copy takes its
+        road, episode record and generator (lent or not) out of the batch's store into its own."""
+        roads = self._roads
+        if roads.batched:
+            own = Roads.join([(roads, self._k)])
+            own._lent = {road: copy.deepcopy(generator, memo) for road, generator in own._lent.items()}
+            memo[id(roads)] = own
+        result = super().__deepcopy__(memo)
+        if roads.batched:
+            result._k = 0
+        return result
 
     def set_supervisor_dropout(self, dropout: float, stream: int) -> None:
         """With the supervisor configured on, each episode runs without it with probability

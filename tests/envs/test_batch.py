@@ -4,6 +4,7 @@ step arrays and infos, step by step, with the same seeds."""
 
 from __future__ import annotations
 
+import copy
 from dataclasses import fields
 
 import numpy as np
@@ -170,3 +171,30 @@ def test_a_batched_copy_shows_each_step_and_refuses_a_new_av_count_untouched():
     env.configure({"safety_supervisor": True})
     assert env.supervised
     venv.close()
+
+
+def test_a_deep_copy_of_a_batched_copy_steps_alone_as_one_stepped_alone():
+    """``copy.deepcopy`` of a batch's copy (highway-env's planners copy the env) steps alone, as a
+    deep copy of the same copy stepped one by one does, and leaves the batch as it was."""
+    venvs = [ParameterSharingVecEnv(ENV_IDS[2], n_copies=2, seed=4, batched=flag) for flag in (True, False)]
+    rng = np.random.default_rng(1)
+    for venv in venvs:
+        venv.reset()
+    for _ in range(3):
+        actions = rng.integers(0, 5, venvs[0].num_envs)
+        for venv in venvs:
+            venv.step(actions)
+    batch_states = venvs[0].batch.roads.states.copy()
+    copies = [copy.deepcopy(venv.copy_env(1)) for venv in venvs]
+    assert not copies[0]._roads.batched and copies[0]._roads is not venvs[0].batch.roads
+    for _ in range(5):
+        actions = rng.integers(0, 5, copies[0].n_avs)
+        steps = [env.step(actions) for env in copies]
+        np.testing.assert_array_equal(steps[0][0], steps[1][0])
+        assert steps[0][1:4] == steps[1][1:4]
+        if steps[0][2] or steps[0][3]:
+            break
+    np.testing.assert_array_equal(venvs[0].batch.roads.states, batch_states)
+    assert copies[0].np_random.bit_generator.state == copies[1].np_random.bit_generator.state
+    for venv in venvs:
+        venv.close()
