@@ -42,6 +42,16 @@ def test_numba_cache_dir_wins_and_a_writable_home_is_used_silently(tmp_path):
     assert done.stdout.strip().startswith(str(tmp_path / "home" / "sb3-marl" / "numba")) and done.stderr == ""
 
 
+def test_numba_imported_first_caches_in_the_chosen_folder_too(tmp_path):
+    """numba reads NUMBA_CACHE_DIR at its own import: imported before sb3_marl (a script's
+    ``from numba import njit`` first), it must still cache in the folder of these sources'
+    version, never beside the source files (where an edit of a called module runs stale code)."""
+    code = "import numba, os, sb3_marl; print(numba.core.config.CACHE_DIR == os.environ['NUMBA_CACHE_DIR'])"
+    done = _python(code, XDG_CACHE_HOME=str(tmp_path / "home"))
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "True"
+
+
 def test_a_numba_cache_dir_that_cannot_be_written_falls_back_in_one_line(tmp_path):
     """Another user's cache folder passed on in the environment (``sudo -E``, a shared profile):
     numba would stop with "no locator available"; the temporary folder is used and said."""

@@ -47,14 +47,25 @@ def choose_cache_folder(digest: str) -> str | None:
     unwritable = f"NUMBA_CACHE_DIR={chosen}" if chosen else home
     for folder in (preferred, fallback):
         if _writable(folder):
-            os.environ["NUMBA_CACHE_DIR"] = folder
+            _use(folder)
             if folder == preferred:
                 return None
             # matplotlib (the figures, the renderer) caches beside it, and would say so in 3 lines
             os.environ.setdefault("MPLCONFIGDIR", os.path.join(os.path.dirname(os.path.dirname(fallback)), "matplotlib"))
             return f"sb3-marl: {unwritable} cannot be written; the road kernel is cached in {folder} (NUMBA_CACHE_DIR chooses)"
-    os.environ["NUMBA_CACHE_DIR"] = fallback
+    _use(fallback)
     return f"sb3-marl: neither {preferred} nor {fallback} can be written: set NUMBA_CACHE_DIR to a writable folder"
+
+
+def _use(folder: str) -> None:
+    """numba caches in ``folder``, also where it was imported before sb3_marl: it reads
+    ``NUMBA_CACHE_DIR`` once, at its import, and without it caches beside each source file, where
+    a function's cache is checked only against its own file: an edit of a function it calls would
+    then run stale code."""
+    os.environ["NUMBA_CACHE_DIR"] = folder
+    config = sys.modules.get("numba.core.config")
+    if config is not None:
+        config.CACHE_DIR = folder  # type: ignore[attr-defined]
 
 
 def cache_is_cold(merge: bool = False) -> bool:
