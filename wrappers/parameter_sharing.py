@@ -271,9 +271,7 @@ class ParameterSharingVecEnv(VecEnv):
         a new episode wherever one ended (as the copy's env would draw it) in the same call."""
         assert self.batch is not None
         step, starts, arrays, rewards = self.batch.step(self._actions)
-        self._obs[:] = step.obs
-        new = np.repeat(starts.restarted, self._copy_avs)
-        self._obs[new] = starts.obs[new]
+        self._obs[:] = starts.obs
         endings = Endings(starts.restarted, step.truncated, step.obs, starts.action_mask, starts.rule_action)
         return self._finish(rewards, StepArrays.join([arrays], self.slot_copy, self.slot_agent), endings)
 
@@ -289,10 +287,8 @@ class ParameterSharingVecEnv(VecEnv):
         self.step_arrays = arrays
         infos: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
         dones = np.repeat(endings.ended, self._copy_avs)
-        self._current = {method: getattr(arrays, key).copy() for method, key in CACHED_METHODS.items()}
+        self._current = {method: getattr(endings, key) for method, key in CACHED_METHODS.items()}
         if dones.any():
-            for method, key in CACHED_METHODS.items():  # the new episodes' first observations'
-                self._current[method][dones] = getattr(endings, key)[dones]
             elapsed = round(time.time() - self._t_start, 6)
             slots = np.flatnonzero(dones)
             time_limit = endings.time_limit[self.slot_copy[slots]].tolist()

@@ -115,8 +115,9 @@ def copy_arrays(info: dict[str, Any]) -> dict[str, Any]:
 class Endings(NamedTuple):
     """Which copies' episodes ended in a VecEnv step and how: over the copies, whether it ended and
     whether by a time limit or the road's end (SB3's ``TimeLimit.truncated``; a crash is a
-    termination); over the AV slots (rows of copies that went on: anything), the ended episodes'
-    last observations and the new episodes' first action masks and rule actions."""
+    termination); over the AV slots, the ended episodes' last observations (rows of copies that
+    went on: anything), and the action masks and rule actions of the observations the next step
+    starts from (the new episodes' first where one ended)."""
 
     ended: np.ndarray  # (copies,) bool
     time_limit: np.ndarray  # (copies,) bool

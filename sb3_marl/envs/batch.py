@@ -23,8 +23,6 @@ from sb3_marl.envs.merge_env import MergeEnv
 from sb3_marl.envs.reward import REWARD_MODES
 from sb3_marl.envs.roads import Roads
 
-#: The global reward mode's index (each slot's copy's mean reward).
-GLOBAL = REWARD_MODES.index("global")
 #: Config keys that may differ between the copies of one batch (or between episodes of a copy).
 PER_COPY_KEYS = ("n_avs", "safety_supervisor", "supervisor_shadow")
 
@@ -69,8 +67,9 @@ class RoadBatch:
 
     def step(self, actions: np.ndarray) -> tuple[BatchStep, Starts, dict[str, Any], np.ndarray]:
         """Step every copy with one meta-action per slot (int array (slots,)), beginning a new
-        episode wherever one ended: the step, the new episodes, the slot arrays
-        (:meth:`slot_arrays`) and every slot's reward in the reward mode."""
+        episode wherever one ended: the step, where the next step starts, the slot arrays (the
+        step's :func:`~sb3_marl.envs.batch_kernel.step_report` with each AV's copy's mean reward,
+        ``global_reward``) and every slot's reward in the reward mode."""
         actions = np.asarray(actions, dtype=np.int64)
         roads = self.roads
         steps_before = roads.copies.steps.copy()
@@ -85,15 +84,9 @@ class RoadBatch:
             roads.record_merges(slice(None), result.lane, steps, self.parameters.policy_frequency)
             for k in np.flatnonzero(starts.restarted).tolist():
                 roads.new_situation(roads.slots(k), starts.lane[roads.slots(k)])
-        arrays = self.slot_arrays(result, actions)
-        return result, starts, arrays, copy_rewards(arrays["reward"], result.neighbours, roads.slot_starts, self.mode)
-
-    def slot_arrays(self, result: BatchStep, proposed: np.ndarray) -> dict[str, Any]:
-        """The per-slot arrays of a step (:func:`~sb3_marl.envs.batch_kernel.step_report`) with
-        each AV's copy's mean reward (``global_reward``)."""
-        arrays = step_report(result, proposed, self.envs[0].config, self.parameters.merge is not None)
-        arrays["global_reward"] = copy_rewards(arrays["reward"], result.neighbours, self.roads.slot_starts, GLOBAL)
-        return arrays
+        arrays = step_report(result, actions, self.envs[0].config, self.parameters.merge is not None)
+        rewards, arrays["global_reward"] = copy_rewards(arrays["reward"], result.neighbours, roads.slot_starts, self.mode)
+        return result, starts, arrays, rewards
 
 
 def _shared_config(env: LaneChangeEnv) -> dict[str, Any]:

@@ -20,7 +20,7 @@ import numpy as np
 
 from sb3_marl.envs.merge_rules import MergeRules, _merge_priorities, _regional_neighbours
 from sb3_marl.envs.observation import _observe
-from sb3_marl.envs.reward import _neighbour_matrix, _terms, mode_rewards, reward_terms, total_reward
+from sb3_marl.envs.reward import REWARD_MODES, _neighbour_matrix, _terms, mode_rewards, reward_terms, total_reward
 from sb3_marl.safety.rooms import SLOWER, Horizon
 from sb3_marl.safety.supervisor import headway_margins, supervise_arrays
 from sb3_marl.sim import kernel, pcg64
@@ -31,6 +31,9 @@ from sb3_marl.sim.lanes import lane_changes
 from sb3_marl.sim.merge_road import ENDS, MERGE_END, MERGING_LANE
 from sb3_marl.sim.meta_actions import available_actions, meta_action_targets
 from sb3_marl.sim.spawn import SpawnParameters, new_episode
+
+#: The global reward mode's index (each slot's copy's mean reward).
+GLOBAL = REWARD_MODES.index("global")
 
 
 class StepParameters(NamedTuple):
@@ -135,12 +138,13 @@ class CopyState(NamedTuple):
 
 
 class Starts(NamedTuple):
-    """The new episodes a step began (arrays over the AV slots, filled where ``restarted``)."""
+    """Where the next step starts, arrays over the AV slots: the new episode's first observation
+    where the copy ``restarted``, else the step's own."""
 
-    obs: np.ndarray  # (slots, vehicles, features) float32, each new episode's first observation
+    obs: np.ndarray  # (slots, vehicles, features) float32
     action_mask: np.ndarray  # (slots, 5) bool
     rule_action: np.ndarray  # int
-    lane: np.ndarray  # int, each AV's lane at the spawn
+    lane: np.ndarray  # int, each AV's lane
     restarted: np.ndarray  # (copies,) bool: the copy's episode ended and a new one began
 
 
@@ -191,6 +195,9 @@ def _step_copies(
             c.steps[k] = 0
             restarted[k] = True
             _observe_into(first, state, a, b, p, p.merge, False)
+        else:
+            first.obs[a:b], first.action_mask[a:b] = r.obs[a:b], r.action_mask[a:b]
+            first.rule_action[a:b], first.lane[a:b] = r.rule_action[a:b], r.lane[a:b]
         r.offsets[k + 1] = r.offsets[k] + state.shape[0]
         r.states[r.offsets[k] : r.offsets[k + 1]] = state
     return _fields(r), (first.obs, first.action_mask, first.rule_action, first.lane, restarted)
@@ -254,7 +261,8 @@ def step_copies(
     """One policy step of every copy (see the module doc), ``copies`` advanced in place. With
     ``respawn``, a copy whose episode ended begins a new one in the same call, as its env's reset
     would (its HDV count and spawn drawn from its generator, the supervisor's dropout from its
-    own): the step's ``states`` then hold the new episode, its observations the ended one's last."""
+    own): the step's ``states`` then hold the new episode, its observations the ended one's last,
+    and the :class:`Starts` the new episode's first."""
     step, starts = _step_copies(states, offsets, slot_starts, actions, copies, p, respawn)
     return BatchStep(*step), Starts(*starts)
 
@@ -372,13 +380,15 @@ def supervise_road(
 
 
 @jit
-def copy_rewards(own: np.ndarray, neighbours: np.ndarray, slot_starts: np.ndarray, mode: int) -> np.ndarray:
-    """Every slot's reward in a reward mode (:data:`~sb3_marl.envs.reward.REWARD_MODES` index), copy by copy."""
-    rewards = np.empty(own.size)
+def copy_rewards(own: np.ndarray, neighbours: np.ndarray, slot_starts: np.ndarray, mode: int) -> tuple[np.ndarray, np.ndarray]:
+    """Every slot's reward in a reward mode (:data:`~sb3_marl.envs.reward.REWARD_MODES` index) and
+    its copy's mean reward (the ``global`` mode's), copy by copy."""
+    rewards, means = np.empty(own.size), np.empty(own.size)
     for k in range(slot_starts.size - 1):
         a, b = slot_starts[k], slot_starts[k + 1]
         rewards[a:b] = mode_rewards(own[a:b], neighbours[a:b, : b - a], mode)
-    return rewards
+        means[a:b] = mode_rewards(own[a:b], neighbours[a:b, : b - a], GLOBAL)
+    return rewards, means
 
 
 def step_report(result: BatchStep, proposed: np.ndarray, config: dict[str, Any], merge: bool) -> dict[str, Any]:

@@ -310,7 +310,7 @@ def rule_actions(
     actions = np.ones(n_avs, dtype=np.int64)
     driver = state.copy()
     for i in range(n_avs):
-        saved = driver[i].copy()
+        saved = driver[i, TARGET_SPEED], driver[i, POLITENESS], driver[i, MAX_BRAKING_IMPOSED], driver[i, MIN_ACC_GAIN]
         driver[i, TARGET_SPEED] = speed_limit
         driver[i, POLITENESS], driver[i, MAX_BRAKING_IMPOSED], driver[i, MIN_ACC_GAIN] = (
             politeness,
@@ -330,5 +330,5 @@ def rule_actions(
                 actions[i] = 3
             elif acceleration < -acceleration_threshold and mask[i, 4]:
                 actions[i] = 4
-        driver[i] = saved
+        driver[i, TARGET_SPEED], driver[i, POLITENESS], driver[i, MAX_BRAKING_IMPOSED], driver[i, MIN_ACC_GAIN] = saved
     return actions
