@@ -146,6 +146,10 @@ def main() -> None:
             batched = name.removesuffix("_one_by_one").removesuffix("_compiled_step_only")
             other = name.removeprefix(batched + "_")
             print(f"{batched}_batched_vs_{other}: {medians[batched] / medians[name]:.2f} x")
+    for name in medians:  # what a supervised step costs against an unsupervised one (issue 70: at most 2x)
+        if "_supervisor_on" in name:
+            off = name.replace("_supervisor_on", "_supervisor_off")
+            print(f"{name}_step_cost_vs_off: {medians[off] / medians[name]:.2f} x")
     peer = next((medians[name] for name in medians if name.startswith("envpool")), None)
     if peer is not None:
         for name in medians:

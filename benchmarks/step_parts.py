@@ -52,8 +52,9 @@ def _rule_actions(states: List, actions: List, p: StepParameters) -> None:
         rule_actions(
             state,
             acts.size,
-            available_actions(state, acts.size, h.lanes, h.ladder),  # (as the step's, once for both)
+            None,  # the masks computed inside (the step computes them once for both)
             h.lanes,
+            h.ladder,
             h.speed_limit,
             p.politeness,
             p.b_safe,

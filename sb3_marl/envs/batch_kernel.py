@@ -139,7 +139,7 @@ class CopyState(NamedTuple):
 
 class Starts(NamedTuple):
     """Where the next step starts, arrays over the AV slots: the new episode's first observation
-    where the copy ``restarted``, else the step's own."""
+    where the copy ``restarted``, else the step's own (a step without ``respawn``: empty)."""
 
     obs: np.ndarray  # (slots, vehicles, features) float32
     action_mask: np.ndarray  # (slots, 5) bool
@@ -195,7 +195,7 @@ def _step_copies(
             c.steps[k] = 0
             restarted[k] = True
             _observe_into(first, state, a, b, p, p.merge, False)
-        else:
+        elif respawn:
             first.obs[a:b], first.action_mask[a:b] = r.obs[a:b], r.action_mask[a:b]
             first.rule_action[a:b], first.lane[a:b] = r.rule_action[a:b], r.lane[a:b]
         r.offsets[k + 1] = r.offsets[k] + state.shape[0]
@@ -308,6 +308,7 @@ def _observe_into(
         n,
         mask,
         h.lanes,
+        h.ladder,
         h.speed_limit,
         p.politeness,
         p.b_safe,

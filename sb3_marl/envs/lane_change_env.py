@@ -468,8 +468,9 @@ class LaneChangeEnv(AbstractEnv):
         return drivers.rule_actions(
             self.state,
             self.n_avs,
-            self.action_masks(),
+            None,
             self.horizon.lanes,
+            self.horizon.ladder,
             float(config["speed_limit"]),
             float(config["hdv_politeness"]),
             float(config["hdv_b_safe"]),

@@ -55,6 +55,7 @@ from sb3_marl.sim.kernel import (
     wrap_to_pi,
 )
 from sb3_marl.sim.lanes import LEFT, RIGHT, ROAD, follow, heading_at, local_coordinates, on_lane_at, reachable_from
+from sb3_marl.sim.meta_actions import available_actions
 
 #: Lanes of at most this many vehicles are searched in one pass; longer ones by bisection.
 SCANNED = 16
@@ -286,8 +287,9 @@ def act(state: np.ndarray, lanes: np.ndarray, speed_limit: float) -> None:
 def rule_actions(
     state: np.ndarray,
     n_avs: int,
-    mask: np.ndarray,
+    mask: np.ndarray | None,
     lanes: np.ndarray,
+    ladder: np.ndarray,
     speed_limit: float,
     politeness: float,
     max_braking_imposed: float,
@@ -300,12 +302,16 @@ def rule_actions(
     AV i is read as an HDV aiming at ``speed_limit`` [m/s] with the given MOBIL parameters
     (politeness, safe braking [m/s²], acceleration gain threshold [m/s²]); the other vehicles stay
     as they are. If it is not changing lanes and drives at 1 m/s or more, the first side lane
-    (left, then right) that is available (``mask``, (n_avs, 5) bool:
-    :func:`~sb3_marl.sim.meta_actions.available_actions`) and that MOBIL accepts gives
+    (left, then right) that is available (``mask``, (n_avs, 5) bool, the AVs' action masks;
+    None: :func:`available_actions` on the ``ladder`` [m/s]) and that MOBIL accepts gives
     LANE_LEFT / LANE_RIGHT; otherwise its IDM acceleration behind its leader gives FASTER above
     ``acceleration_threshold`` [m/s²], SLOWER below its negative (each only where available),
     else IDLE. Meta-action indices as highway-env's (LANE_LEFT 0, IDLE 1, LANE_RIGHT 2, FASTER 3,
     SLOWER 4)."""
+    if mask is None:
+        available = available_actions(state, n_avs, lanes, ladder)
+    else:
+        available = mask
     order = lane_order(state, lanes)
     actions = np.ones(n_avs, dtype=np.int64)
     driver = state.copy()
@@ -321,14 +327,14 @@ def rule_actions(
         changing = False
         if lane == int(driver[i, TARGET_LANE]) and abs(driver[i, SPEED]) >= 1:
             for action, side in ((0, int(lanes[lane, LEFT])), (2, int(lanes[lane, RIGHT]))):
-                if side >= 0 and mask[i, action] and mobil(driver, lanes, order, i, side, speed_limit):
+                if side >= 0 and available[i, action] and mobil(driver, lanes, order, i, side, speed_limit):
                     actions[i], changing = action, True
                     break
         if not changing:
             acceleration = idm(driver, lanes, i, leader(driver, lanes, order, i), speed_limit)
-            if acceleration > acceleration_threshold and mask[i, 3]:
+            if acceleration > acceleration_threshold and available[i, 3]:
                 actions[i] = 3
-            elif acceleration < -acceleration_threshold and mask[i, 4]:
+            elif acceleration < -acceleration_threshold and available[i, 4]:
                 actions[i] = 4
         driver[i, TARGET_SPEED], driver[i, POLITENESS], driver[i, MAX_BRAKING_IMPOSED], driver[i, MIN_ACC_GAIN] = saved
     return actions
