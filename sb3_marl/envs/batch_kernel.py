@@ -139,7 +139,7 @@ class CopyState(NamedTuple):
 
 class Starts(NamedTuple):
     """Where the next step starts, arrays over the AV slots: the new episode's first observation
-    where the copy ``restarted``, else the step's own (a step without ``respawn``: empty)."""
+    where the copy ``restarted``, else the step's own."""
 
     obs: np.ndarray  # (slots, vehicles, features) float32
     action_mask: np.ndarray  # (slots, 5) bool
@@ -195,7 +195,7 @@ def _step_copies(
             c.steps[k] = 0
             restarted[k] = True
             _observe_into(first, state, a, b, p, p.merge, False)
-        elif respawn:
+        else:  # on every path, also without respawn (a path without it keeps numba's reference counts: kernel.jit)
             first.obs[a:b], first.action_mask[a:b] = r.obs[a:b], r.action_mask[a:b]
             first.rule_action[a:b], first.lane[a:b] = r.rule_action[a:b], r.lane[a:b]
         r.offsets[k + 1] = r.offsets[k] + state.shape[0]
