@@ -27,7 +27,7 @@ from sb3_marl.envs import (  # importing sb3_marl.envs registers the scenario id
 )
 from sb3_marl.envs.batch import RoadBatch, batchable
 from sb3_marl.envs.reward import REWARD_MODES
-from wrappers.copies import CopyGroups, CopyRunner, per_agent_spaces
+from wrappers.copies import CopyGroups, CopyRunner, per_agent_spaces, run_calls
 from wrappers.step_arrays import Endings, StepArrays
 
 VEC_BACKENDS = ("dummy", "subproc")
@@ -190,7 +190,7 @@ class ParameterSharingVecEnv(VecEnv):
         them now); returns what :meth:`_collect` needs."""
         self._check_open()
         if self.copies is None:
-            return {k: getattr(self.runners[k], method)(*args) for k, (method, args) in calls.items()}
+            return dict(zip(calls, run_calls(self.runners, [(k, *call) for k, call in calls.items()])))
         return self.copies.submit(calls)
 
     def _check_open(self) -> None:

@@ -72,7 +72,6 @@ class RoadBatch:
         ``global_reward``) and every slot's reward in the reward mode."""
         actions = np.asarray(actions, dtype=np.int64)
         roads = self.roads
-        steps_before = roads.copies.steps.copy()
         roads.read_lent()
         result, starts = step_copies(
             roads.states, roads.offsets, roads.slot_starts, actions, roads.copies, self.parameters, respawn=True
@@ -80,7 +79,8 @@ class RoadBatch:
         roads.write_lent()
         roads.set_all(result.states[: result.offsets[-1]], result.offsets)
         if self.parameters.merge is not None:  # as LaneChangeEnv._merge_info
-            steps = np.repeat(steps_before + 1, roads.n_avs)
+            # each road's policy steps so far (a new episode's 0: its record is begun again below)
+            steps = np.repeat(roads.copies.steps, roads.n_avs)
             roads.record_merges(slice(None), result.lane, steps, self.parameters.policy_frequency)
             for k in np.flatnonzero(starts.restarted).tolist():
                 roads.new_situation(roads.slots(k), starts.lane[roads.slots(k)])

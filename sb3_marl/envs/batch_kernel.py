@@ -262,7 +262,7 @@ def step_copies(
     ``respawn``, a copy whose episode ended begins a new one in the same call, as its env's reset
     would (its HDV count and spawn drawn from its generator, the supervisor's dropout from its
     own): the step's ``states`` then hold the new episode, its observations the ended one's last,
-    and the :class:`Starts` the new episode's first."""
+    and the :class:`Starts` (where the next step starts) the new episode's first."""
     step, starts = _step_copies(states, offsets, slot_starts, actions, copies, p, respawn)
     return BatchStep(*step), Starts(*starts)
 
